@@ -1,0 +1,518 @@
+//! The wire contract: every frame that travels between stages.
+//!
+//! Every frame is `#[repr(C)]`, fixed size, free of pointers and padding (checked at compile time by
+//! `bytemuck::Pod`), and starts with the same [`FrameHeader`]. Frames are shared between processes
+//! without copying through iceoryx2; each type carries a versioned type name
+//! (`imuflow.ImuFrame.v1`, ...) so a process built with a different layout fails when it connects
+//! instead of reading garbage. Change a layout only together with its version.
+//!
+//! Conventions (ARCHITECTURE.md): model frame M as in SMPL (x = left, y = up, z = forward, gravity
+//! (0, -9.81, 0)); SI units; quaternions are `[w, x, y, z]`; IMU order
+//! [left forearm, right forearm, left lower leg, right lower leg, head, pelvis]; 24 joints in SMPL
+//! order. Each field's doc says its frame of reference and unit.
+
+use bytemuck::{Pod, Zeroable};
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Number of IMUs in every IMU frame.
+pub const NUM_IMUS: usize = 6;
+/// Number of joints of the body model (SMPL topology).
+pub const NUM_JOINTS: usize = 24;
+/// Generalized velocities of the floating-base body: root translation + 3 rotational DoF per joint.
+pub const NUM_DOFS: usize = 3 + 3 * NUM_JOINTS;
+/// Most contact points a [`ContactFrame`] carries (PIP uses 4 per contact joint: 8 joints' worth).
+pub const MAX_CONTACT_POINTS: usize = 32;
+/// Joints GlobalPose treats as possibly stationary: pelvis, left foot, right foot, left hand, right hand.
+pub const NUM_STATIONARY_JOINTS: usize = 5;
+
+/// Header flags (bit set in [`FrameHeader::flags`]).
+pub mod flags {
+    /// The last frame of the stream; its payload is meaningless. Every stage forwards it and exits.
+    pub const END_OF_STREAM: u32 = 1 << 0;
+    /// Carry on, but don't trust the payload (a sensor dropped out, a solver failed, ...).
+    pub const INVALID: u32 = 1 << 1;
+    /// The calibration stage is still calibrating; the payload is not yet calibrated.
+    pub const CALIBRATING: u32 = 1 << 2;
+    /// The value a feedback input delivers before its producer has published anything.
+    pub const FEEDBACK_INITIAL: u32 = 1 << 3;
+    /// Produced by a stage that was restarted during the run.
+    pub const RESTARTED: u32 = 1 << 4;
+
+    /// Every flag with its name, for logs and recorders.
+    pub const NAMES: [(u32, &str); 5] = [
+        (END_OF_STREAM, "END_OF_STREAM"),
+        (INVALID, "INVALID"),
+        (CALIBRATING, "CALIBRATING"),
+        (FEEDBACK_INITIAL, "FEEDBACK_INITIAL"),
+        (RESTARTED, "RESTARTED"),
+    ];
+}
+
+/// The header every frame starts with.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Pod, Zeroable, ZeroCopySend)]
+#[type_name("imuflow.FrameHeader.v1")]
+pub struct FrameHeader {
+    /// Frame index assigned by the source, starting at 0. Every stage copies it from its inputs, so
+    /// the outputs that belong to one sensor sample share one `seq` across the whole graph.
+    pub seq: u64,
+    /// When the source captured the sample, in nanoseconds. Live sources use the Unix epoch; offline
+    /// sources use the time since the start of the recording. Travels unchanged to the last sink.
+    pub capture_ns: u64,
+    /// When this frame was published, in nanoseconds since the Unix epoch (CLOCK_REALTIME).
+    pub publish_ns: u64,
+    /// Bit set of [`flags`].
+    pub flags: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+}
+
+impl FrameHeader {
+    /// Whether every bit of `flag` is set.
+    pub fn has(&self, flag: u32) -> bool {
+        self.flags & flag == flag
+    }
+
+    /// Whether this is the END_OF_STREAM marker.
+    pub fn is_end(&self) -> bool {
+        self.has(flags::END_OF_STREAM)
+    }
+
+    /// Names of the set flags, e.g. `["INVALID", "CALIBRATING"]`.
+    pub fn flag_names(&self) -> Vec<&'static str> {
+        flags::NAMES
+            .iter()
+            .filter(|(bit, _)| self.flags & bit != 0)
+            .map(|(_, name)| *name)
+            .collect()
+    }
+}
+
+/// The frame types of the wire contract. Graph validation matches edges by this.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
+pub enum FrameType {
+    Imu,
+    BodyImu,
+    Kinematics,
+    Contact,
+    Motion,
+    Validation,
+}
+
+impl FrameType {
+    /// Every frame type, in declaration order.
+    pub const ALL: [FrameType; 6] = [
+        FrameType::Imu,
+        FrameType::BodyImu,
+        FrameType::Kinematics,
+        FrameType::Contact,
+        FrameType::Motion,
+        FrameType::Validation,
+    ];
+
+    /// The struct name, as written in graph files (`outputs = { pose = "MotionFrame" }`).
+    pub fn name(self) -> &'static str {
+        self.layout().struct_name
+    }
+
+    /// Parses a struct name as written in graph files.
+    pub fn from_name(name: &str) -> Option<FrameType> {
+        Self::ALL.into_iter().find(|t| t.name() == name)
+    }
+
+    /// The byte layout of this frame type.
+    pub fn layout(self) -> &'static FrameLayout {
+        match self {
+            FrameType::Imu => ImuFrame::layout(),
+            FrameType::BodyImu => BodyImuFrame::layout(),
+            FrameType::Kinematics => KinematicsFrame::layout(),
+            FrameType::Contact => ContactFrame::layout(),
+            FrameType::Motion => MotionFrame::layout(),
+            FrameType::Validation => ValidationFrame::layout(),
+        }
+    }
+}
+
+impl std::fmt::Display for FrameType {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Element type of a frame field.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ScalarType {
+    F32,
+    U32,
+    U64,
+}
+
+impl ScalarType {
+    /// Size in bytes.
+    pub fn size(self) -> usize {
+        match self {
+            ScalarType::F32 | ScalarType::U32 => 4,
+            ScalarType::U64 => 8,
+        }
+    }
+}
+
+/// One field of a frame: where it lies in the bytes and what it means. This is what the recorder
+/// writes as the mcap schema so a recording can be decoded without this code.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FieldLayout {
+    pub name: &'static str,
+    /// Byte offset from the start of the frame.
+    pub offset: usize,
+    #[serde(rename = "type")]
+    pub scalar: ScalarType,
+    /// Array shape, outermost first; empty for a scalar. Row-major (C order).
+    pub shape: Vec<usize>,
+    /// Unit, frame of reference and meaning.
+    pub doc: &'static str,
+}
+
+impl FieldLayout {
+    /// Number of scalars in the field.
+    pub fn len(&self) -> usize {
+        self.shape.iter().product()
+    }
+
+    /// Whether the field holds no scalars (never true for the frames here).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// The byte layout of a frame type: little-endian, `#[repr(C)]`, no padding.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FrameLayout {
+    /// Rust struct name, e.g. `ImuFrame`.
+    pub struct_name: &'static str,
+    /// Versioned type name used on the wire, e.g. `imuflow.ImuFrame.v1`.
+    pub type_name: &'static str,
+    /// Total size in bytes.
+    pub size: usize,
+    /// Fields in memory order, the header's first.
+    pub fields: Vec<FieldLayout>,
+}
+
+/// Element types that frame fields are built from.
+trait FieldElement {
+    fn describe(shape: &mut Vec<usize>) -> ScalarType;
+}
+impl FieldElement for f32 {
+    fn describe(_: &mut Vec<usize>) -> ScalarType {
+        ScalarType::F32
+    }
+}
+impl FieldElement for u32 {
+    fn describe(_: &mut Vec<usize>) -> ScalarType {
+        ScalarType::U32
+    }
+}
+impl FieldElement for u64 {
+    fn describe(_: &mut Vec<usize>) -> ScalarType {
+        ScalarType::U64
+    }
+}
+impl<T: FieldElement, const N: usize> FieldElement for [T; N] {
+    fn describe(shape: &mut Vec<usize>) -> ScalarType {
+        shape.push(N);
+        T::describe(shape)
+    }
+}
+
+fn field<T: FieldElement>(name: &'static str, offset: usize, doc: &'static str) -> FieldLayout {
+    let mut shape = Vec::new();
+    let scalar = T::describe(&mut shape);
+    FieldLayout {
+        name,
+        offset,
+        scalar,
+        shape,
+        doc,
+    }
+}
+
+/// A frame of the wire contract.
+///
+/// Implemented only by the frames in this module (the trait is sealed through `frame!`): each is
+/// `Pod` (any bit pattern is valid, no padding) and `ZeroCopySend`, so it can live in shared memory.
+pub trait Frame: Pod + ZeroCopySend + std::fmt::Debug + Send + Sync + 'static {
+    /// Which frame type this is.
+    const TYPE: FrameType;
+    /// The common header.
+    fn header(&self) -> &FrameHeader;
+    /// The common header, mutable.
+    fn header_mut(&mut self) -> &mut FrameHeader;
+    /// Byte layout, for recorders and schema generation.
+    fn layout() -> &'static FrameLayout;
+}
+
+/// Defines a frame struct, its `Frame` impl and its byte layout from one field list, so the
+/// struct and its documented layout cannot drift apart.
+macro_rules! frame {
+    (
+        $(#[$meta:meta])*
+        $name:ident, $type_name:literal, $frame_type:expr, {
+            $( #[doc = $doc:literal] $field:ident : $ty:ty, )*
+        }
+    ) => {
+        $(#[$meta])*
+        #[repr(C)]
+        #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend)]
+        #[type_name($type_name)]
+        pub struct $name {
+            /// Common header.
+            pub header: FrameHeader,
+            $( #[doc = $doc] pub $field: $ty, )*
+        }
+
+        impl Frame for $name {
+            const TYPE: FrameType = $frame_type;
+            fn header(&self) -> &FrameHeader {
+                &self.header
+            }
+            fn header_mut(&mut self) -> &mut FrameHeader {
+                &mut self.header
+            }
+            fn layout() -> &'static FrameLayout {
+                static LAYOUT: std::sync::OnceLock<FrameLayout> = std::sync::OnceLock::new();
+                LAYOUT.get_or_init(|| {
+                    let mut fields = vec![
+                        field::<u64>("header.seq", std::mem::offset_of!($name, header.seq),
+                            "frame index assigned by the source"),
+                        field::<u64>("header.capture_ns", std::mem::offset_of!($name, header.capture_ns),
+                            "source capture time, ns (Unix epoch live, from recording start offline)"),
+                        field::<u64>("header.publish_ns", std::mem::offset_of!($name, header.publish_ns),
+                            "publish time, ns since the Unix epoch"),
+                        field::<u32>("header.flags", std::mem::offset_of!($name, header.flags),
+                            "bit set: 1 END_OF_STREAM, 2 INVALID, 4 CALIBRATING, 8 FEEDBACK_INITIAL, 16 RESTARTED"),
+                        field::<u32>("header.reserved", std::mem::offset_of!($name, header.reserved),
+                            "reserved, zero"),
+                    ];
+                    $( fields.push(field::<$ty>(stringify!($field), std::mem::offset_of!($name, $field), $doc.trim())); )*
+                    FrameLayout {
+                        struct_name: stringify!($name),
+                        type_name: $type_name,
+                        size: std::mem::size_of::<$name>(),
+                        fields,
+                    }
+                })
+            }
+        }
+
+        impl Default for $name {
+            fn default() -> Self {
+                Zeroable::zeroed()
+            }
+        }
+    };
+}
+
+frame! {
+    /// What six real IMUs deliver: orientation, specific force and angular rate, per sensor.
+    ImuFrame, "imuflow.ImuFrame.v1", FrameType::Imu, {
+        /// R_IS per sensor as a unit quaternion [w, x, y, z]: sensor frame S to the sensor's own inertial frame I.
+        orientation_wxyz: [[f32; 4]; NUM_IMUS],
+        /// Specific force (what an accelerometer measures, includes -gravity) in the sensor frame S, m/s².
+        specific_force_mps2: [[f32; 3]; NUM_IMUS],
+        /// Angular rate in the sensor frame S, rad/s.
+        angular_rate_radps: [[f32; 3]; NUM_IMUS],
+        /// Bit i set when sensor i delivered a finite sample this frame.
+        valid_mask: u32,
+        /// Reserved, zero.
+        reserved: u32,
+    }
+}
+
+frame! {
+    /// Calibrated IMU data on the body: bone orientation, free acceleration and angular velocity in M.
+    BodyImuFrame, "imuflow.BodyImuFrame.v1", FrameType::BodyImu, {
+        /// R_MB per sensor's bone as a unit quaternion [w, x, y, z]: bone frame B to model frame M.
+        bone_orientation_wxyz: [[f32; 4]; NUM_IMUS],
+        /// Free acceleration (gravity removed) of the sensor in model frame M, m/s².
+        free_acceleration_mps2: [[f32; 3]; NUM_IMUS],
+        /// Angular velocity of the bone in model frame M, rad/s.
+        angular_velocity_radps: [[f32; 3]; NUM_IMUS],
+        /// Heading (yaw about M's y axis) correction the calibration currently applies per sensor, rad.
+        heading_correction_rad: [f32; NUM_IMUS],
+        /// Bit i set when sensor i is valid this frame.
+        valid_mask: u32,
+        /// Reserved, zero.
+        reserved: u32,
+    }
+}
+
+frame! {
+    /// What the kinematics networks estimate for one frame.
+    KinematicsFrame, "imuflow.KinematicsFrame.v1", FrameType::Kinematics, {
+        /// Reference local pose: per joint, rotation relative to its parent as [w, x, y, z] (root: relative to M).
+        local_pose_wxyz: [[f32; 4]; NUM_JOINTS],
+        /// Joint positions relative to the root joint, expressed in model frame M axes, m.
+        joint_position_m: [[f32; 3]; NUM_JOINTS],
+        /// Joint velocities in model frame M, m/s.
+        joint_velocity_mps: [[f32; 3]; NUM_JOINTS],
+        /// Probability that the [left, right] foot is in contact with the ground, 0..1.
+        foot_contact_prob: [f32; 2],
+        /// Probability that [pelvis, left foot, right foot, left hand, right hand] is stationary, 0..1.
+        stationary_prob: [f32; NUM_STATIONARY_JOINTS],
+        /// Root (pelvis) velocity in model frame M, m/s.
+        root_velocity_mps: [f32; 3],
+        /// Gravity direction expressed in the root frame, m/s² (magnitude 9.81 when known).
+        gravity_in_root_mps2: [f32; 3],
+        /// Reserved, zero.
+        reserved: u32,
+    }
+}
+
+frame! {
+    /// Contacts a contact stage estimated: which joints touch what, where, and with which forces.
+    ContactFrame, "imuflow.ContactFrame.v1", FrameType::Contact, {
+        /// Bit j set when joint j is in contact.
+        contact_mask: u32,
+        /// Number of valid entries in the contact point arrays.
+        num_points: u32,
+        /// Contact points in model frame M, m (first `num_points` valid).
+        point_position_m: [[f32; 3]; MAX_CONTACT_POINTS],
+        /// Joint index each contact point belongs to.
+        point_joint: [u32; MAX_CONTACT_POINTS],
+        /// Contact force at each point in model frame M, N.
+        point_force_n: [[f32; 3]; MAX_CONTACT_POINTS],
+        /// Total contact force per joint in model frame M, N.
+        joint_force_n: [[f32; 3]; NUM_JOINTS],
+        /// Estimated proxy-surface height (M's y) under each contact joint, m; 0 where no contact.
+        surface_height_m: [f32; NUM_JOINTS],
+        /// Residual root wrench the contacts did not explain: [force x, y, z (N), torque x, y, z (N·m)] in M.
+        residual_root_wrench: [f32; 6],
+    }
+}
+
+frame! {
+    /// The final motion estimate.
+    MotionFrame, "imuflow.MotionFrame.v1", FrameType::Motion, {
+        /// Local pose: per joint, rotation relative to its parent as [w, x, y, z] (root: relative to M).
+        local_pose_wxyz: [[f32; 4]; NUM_JOINTS],
+        /// Root joint position in model frame M, m.
+        root_position_m: [f32; 3],
+        /// Generalized coordinates: root position (m, M) then per joint the local rotation vector (axis·angle, rad).
+        q: [f32; NUM_DOFS],
+        /// Generalized velocities: root linear velocity (m/s, M) then per joint angular velocity (rad/s, local).
+        qdot: [f32; NUM_DOFS],
+        /// Generalized forces: root force (N) then per joint torque (N·m), same coordinates as `qdot`.
+        tau: [f32; NUM_DOFS],
+        /// Ground-reaction force acting on each joint in model frame M, N.
+        ground_reaction_force_n: [[f32; 3]; NUM_JOINTS],
+        /// Bit j set when joint j is in contact.
+        contact_mask: u32,
+        /// Proxy-surface height (M's y) under each contact joint, m; 0 where no contact.
+        surface_height_m: [f32; NUM_JOINTS],
+        /// Residual force on the root the contacts could not explain, model frame M, N.
+        residual_root_force_n: [f32; 3],
+    }
+}
+
+frame! {
+    /// What the independent physics simulation measured while tracking the estimate.
+    ValidationFrame, "imuflow.ValidationFrame.v1", FrameType::Validation, {
+        /// Mean joint position difference between simulation and estimate, m.
+        tracking_error_m: f32,
+        /// Horizontal speed of feet the simulation has in contact, m/s.
+        foot_skate_mps: f32,
+        /// Deepest ground penetration in the simulation, m (0 when none).
+        penetration_m: f32,
+        /// 1 when the simulated character fell over.
+        balance_lost: u32,
+        /// Simulated root position in model frame M, m.
+        sim_root_position_m: [f32; 3],
+        /// Simulated contact force per joint in model frame M, N.
+        sim_contact_force_n: [[f32; 3]; NUM_JOINTS],
+        /// Reserved, zero.
+        reserved: u32,
+    }
+}
+
+/// Interprets `bytes` as a frame of type `T`, if the length matches. Copies (the bytes need not be
+/// aligned), so use it for recordings, not on the hot path.
+pub fn frame_from_bytes<T: Frame>(bytes: &[u8]) -> Option<T> {
+    (bytes.len() == std::mem::size_of::<T>()).then(|| bytemuck::pod_read_unaligned(bytes))
+}
+
+// Sizes are part of the contract: a change here is a wire change and needs a version bump.
+const _: () = assert!(std::mem::size_of::<FrameHeader>() == 32);
+const _: () = assert!(std::mem::size_of::<ImuFrame>() == 32 + 96 + 72 + 72 + 8);
+const _: () = assert!(std::mem::size_of::<BodyImuFrame>() == 32 + 96 + 72 + 72 + 24 + 8);
+const _: () = assert!(std::mem::size_of::<KinematicsFrame>() == 32 + 384 + 288 + 288 + 8 + 20 + 24 + 4);
+const _: () = assert!(std::mem::align_of::<MotionFrame>() == 8);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layouts_cover_every_byte_exactly_once() {
+        for ty in FrameType::ALL {
+            let layout = ty.layout();
+            let mut covered = vec![0u8; layout.size];
+            for f in &layout.fields {
+                for b in &mut covered[f.offset..f.offset + f.len() * f.scalar.size()] {
+                    *b += 1;
+                }
+            }
+            assert!(
+                covered.iter().all(|&c| c == 1),
+                "{}: layout fields must tile the struct without gaps or overlaps",
+                layout.struct_name
+            );
+        }
+    }
+
+    #[test]
+    fn layout_offsets_match_the_struct() {
+        let mut f = ImuFrame::zeroed();
+        f.angular_rate_radps[2][1] = 1.5;
+        let bytes = bytemuck::bytes_of(&f);
+        let layout = ImuFrame::layout();
+        let field = layout
+            .fields
+            .iter()
+            .find(|f| f.name == "angular_rate_radps")
+            .expect("field exists");
+        assert_eq!(field.shape, vec![6, 3]);
+        let at = field.offset + (2 * 3 + 1) * 4;
+        assert_eq!(f32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes")), 1.5);
+    }
+
+    #[test]
+    fn names_round_trip() {
+        for ty in FrameType::ALL {
+            assert_eq!(FrameType::from_name(ty.name()), Some(ty));
+            assert!(ty.layout().type_name.starts_with("imuflow."));
+        }
+        assert_eq!(FrameType::from_name("NoSuchFrame"), None);
+    }
+
+    #[test]
+    fn bytes_round_trip_and_length_check() {
+        let mut m = MotionFrame::zeroed();
+        m.header.seq = 42;
+        m.tau[74] = -3.0;
+        let back: MotionFrame = frame_from_bytes(bytemuck::bytes_of(&m)).expect("same length");
+        assert_eq!(back, m);
+        assert!(frame_from_bytes::<MotionFrame>(&[0u8; 10]).is_none());
+    }
+
+    #[test]
+    fn flag_names() {
+        let h = FrameHeader {
+            flags: flags::INVALID | flags::END_OF_STREAM,
+            ..Default::default()
+        };
+        assert_eq!(h.flag_names(), vec!["END_OF_STREAM", "INVALID"]);
+        assert!(h.is_end());
+    }
+}

@@ -1,0 +1,595 @@
+//! The launcher/supervisor behind `imuflow run`: one OS process per stage, a ready handshake,
+//! END_OF_STREAM-driven completion, crash handling and clean stops.
+//!
+//! Stages run in their own process groups, so a terminal's Ctrl-C reaches only the launcher, which
+//! then stops the sources; their END_OF_STREAM drains the graph and every recorder finalizes its
+//! file. If a stage crashes, the others get SIGTERM (they finalize and exit), and the launcher
+//! reports the failed stage with the last lines of its stderr.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use crate::graph::{Graph, Runner};
+use crate::spec::Role;
+use crate::stage::{ControlMessage, ENV_RUN_DIR, ENV_RUN_ID, ENV_STAGE_ID, GRAPH_JSON};
+use crate::stats::StageSummary;
+use crate::transport;
+
+/// Lines of a stage's stderr kept for the failure report.
+const STDERR_TAIL: usize = 12;
+/// After a stop request, how long stages get to drain before SIGTERM.
+const DRAIN_GRACE: Duration = Duration::from_secs(5);
+/// After SIGTERM, how long stages get to finalize before SIGKILL.
+const TERM_GRACE: Duration = Duration::from_secs(3);
+/// How often the supervisor polls its children.
+const POLL: Duration = Duration::from_millis(5);
+
+/// How `run` should behave.
+#[derive(Debug, Clone)]
+pub struct LaunchOptions {
+    /// The `imuflow` executable that runs built-in stages (`imuflow stage <kind>`).
+    pub imuflow_exe: PathBuf,
+    /// Show a progress bar (when stderr is a terminal).
+    pub progress: bool,
+    /// Forward stages' log lines to stderr.
+    pub forward_logs: bool,
+}
+
+/// What a finished run reports.
+#[derive(Debug, Clone)]
+pub struct RunReport {
+    pub run_id: String,
+    /// Per stage: its kind label and summary.
+    pub stages: BTreeMap<String, (String, StageSummary)>,
+    pub wall: Duration,
+    /// The user stopped the run (Ctrl-C); outputs were finalized.
+    pub interrupted: bool,
+}
+
+/// Why a run failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error("cannot prepare the run directory {path}: {source}")]
+    RunDir {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("cannot start stage '{stage}' ({program}): {source}")]
+    Spawn {
+        stage: String,
+        program: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A stage exited with an error, was killed, or ended without finishing its stream.
+    #[error("stage '{stage}' failed: {status}{}", tail_text(stderr_tail))]
+    StageFailed {
+        stage: String,
+        status: String,
+        stderr_tail: Vec<String>,
+    },
+    #[error("stage '{stage}' did not report ready within {timeout_s} s (ready_timeout_s in the graph){}", tail_text(stderr_tail))]
+    NotReady {
+        stage: String,
+        timeout_s: f64,
+        stderr_tail: Vec<String>,
+    },
+    #[error(transparent)]
+    Transport(#[from] transport::TransportError),
+}
+
+fn tail_text(lines: &[String]) -> String {
+    if lines.is_empty() {
+        "\n  (no stderr output)".to_owned()
+    } else {
+        format!(
+            "\n  last stderr lines:\n{}",
+            lines.iter().map(|l| format!("    | {l}")).collect::<Vec<_>>().join("\n")
+        )
+    }
+}
+
+enum Event {
+    Control(usize, ControlMessage),
+    Log(usize, String),
+}
+
+struct Running {
+    id: String,
+    kind: String,
+    role: Role,
+    child: Child,
+    stdin: Option<ChildStdin>,
+    stderr_tail: Arc<Mutex<VecDeque<String>>>,
+    readers: Vec<std::thread::JoinHandle<()>>,
+    ready: bool,
+    summary: Option<StageSummary>,
+    exit: Option<ExitStatus>,
+}
+
+impl Running {
+    fn send(&mut self, line: &str) {
+        if let Some(stdin) = &mut self.stdin {
+            // A stage that already exited has closed its stdin; nothing to tell it then.
+            let _ = writeln!(stdin, "{line}").and_then(|_| stdin.flush());
+        }
+    }
+
+    fn signal(&self, signal: i32) {
+        if self.exit.is_none() {
+            // SAFETY: kill(2) with a pid we spawned and have not reaped; no memory is touched.
+            #[allow(unsafe_code)]
+            unsafe {
+                libc::kill(self.child.id() as i32, signal);
+            }
+        }
+    }
+
+    fn tail(&mut self) -> Vec<String> {
+        // Let the stderr reader catch the last lines of an exited process.
+        for handle in self.readers.drain(..) {
+            let _ = handle.join();
+        }
+        self.stderr_tail
+            .lock()
+            .map(|t| t.iter().cloned().collect())
+            .unwrap_or_default()
+    }
+}
+
+/// A short id, unique enough among concurrent runs on one machine.
+fn new_run_id() -> String {
+    let nanos = transport::now_ns();
+    format!("{:x}{:05x}", std::process::id(), nanos & 0xfffff)
+}
+
+/// Runs `graph` to completion.
+pub fn run(graph: &Graph, options: &LaunchOptions) -> Result<RunReport, RunError> {
+    let run_id = new_run_id();
+    let base = transport::base_shm_prefix();
+    let removed = remove_stale_runs(&base);
+    if removed > 0 {
+        tracing::info!("removed {removed} shared-memory file(s) left by earlier runs that crashed");
+    }
+    let shm_prefix = transport::run_shm_prefix(&base, std::process::id(), &run_id);
+    let run_dir = std::env::temp_dir().join("imuflow-runs").join(&run_id);
+    let result = run_in(graph, options, &run_id, &run_dir, &shm_prefix);
+    let _ = std::fs::remove_dir_all(&run_dir);
+    // Every stage has exited: whatever they left (a crashed stage cannot clean up) goes now.
+    remove_run_files(&shm_prefix);
+    result
+}
+
+/// Removes every file of the run domain `prefix`, first through iceoryx2 (dead-node cleanup),
+/// then whatever remains. Only call it when no process of that run is alive.
+fn remove_run_files(prefix: &str) -> usize {
+    if let Err(e) = transport::cleanup_dead_nodes(prefix) {
+        tracing::debug!("iceoryx2 cleanup of {prefix}: {e}");
+    }
+    let files = shared_memory_files(prefix);
+    let mut removed = 0;
+    for file in &files {
+        if std::fs::remove_file(file).is_ok() {
+            removed += 1;
+        }
+        // iceoryx2 keeps per-node files in a directory named after the node id.
+        if let Some(dir) = file.parent()
+            && dir.starts_with("/tmp/iceoryx2/nodes/")
+        {
+            let _ = std::fs::remove_dir(dir);
+        }
+    }
+    removed
+}
+
+/// Removes the files of earlier runs whose launcher is no longer alive (it crashed or was
+/// killed). Returns the number of files removed.
+pub fn remove_stale_runs(base: &str) -> usize {
+    let mut stale = std::collections::BTreeSet::new();
+    for file in shared_memory_files(base) {
+        let name = file.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let Some(rest) = name.strip_prefix(base) else { continue };
+        let mut parts = rest.splitn(3, '_');
+        let (Some(pid), Some(run), Some(_)) = (parts.next(), parts.next(), parts.next()) else {
+            continue;
+        };
+        let Ok(pid) = pid.parse::<i32>() else { continue };
+        if !process_alive(pid) {
+            stale.insert(format!("{base}{pid}_{run}_"));
+        }
+    }
+    stale.iter().map(|prefix| remove_run_files(prefix)).sum()
+}
+
+fn process_alive(pid: i32) -> bool {
+    // SAFETY: kill(2) with signal 0 only checks that the process exists.
+    #[allow(unsafe_code)]
+    let rc = unsafe { libc::kill(pid, 0) };
+    rc == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
+}
+
+fn run_in(
+    graph: &Graph,
+    options: &LaunchOptions,
+    run_id: &str,
+    run_dir: &Path,
+    shm_prefix: &str,
+) -> Result<RunReport, RunError> {
+    let dir_err = |source| RunError::RunDir {
+        path: run_dir.to_owned(),
+        source,
+    };
+    std::fs::create_dir_all(run_dir).map_err(dir_err)?;
+    let json = serde_json::to_string(graph).map_err(|e| dir_err(std::io::Error::other(e)))?;
+    std::fs::write(run_dir.join(GRAPH_JSON), json).map_err(dir_err)?;
+
+    let interrupted = Arc::new(AtomicBool::new(false));
+    let mut signal_ids = Vec::new();
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        if let Ok(id) = signal_hook::flag::register(sig, interrupted.clone()) {
+            signal_ids.push(id);
+        }
+    }
+    let (tx, rx) = mpsc::channel();
+    let mut stages = Vec::new();
+    let spawned = spawn_all(graph, options, run_id, run_dir, shm_prefix, &tx, &mut stages);
+    let result = spawned.and_then(|()| supervise(graph, options, &mut stages, &rx, &interrupted));
+    if result.is_err() {
+        stop_all(&mut stages);
+    }
+    for id in signal_ids {
+        signal_hook::low_level::unregister(id);
+    }
+    result.map(|(wall, was_interrupted)| RunReport {
+        run_id: run_id.to_owned(),
+        stages: stages
+            .iter()
+            .map(|s| {
+                let summary = s.summary.clone().unwrap_or_else(empty_summary);
+                (s.id.clone(), (s.kind.clone(), summary))
+            })
+            .collect(),
+        wall,
+        interrupted: was_interrupted,
+    })
+}
+
+fn empty_summary() -> StageSummary {
+    StageSummary {
+        frames_in: 0,
+        frames_out: 0,
+        dropped: 0,
+        unmatched: 0,
+        mean_us: 0.0,
+        p99_us: 0.0,
+        max_us: 0.0,
+        wall_s: 0.0,
+        latency_p50_us: 0.0,
+        latency_p99_us: 0.0,
+    }
+}
+
+fn spawn_all(
+    graph: &Graph,
+    options: &LaunchOptions,
+    run_id: &str,
+    run_dir: &Path,
+    shm_prefix: &str,
+    tx: &Sender<Event>,
+    stages: &mut Vec<Running>,
+) -> Result<(), RunError> {
+    for node in graph.topological_order() {
+        let mut command = match &node.runner {
+            Runner::Builtin { kind } => {
+                let mut c = Command::new(&options.imuflow_exe);
+                c.arg("stage").arg(kind);
+                c
+            }
+            Runner::Exec { path, args } => {
+                let mut c = Command::new(path);
+                c.args(args);
+                c
+            }
+        };
+        command
+            .env(ENV_RUN_DIR, run_dir)
+            .env(ENV_RUN_ID, run_id)
+            .env(ENV_STAGE_ID, &node.id)
+            .env(transport::ENV_RUN_SHM_PREFIX, shm_prefix)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        // Own process group: the terminal's Ctrl-C goes to the launcher alone, which stops the
+        // graph in order instead of every stage dying at once.
+        std::os::unix::process::CommandExt::process_group(&mut command, 0);
+        let program = format!("{:?}", command.get_program());
+        let mut child = command.spawn().map_err(|source| RunError::Spawn {
+            stage: node.id.clone(),
+            program,
+            source,
+        })?;
+        let index = stages.len();
+        let stderr_tail = Arc::new(Mutex::new(VecDeque::new()));
+        let mut readers = Vec::new();
+        if let Some(stdout) = child.stdout.take() {
+            let tx = tx.clone();
+            readers.push(std::thread::spawn(move || {
+                for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                    let event = match ControlMessage::parse(&line) {
+                        Some(msg) => Event::Control(index, msg),
+                        None => Event::Log(index, line),
+                    };
+                    if tx.send(event).is_err() {
+                        break;
+                    }
+                }
+            }));
+        }
+        if let Some(stderr) = child.stderr.take() {
+            let tx = tx.clone();
+            let tail = stderr_tail.clone();
+            readers.push(std::thread::spawn(move || {
+                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                    if let Ok(mut t) = tail.lock() {
+                        if t.len() == STDERR_TAIL {
+                            t.pop_front();
+                        }
+                        t.push_back(line.clone());
+                    }
+                    let _ = tx.send(Event::Log(index, line));
+                }
+            }));
+        }
+        stages.push(Running {
+            id: node.id.clone(),
+            kind: node.kind_label(),
+            role: node.role,
+            stdin: child.stdin.take(),
+            child,
+            stderr_tail,
+            readers,
+            ready: false,
+            summary: None,
+            exit: None,
+        });
+    }
+    Ok(())
+}
+
+fn supervise(
+    graph: &Graph,
+    options: &LaunchOptions,
+    stages: &mut [Running],
+    rx: &Receiver<Event>,
+    interrupted: &AtomicBool,
+) -> Result<(Duration, bool), RunError> {
+    let bar = if options.progress {
+        let bar = indicatif::ProgressBar::new(0);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{spinner} {elapsed_precise} [{bar:40}] {pos}/{len} frames ({per_sec}, eta {eta})",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+            .progress_chars("=> "),
+        );
+        bar
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let log = |stages: &[Running], index: usize, line: &str| {
+        if options.forward_logs {
+            let id = stages.get(index).map_or("?", |s| s.id.as_str());
+            bar.suspend(|| eprintln!("[{id}] {line}"));
+        }
+    };
+
+    // Phase 1: every stage reports ready.
+    let ready_deadline = Instant::now() + Duration::from_secs_f64(graph.ready_timeout_s);
+    while stages.iter().any(|s| !s.ready) {
+        handle_events(stages, rx, &bar, &log)?;
+        reap(stages)?;
+        if interrupted.load(Ordering::Relaxed) {
+            stop_all(stages);
+            return Ok((Duration::ZERO, true));
+        }
+        if Instant::now() > ready_deadline
+            && let Some(s) = stages.iter_mut().find(|s| !s.ready)
+        {
+            return Err(RunError::NotReady {
+                stage: s.id.clone(),
+                timeout_s: graph.ready_timeout_s,
+                stderr_tail: s.stderr_tail.lock().map(|t| t.iter().cloned().collect()).unwrap_or_default(),
+            });
+        }
+    }
+
+    // Phase 2: go, then wait for every stage to finish its stream.
+    let start = Instant::now();
+    for s in stages.iter_mut() {
+        s.send("go");
+    }
+    let mut stop_requested_at: Option<Instant> = None;
+    let mut terminated_at: Option<Instant> = None;
+    while stages.iter().any(|s| s.exit.is_none()) {
+        handle_events(stages, rx, &bar, &log)?;
+        reap(stages)?;
+        if interrupted.load(Ordering::Relaxed) && stop_requested_at.is_none() {
+            bar.suspend(|| eprintln!("stopping: ending the stream at the sources (Ctrl-C again to force)"));
+            for s in stages.iter_mut().filter(|s| s.role == Role::Source) {
+                s.send("stop");
+            }
+            stop_requested_at = Some(Instant::now());
+            interrupted.store(false, Ordering::Relaxed);
+        }
+        if let Some(t) = stop_requested_at
+            && terminated_at.is_none()
+            && (t.elapsed() > DRAIN_GRACE || interrupted.load(Ordering::Relaxed))
+        {
+            for s in stages.iter() {
+                s.signal(libc::SIGTERM);
+            }
+            terminated_at = Some(Instant::now());
+        }
+        if let Some(t) = terminated_at
+            && t.elapsed() > TERM_GRACE
+        {
+            for s in stages.iter() {
+                s.signal(libc::SIGKILL);
+            }
+        }
+    }
+    // Drain the remaining control lines (summaries printed just before exit).
+    for s in stages.iter_mut() {
+        for handle in s.readers.drain(..) {
+            let _ = handle.join();
+        }
+    }
+    handle_events(stages, rx, &bar, &log)?;
+    bar.finish_and_clear();
+    if stop_requested_at.is_none()
+        && let Some(s) = stages.iter_mut().find(|s| s.summary.is_none())
+    {
+        // A stage that exits 0 without finishing its stream would leave readers waiting forever.
+        return Err(RunError::StageFailed {
+            stage: s.id.clone(),
+            status: "exited without ending its stream (no END_OF_STREAM/summary)".into(),
+            stderr_tail: s.tail(),
+        });
+    }
+    Ok((start.elapsed(), stop_requested_at.is_some()))
+}
+
+fn handle_events(
+    stages: &mut [Running],
+    rx: &Receiver<Event>,
+    bar: &indicatif::ProgressBar,
+    log: &impl Fn(&[Running], usize, &str),
+) -> Result<(), RunError> {
+    let mut timeout = POLL;
+    loop {
+        match rx.recv_timeout(timeout) {
+            Ok(Event::Control(i, msg)) => match msg {
+                ControlMessage::Ready => {
+                    if let Some(s) = stages.get_mut(i) {
+                        s.ready = true;
+                    }
+                }
+                ControlMessage::Progress { done, total } => {
+                    if total > 0 {
+                        bar.set_length(total);
+                    }
+                    bar.set_position(done);
+                }
+                ControlMessage::Summary(summary) => {
+                    if let Some(s) = stages.get_mut(i) {
+                        s.summary = Some(summary);
+                    }
+                }
+            },
+            Ok(Event::Log(i, line)) => log(stages, i, &line),
+            Err(RecvTimeoutError::Timeout) | Err(RecvTimeoutError::Disconnected) => return Ok(()),
+        }
+        timeout = Duration::ZERO;
+    }
+}
+
+/// Records exited stages; a failure stops the run.
+fn reap(stages: &mut [Running]) -> Result<(), RunError> {
+    for i in 0..stages.len() {
+        if stages[i].exit.is_some() {
+            continue;
+        }
+        let status = match stages[i].child.try_wait() {
+            Ok(Some(status)) => status,
+            Ok(None) => continue,
+            Err(e) => {
+                return Err(RunError::StageFailed {
+                    stage: stages[i].id.clone(),
+                    status: format!("cannot wait for the process: {e}"),
+                    stderr_tail: Vec::new(),
+                });
+            }
+        };
+        stages[i].exit = Some(status);
+        stages[i].stdin = None;
+        if !status.success() {
+            let stage = stages[i].id.clone();
+            let stderr_tail = stages[i].tail();
+            let status = describe_status(status);
+            stop_all(stages);
+            return Err(RunError::StageFailed {
+                stage,
+                status,
+                stderr_tail,
+            });
+        }
+    }
+    Ok(())
+}
+
+fn describe_status(status: ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    match (status.code(), status.signal()) {
+        (Some(code), _) => format!("exited with code {code}"),
+        (None, Some(sig)) => format!("killed by signal {sig}"),
+        _ => "ended abnormally".into(),
+    }
+}
+
+/// SIGTERM to every running stage (they finalize their outputs), SIGKILL after a grace period.
+fn stop_all(stages: &mut [Running]) {
+    for s in stages.iter() {
+        s.signal(libc::SIGTERM);
+    }
+    let deadline = Instant::now() + TERM_GRACE;
+    loop {
+        let mut running = false;
+        for s in stages.iter_mut().filter(|s| s.exit.is_none()) {
+            match s.child.try_wait() {
+                Ok(Some(status)) => s.exit = Some(status),
+                _ => running = true,
+            }
+        }
+        if !running {
+            return;
+        }
+        if Instant::now() > deadline {
+            for s in stages.iter_mut().filter(|s| s.exit.is_none()) {
+                let _ = s.child.kill();
+                s.exit = s.child.wait().ok();
+            }
+            return;
+        }
+        std::thread::sleep(POLL);
+    }
+}
+
+/// imuflow's shared-memory and iceoryx2 files on this machine with `prefix`, for `imuflow clean`
+/// and tests that prove a run left nothing behind.
+pub fn shared_memory_files(prefix: &str) -> Vec<PathBuf> {
+    let mut found = Vec::new();
+    let roots = [PathBuf::from("/dev/shm"), PathBuf::from("/tmp/iceoryx2")];
+    let mut stack: Vec<PathBuf> = roots.to_vec();
+    while let Some(dir) = stack.pop() {
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for entry in entries.flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                stack.push(path);
+            } else if entry.file_name().to_string_lossy().starts_with(prefix) {
+                found.push(path);
+            }
+        }
+    }
+    found.sort();
+    found
+}

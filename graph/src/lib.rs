@@ -1,0 +1,23 @@
+//! imuflow-graph: the dataflow layer every imuflow stage stands on.
+//!
+//! - [`frames`]: the wire contract (frame types shared over iceoryx2 without copying).
+//! - [`schema`], [`validate`], [`graph`]: graph files, their validation and the checked graph.
+//! - [`transport`]: typed ports over iceoryx2 publish-subscribe plus wake-up events.
+//! - [`stage`]: the Stage API that built-in and external stage processes use.
+//! - [`launch`]: the launcher/supervisor behind `imuflow run`.
+
+pub mod frames;
+pub mod graph;
+pub mod launch;
+pub mod overrides;
+pub mod schema;
+pub mod spec;
+pub mod stage;
+pub mod stats;
+pub mod transport;
+pub mod validate;
+
+pub use frames::{Frame, FrameHeader, FrameType};
+pub use graph::{Graph, GraphLoadError, Mode};
+pub use spec::{Registry, StageSpec};
+pub use stage::{StageContext, StageError, Step};

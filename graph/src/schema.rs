@@ -1,0 +1,48 @@
+//! Graph files as written: the raw TOML shape, parsed with unknown keys rejected. `validate` turns
+//! this into a checked [`crate::Graph`].
+
+use std::collections::BTreeMap;
+
+/// A graph file (`configs/*.toml`).
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GraphFile {
+    /// Name of the graph, shown in logs and summaries.
+    pub name: String,
+    /// Nominal frame rate of the sources, Hz. Default 60 (both papers run at 60 Hz).
+    #[serde(default)]
+    pub rate_hz: Option<toml::Value>,
+    /// `offline` (default): sources run as fast as the slowest stage allows, nothing is dropped.
+    /// `live`: sources run at sensor rate; a late stage drops frames and counts them.
+    #[serde(default)]
+    pub mode: Option<String>,
+    /// Seconds to wait for every stage to report ready. Default 30.
+    #[serde(default)]
+    pub ready_timeout_s: Option<toml::Value>,
+    /// The stages, by id.
+    #[serde(default)]
+    pub stages: BTreeMap<String, StageEntry>,
+}
+
+/// One `[stages.<id>]` table.
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageEntry {
+    /// A built-in stage kind (`imuflow stage --list`). Exactly one of `kind` and `exec`.
+    pub kind: Option<String>,
+    /// An external executable built on imuflow-graph's Stage API.
+    pub exec: Option<String>,
+    /// Extra command-line arguments for `exec`.
+    #[serde(default)]
+    pub args: Vec<String>,
+    /// `input = "stage.port"` pairs, plus `feedback = ["input", ...]` naming inputs that read the
+    /// previous frame's value (the edges that close a cycle).
+    #[serde(default)]
+    pub inputs: toml::Table,
+    /// For `exec` stages only: `port = "FrameType"` for each output.
+    #[serde(default)]
+    pub outputs: BTreeMap<String, String>,
+    /// Kind-specific parameters.
+    #[serde(default)]
+    pub params: toml::Table,
+}

@@ -1,0 +1,683 @@
+//! The Stage API: what a stage process (built-in or external) uses to read its inputs, write its
+//! outputs and talk to the launcher.
+//!
+//! ```text
+//! let mut ctx = StageContext::from_env()?;            // wiring from the launcher
+//! let imu = ctx.input::<ImuFrame>("imu")?;            // typed handle, checked against the graph
+//! let mut out = ctx.output::<BodyImuFrame>("body")?;
+//! ctx.ready()?;                                       // handshake: wait until every stage is up
+//! while let Some(step) = ctx.next()? {                // one aligned set of input frames
+//!     let frame = ctx.get(&imu);
+//!     out.publish(step.header(), |o| { /* fill o from frame */ })?;
+//! }
+//! ctx.finish(&mut [&mut out])?;                       // END_OF_STREAM downstream, summary up
+//! ```
+//!
+//! Inputs are aligned by `seq`: `next` returns when every non-feedback input holds the frame with
+//! the same `seq`. A feedback input yields the newest frame its producer published, which in an
+//! offline graph is exactly the previous `seq` (the stage waits for it); before the producer's
+//! first frame it yields an all-zero frame flagged FEEDBACK_INITIAL | INVALID.
+//!
+//! The launcher talks to a stage over its stdin/stdout with lines starting `@imuflow`; a stage
+//! must log to stderr (tracing does), never print to stdout.
+
+use std::io::{BufRead, Write};
+use std::marker::PhantomData;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use iceoryx2::prelude::*;
+
+use crate::frames::{Frame, FrameHeader, flags};
+use crate::graph::{Graph, Mode, StageNode};
+use crate::stats::{StageStats, StageSummary};
+use crate::transport::{
+    self, ErasedSubscriber, HeldFrame, Output, TransportError, WakeListener, frame_ref,
+};
+
+/// Environment variable: the run directory (holds `graph.json`).
+pub const ENV_RUN_DIR: &str = "IMUFLOW_RUN_DIR";
+/// Environment variable: the run id (part of every service name).
+pub const ENV_RUN_ID: &str = "IMUFLOW_RUN_ID";
+/// Environment variable: this process's stage id.
+pub const ENV_STAGE_ID: &str = "IMUFLOW_STAGE_ID";
+/// File in the run directory holding the validated graph as JSON.
+pub const GRAPH_JSON: &str = "graph.json";
+
+/// Prefix of every control line on a stage's stdout.
+pub const CONTROL_PREFIX: &str = "@imuflow ";
+
+/// How long a stage spins on its inputs before blocking (see `transport::wait_for`).
+const SPIN: Duration = Duration::from_micros(50);
+/// How often a blocked stage re-checks the stop flag.
+const POLL: Duration = Duration::from_millis(20);
+
+/// Why a stage could not start or run.
+#[derive(Debug, thiserror::Error)]
+pub enum StageError {
+    /// The process was not started by `imuflow run` (or an environment variable is missing).
+    #[error("{0} is not set: stages are started by `imuflow run GRAPH`, not by hand")]
+    MissingEnv(&'static str),
+    #[error("cannot read the run's graph {path}: {message}")]
+    Graph { path: PathBuf, message: String },
+    #[error("stage '{0}' is not in the run's graph")]
+    UnknownStage(String),
+    /// The stage asked for a port the graph does not give it.
+    #[error("stage '{stage}': the graph has no {direction} '{port}' for this stage (it has: {known})")]
+    NoSuchPort {
+        stage: String,
+        direction: &'static str,
+        port: String,
+        known: String,
+    },
+    /// The stage's code and the graph disagree about a port's frame type.
+    #[error("stage '{stage}': {direction} '{port}' carries {graph} in the graph but the stage uses {code}")]
+    PortType {
+        stage: String,
+        direction: &'static str,
+        port: String,
+        graph: &'static str,
+        code: &'static str,
+    },
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    #[error("cannot talk to the launcher: {0}")]
+    Control(#[from] std::io::Error),
+}
+
+/// A typed handle to an input, from [`StageContext::input`].
+pub struct InputId<T: Frame> {
+    index: usize,
+    _type: PhantomData<T>,
+}
+
+struct InputSlot {
+    name: String,
+    feedback: bool,
+    subscriber: Box<dyn ErasedSubscriber>,
+    /// Forward inputs: the frame waiting to be aligned or being processed.
+    /// Feedback inputs: the newest frame (or the initial value).
+    current: Option<Box<dyn HeldFrame>>,
+    last_seq: Option<u64>,
+    ended: bool,
+}
+
+/// What `next` delivers: the shared header of one aligned set of input frames.
+#[derive(Debug, Clone, Copy)]
+pub struct Step {
+    pub seq: u64,
+    pub capture_ns: u64,
+    /// Union of the input frames' INVALID and CALIBRATING flags.
+    pub flags: u32,
+}
+
+impl Step {
+    /// A header for this step's outputs, carrying `seq`, `capture_ns` and the propagated flags.
+    pub fn header(&self) -> FrameHeader {
+        FrameHeader {
+            seq: self.seq,
+            capture_ns: self.capture_ns,
+            flags: self.flags,
+            ..Default::default()
+        }
+    }
+}
+
+/// Anything `finish` can close with END_OF_STREAM.
+pub trait EndOutput {
+    fn end(&mut self, seq: u64, capture_ns: u64) -> Result<(), TransportError>;
+    fn frames_sent(&self) -> u64;
+}
+
+impl<T: Frame> EndOutput for Output<T> {
+    fn end(&mut self, seq: u64, capture_ns: u64) -> Result<(), TransportError> {
+        self.publish_end(seq, capture_ns)
+    }
+    fn frames_sent(&self) -> u64 {
+        self.sent()
+    }
+}
+
+/// A stage's connection to its graph and its launcher.
+pub struct StageContext {
+    node: Node<ipc::Service>,
+    graph: Graph,
+    stage: StageNode,
+    run_id: String,
+    stop: Arc<AtomicBool>,
+    go: Arc<AtomicBool>,
+    listener: Option<WakeListener>,
+    inputs: Vec<InputSlot>,
+    stats: StageStats,
+    step_started: Option<Instant>,
+    last_step: Option<Step>,
+    started: Instant,
+    any_cursor: usize,
+}
+
+impl StageContext {
+    /// Connects to the run that started this process (see the `ENV_*` constants).
+    pub fn from_env() -> Result<Self, StageError> {
+        let run_dir = env(ENV_RUN_DIR)?;
+        let run_id = env(ENV_RUN_ID)?;
+        let stage_id = env(ENV_STAGE_ID)?;
+        let path = PathBuf::from(run_dir).join(GRAPH_JSON);
+        let text = std::fs::read_to_string(&path).map_err(|e| StageError::Graph {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
+        let graph: Graph = serde_json::from_str(&text).map_err(|e| StageError::Graph {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
+        Self::new(graph, &run_id, &stage_id)
+    }
+
+    /// Connects to the run `run_id` of `graph` as `stage_id` (tests and embedding).
+    pub fn new(graph: Graph, run_id: &str, stage_id: &str) -> Result<Self, StageError> {
+        let stage = graph
+            .stages
+            .get(stage_id)
+            .cloned()
+            .ok_or_else(|| StageError::UnknownStage(stage_id.to_owned()))?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let go = Arc::new(AtomicBool::new(false));
+        for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+            signal_hook::flag::register(signal, stop.clone())?;
+        }
+        spawn_control_reader(stop.clone(), go.clone());
+
+        let node = transport::create_node(stage_id)?;
+        let listener = if stage.inputs.is_empty() {
+            None
+        } else {
+            Some(WakeListener::open(&node, run_id, stage_id)?)
+        };
+        let mut inputs = Vec::new();
+        for (name, edge) in &stage.inputs {
+            let readers = graph
+                .stages
+                .get(&edge.from_stage)
+                .and_then(|s| s.readers.get(&edge.from_port))
+                .map_or(1, Vec::len);
+            let subscriber = transport::open_subscriber(
+                &node,
+                run_id,
+                &edge.from_stage,
+                &edge.from_port,
+                edge.frame,
+                graph.mode,
+                readers,
+            )?;
+            inputs.push(InputSlot {
+                name: name.clone(),
+                feedback: edge.feedback,
+                subscriber,
+                current: edge
+                    .feedback
+                    .then(|| transport::initial_feedback_frame(edge.frame)),
+                last_seq: None,
+                ended: false,
+            });
+        }
+        Ok(Self {
+            node,
+            graph,
+            stage,
+            run_id: run_id.to_owned(),
+            stop,
+            go,
+            listener,
+            inputs,
+            stats: StageStats::default(),
+            step_started: None,
+            last_step: None,
+            started: Instant::now(),
+            any_cursor: 0,
+        })
+    }
+
+    /// This stage's id.
+    pub fn id(&self) -> &str {
+        &self.stage.id
+    }
+
+    /// This stage's parameters as written in the graph (already validated for built-in kinds).
+    pub fn params(&self) -> &toml::Table {
+        &self.stage.params
+    }
+
+    /// The whole graph.
+    pub fn graph(&self) -> &Graph {
+        &self.graph
+    }
+
+    /// This stage's node in the graph.
+    pub fn node(&self) -> &StageNode {
+        &self.stage
+    }
+
+    /// The graph's mode.
+    pub fn mode(&self) -> Mode {
+        self.graph.mode
+    }
+
+    /// Set when the stage should stop (SIGTERM/SIGINT, the launcher's `stop`, or the launcher gone).
+    pub fn should_stop(&self) -> bool {
+        self.stop.load(Ordering::Relaxed)
+    }
+
+    /// The stop flag, for loops that run outside `next` (sources).
+    pub fn stop_flag(&self) -> Arc<AtomicBool> {
+        self.stop.clone()
+    }
+
+    /// A typed handle to input `name`; fails if the graph has no such input or its frame type
+    /// differs from `T`.
+    pub fn input<T: Frame>(&self, name: &str) -> Result<InputId<T>, StageError> {
+        let index = self
+            .inputs
+            .iter()
+            .position(|s| s.name == name)
+            .ok_or_else(|| StageError::NoSuchPort {
+                stage: self.stage.id.clone(),
+                direction: "input",
+                port: name.to_owned(),
+                known: self.inputs.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join(", "),
+            })?;
+        let frame = self.inputs[index].subscriber.frame_type();
+        if frame != T::TYPE {
+            return Err(StageError::PortType {
+                stage: self.stage.id.clone(),
+                direction: "input",
+                port: name.to_owned(),
+                graph: frame.name(),
+                code: T::TYPE.name(),
+            });
+        }
+        Ok(InputId {
+            index,
+            _type: PhantomData,
+        })
+    }
+
+    /// Names of all inputs, in the order `held` indexes them.
+    pub fn input_names(&self) -> Vec<String> {
+        self.inputs.iter().map(|s| s.name.clone()).collect()
+    }
+
+    /// Opens output `port` as frame type `T`.
+    pub fn output<T: Frame>(&self, port: &str) -> Result<Output<T>, StageError> {
+        let frame = *self.stage.outputs.get(port).ok_or_else(|| StageError::NoSuchPort {
+            stage: self.stage.id.clone(),
+            direction: "output",
+            port: port.to_owned(),
+            known: self.stage.outputs.keys().cloned().collect::<Vec<_>>().join(", "),
+        })?;
+        if frame != T::TYPE {
+            return Err(StageError::PortType {
+                stage: self.stage.id.clone(),
+                direction: "output",
+                port: port.to_owned(),
+                graph: frame.name(),
+                code: T::TYPE.name(),
+            });
+        }
+        let readers: Vec<String> = self
+            .stage
+            .readers
+            .get(port)
+            .map(|rs| rs.iter().map(|r| r.stage.clone()).collect())
+            .unwrap_or_default();
+        Ok(Output::open(
+            &self.node,
+            &self.run_id,
+            &self.stage.id,
+            port,
+            self.graph.mode,
+            &readers,
+            self.stop.clone(),
+        )?)
+    }
+
+    /// Tells the launcher this stage is set up and waits for the signal that every stage is.
+    /// Returns `false` if the stage was told to stop instead.
+    pub fn ready(&mut self) -> Result<bool, StageError> {
+        control_line("ready")?;
+        while !self.go.load(Ordering::Acquire) {
+            if self.should_stop() {
+                return Ok(false);
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        self.started = Instant::now();
+        Ok(true)
+    }
+
+    /// Reports a source's progress (`total` = 0 when unknown) to the launcher's progress bar.
+    pub fn progress(&self, done: u64, total: u64) -> Result<(), StageError> {
+        control_line(&format!("progress {done} {total}"))?;
+        Ok(())
+    }
+
+    /// Waits for the next aligned set of input frames. `None` when every input reached
+    /// END_OF_STREAM or the stage was told to stop.
+    pub fn next(&mut self) -> Result<Option<Step>, StageError> {
+        if let Some(t) = self.step_started.take() {
+            self.stats.record_processing(t.elapsed());
+        }
+        // Release the frames of the previous step so their shared memory goes back.
+        for slot in self.inputs.iter_mut().filter(|s| !s.feedback) {
+            slot.current = None;
+        }
+        loop {
+            if self.should_stop() {
+                return Ok(None);
+            }
+            self.fill_inputs()?;
+            if let Some(step) = self.aligned_step() {
+                if step.flags & flags::END_OF_STREAM != 0 {
+                    return Ok(None);
+                }
+                self.stats.frames_in += 1;
+                let published = self
+                    .inputs
+                    .iter()
+                    .filter(|s| !s.feedback)
+                    .filter_map(|s| s.current.as_ref().map(|f| f.header().publish_ns))
+                    .max()
+                    .unwrap_or(0);
+                self.stats.record_latency(published, transport::now_ns());
+                self.last_step = Some(step);
+                self.step_started = Some(Instant::now());
+                return Ok(Some(Step {
+                    flags: step.flags & (flags::INVALID | flags::CALIBRATING),
+                    ..step
+                }));
+            }
+            let Some(listener) = &self.listener else {
+                return Ok(None);
+            };
+            let inputs = &self.inputs;
+            transport::wait_for(listener, SPIN, POLL, || {
+                inputs.iter().any(|s| s.subscriber.has_frames())
+            });
+        }
+    }
+
+    /// For sinks that take every frame as it arrives (recorders, loggers): the index of an input
+    /// holding a new frame (read it with `held`). No alignment, no waiting on feedback. `None`
+    /// when every input reached END_OF_STREAM or the stage was told to stop.
+    pub fn next_any(&mut self) -> Result<Option<usize>, StageError> {
+        if let Some(t) = self.step_started.take() {
+            self.stats.record_processing(t.elapsed());
+        }
+        let n = self.inputs.len();
+        loop {
+            if self.should_stop() || n == 0 {
+                return Ok(None);
+            }
+            for k in 0..n {
+                let i = (self.any_cursor + k) % n;
+                let slot = &mut self.inputs[i];
+                if slot.ended {
+                    continue;
+                }
+                let Some(frame) = slot.subscriber.receive()? else {
+                    continue;
+                };
+                let header = *frame.header();
+                if header.is_end() {
+                    slot.ended = true;
+                    continue;
+                }
+                if let Some(last) = slot.last_seq
+                    && header.seq > last + 1
+                {
+                    self.stats.dropped += header.seq - last - 1;
+                }
+                slot.last_seq = Some(header.seq);
+                slot.current = Some(frame);
+                self.stats.record_latency(header.publish_ns, transport::now_ns());
+                self.any_cursor = i + 1;
+                self.stats.frames_in += 1;
+                self.step_started = Some(Instant::now());
+                if self.last_step.is_none_or(|s| s.seq <= header.seq) {
+                    self.last_step = Some(Step {
+                        seq: header.seq,
+                        capture_ns: header.capture_ns,
+                        flags: 0,
+                    });
+                }
+                return Ok(Some(i));
+            }
+            if self.inputs.iter().all(|s| s.ended) {
+                return Ok(None);
+            }
+            let Some(listener) = &self.listener else {
+                return Ok(None);
+            };
+            let inputs = &self.inputs;
+            transport::wait_for(listener, SPIN, POLL, || {
+                inputs.iter().any(|s| !s.ended && s.subscriber.has_frames())
+            });
+        }
+    }
+
+    /// Takes frames from the subscribers: one pending per forward input, the newest for feedback.
+    fn fill_inputs(&mut self) -> Result<(), StageError> {
+        let mode = self.graph.mode;
+        for slot in &mut self.inputs {
+            if slot.feedback {
+                while let Some(frame) = slot.subscriber.receive()? {
+                    slot.last_seq = Some(frame.header().seq);
+                    slot.ended |= frame.header().is_end();
+                    if !frame.header().is_end() {
+                        slot.current = Some(frame);
+                    }
+                }
+                continue;
+            }
+            if slot.current.is_some() {
+                continue;
+            }
+            if let Some(frame) = slot.subscriber.receive()? {
+                let seq = frame.header().seq;
+                if let Some(last) = slot.last_seq
+                    && seq > last + 1
+                    && !frame.header().is_end()
+                {
+                    // Live graphs overwrite the oldest frame when a reader lags: count the gap.
+                    self.stats.dropped += seq - last - 1;
+                    if mode == Mode::Offline {
+                        tracing::warn!(input = %slot.name, "frames {}..{} never arrived", last + 1, seq);
+                    }
+                }
+                slot.last_seq = Some(seq);
+                slot.current = Some(frame);
+            }
+        }
+        Ok(())
+    }
+
+    /// If every forward input holds a frame of one `seq` (and feedback is current enough), the
+    /// step; frames older than the newest are discarded as unmatched.
+    fn aligned_step(&mut self) -> Option<Step> {
+        let mut target = 0;
+        for slot in self.inputs.iter().filter(|s| !s.feedback) {
+            target = target.max(slot.current.as_ref()?.header().seq);
+        }
+        let mut unmatched = 0;
+        for slot in self.inputs.iter_mut().filter(|s| !s.feedback) {
+            if slot.current.as_ref().is_some_and(|f| f.header().seq < target) {
+                slot.current = None;
+                unmatched += 1;
+            }
+        }
+        if unmatched > 0 {
+            self.stats.unmatched += unmatched;
+            return None;
+        }
+        let mut step = Step {
+            seq: target,
+            capture_ns: 0,
+            flags: 0,
+        };
+        for slot in self.inputs.iter().filter(|s| !s.feedback) {
+            if let Some(f) = &slot.current {
+                let h = f.header();
+                step.capture_ns = step.capture_ns.max(h.capture_ns);
+                step.flags |= h.flags;
+            }
+        }
+        // Offline: a feedback input must hold the previous frame (its producer cannot be ahead).
+        if self.graph.mode == Mode::Offline && target > 0 && step.flags & flags::END_OF_STREAM == 0 {
+            let behind = self.inputs.iter().filter(|s| s.feedback).any(|s| {
+                !s.ended && s.last_seq.is_none_or(|seq| seq.saturating_add(1) < target)
+            });
+            if behind {
+                return None;
+            }
+        }
+        Some(step)
+    }
+
+    /// The current frame of a typed input (the newest for a feedback input).
+    pub fn get<T: Frame>(&self, input: &InputId<T>) -> &T {
+        self.inputs
+            .get(input.index)
+            .and_then(|s| s.current.as_deref())
+            .and_then(frame_ref::<T>)
+            .unwrap_or_else(|| {
+                // The handle was checked against the frame type and `next` fills every slot
+                // before returning, so this is a bug in the caller (called before `next`).
+                unreachable!("StageContext::get called without a current frame")
+            })
+    }
+
+    /// The current frame of input `index` (see `input_names`), type-erased.
+    pub fn held(&self, index: usize) -> Option<&dyn HeldFrame> {
+        self.inputs.get(index).and_then(|s| s.current.as_deref())
+    }
+
+    /// Counts a frame written to an output (for outputs not written through `Output`).
+    pub fn count_out(&mut self, n: u64) {
+        self.stats.frames_out += n;
+    }
+
+    /// Ends the stage: END_OF_STREAM on every output, the summary to the launcher.
+    pub fn finish(mut self, outputs: &mut [&mut dyn EndOutput]) -> Result<StageSummary, StageError> {
+        if let Some(t) = self.step_started.take() {
+            self.stats.record_processing(t.elapsed());
+        }
+        let (seq, capture_ns) = self
+            .last_step
+            .map_or((0, 0), |s| (s.seq + 1, s.capture_ns));
+        let mut end_error = None;
+        for out in outputs.iter_mut() {
+            if let Err(e) = out.end(seq, capture_ns) {
+                end_error.get_or_insert(e);
+            }
+            self.stats.frames_out += out.frames_sent().saturating_sub(1);
+        }
+        let summary = self.stats.summary(self.started.elapsed());
+        let json = serde_json::to_string(&summary).unwrap_or_default();
+        control_line(&format!("summary {json}"))?;
+        match end_error {
+            // After a stop request a reader may be gone; that is the expected end.
+            Some(TransportError::Stopped { .. }) | None => Ok(summary),
+            Some(e) => Err(e.into()),
+        }
+    }
+
+    /// For sources: records `n` frames as produced and `elapsed` as the time producing them took.
+    pub fn record_source_step(&mut self, step: Step, elapsed: Duration) {
+        self.stats.frames_in += 1;
+        self.stats.record_processing(elapsed);
+        self.last_step = Some(step);
+    }
+}
+
+fn env(name: &'static str) -> Result<String, StageError> {
+    std::env::var(name).map_err(|_| StageError::MissingEnv(name))
+}
+
+/// Writes one control line to the launcher.
+fn control_line(text: &str) -> std::io::Result<()> {
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{CONTROL_PREFIX}{text}")?;
+    out.flush()
+}
+
+/// Reads the launcher's commands from stdin: `go` starts the stage, `stop` (or stdin closing,
+/// which means the launcher is gone) stops it.
+fn spawn_control_reader(stop: Arc<AtomicBool>, go: Arc<AtomicBool>) {
+    let spawned = std::thread::Builder::new()
+        .name("imuflow-control".into())
+        .spawn(move || {
+            for line in std::io::stdin().lock().lines() {
+                match line.as_deref().map(str::trim) {
+                    Ok("go") => go.store(true, Ordering::Release),
+                    Ok("stop") => stop.store(true, Ordering::Release),
+                    Ok(_) => {}
+                    Err(_) => break,
+                }
+            }
+            stop.store(true, Ordering::Release);
+        });
+    if spawned.is_err() {
+        tracing::warn!("cannot start the control thread; the stage will only stop on signals");
+    }
+}
+
+/// Parsed control lines from a stage's stdout (used by the launcher).
+#[derive(Debug, Clone, PartialEq)]
+pub enum ControlMessage {
+    Ready,
+    Progress { done: u64, total: u64 },
+    Summary(StageSummary),
+}
+
+impl ControlMessage {
+    /// Parses a stdout line; `None` if it is not a control line.
+    pub fn parse(line: &str) -> Option<ControlMessage> {
+        let rest = line.strip_prefix(CONTROL_PREFIX)?;
+        let (word, args) = rest.split_once(' ').unwrap_or((rest, ""));
+        match word {
+            "ready" => Some(ControlMessage::Ready),
+            "progress" => {
+                let mut it = args.split_whitespace().map(str::parse::<u64>);
+                match (it.next(), it.next()) {
+                    (Some(Ok(done)), Some(Ok(total))) => Some(ControlMessage::Progress { done, total }),
+                    _ => None,
+                }
+            }
+            "summary" => serde_json::from_str(args).ok().map(ControlMessage::Summary),
+            _ => None,
+        }
+    }
+}
+
+/// Parameters of a stage, read with the defaults its spec documents.
+pub struct Params<'a>(pub &'a toml::Table);
+
+impl Params<'_> {
+    pub fn str(&self, key: &str) -> Option<&str> {
+        self.0.get(key).and_then(toml::Value::as_str)
+    }
+    pub fn bool(&self, key: &str, default: bool) -> bool {
+        self.0.get(key).and_then(toml::Value::as_bool).unwrap_or(default)
+    }
+    pub fn int(&self, key: &str, default: i64) -> i64 {
+        self.0.get(key).and_then(toml::Value::as_integer).unwrap_or(default)
+    }
+    pub fn float(&self, key: &str, default: f64) -> f64 {
+        match self.0.get(key) {
+            Some(toml::Value::Float(x)) => *x,
+            Some(toml::Value::Integer(i)) => *i as f64,
+            _ => default,
+        }
+    }
+}

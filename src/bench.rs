@@ -1,0 +1,201 @@
+//! `imuflow bench transport`: per-hop latency and throughput of a chain of stage processes
+//! exchanging MotionFrame-sized frames, through the same launcher and ports real graphs use.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use clap::Subcommand;
+use imuflow_graph::frames::{FrameHeader, MotionFrame};
+use imuflow_graph::launch::{self, LaunchOptions};
+use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
+use imuflow_graph::stage::{Params, Step};
+use imuflow_graph::transport::now_ns;
+use imuflow_graph::{FrameType, Graph, StageContext};
+
+#[derive(Subcommand)]
+pub enum BenchCommand {
+    /// Latency per hop (p50/p99) and throughput of a chain of stage processes.
+    ///
+    /// Two runs: a paced one (frames at --rate-hz, each stage idle between frames, as in a live
+    /// graph) for latency and CPU cost, and an unpaced offline one for throughput.
+    Transport {
+        /// Stages in the chain (one source, the rest relays).
+        #[arg(long, default_value_t = 6)]
+        stages: usize,
+        /// Frames in the paced latency run.
+        #[arg(long, default_value_t = 3000)]
+        frames: u64,
+        /// Rate of the paced latency run, Hz.
+        #[arg(long, default_value_t = 200.0)]
+        rate_hz: f64,
+        /// Frames in the unpaced throughput run.
+        #[arg(long, default_value_t = 30000)]
+        throughput_frames: u64,
+    },
+}
+
+pub const SOURCE_SPEC: StageSpec = StageSpec {
+    kind: "bench-source",
+    role: Role::Source,
+    summary: "benchmark source: MotionFrames at a fixed rate (or as fast as possible); used by `imuflow bench`",
+    inputs: InputsSpec::Fixed(&[]),
+    outputs: &[PortSpec { name: "out", frame: FrameType::Motion, required: false, doc: "MotionFrames with a counter payload" }],
+    params: &[
+        ParamSpec { name: "frames", ty: ParamType::Int { min: 1, max: 1 << 40 }, required: false, default: "1000", doc: "frames to send" },
+        ParamSpec { name: "rate_hz", ty: ParamType::Float { min: 0.0, max: 1e6 }, required: false, default: "0", doc: "send rate; 0 = as fast as possible" },
+    ],
+};
+
+pub const RELAY_SPEC: StageSpec = StageSpec {
+    kind: "relay",
+    role: Role::Transform,
+    summary: "copies each MotionFrame from its input to its output; used by `imuflow bench`",
+    inputs: InputsSpec::Fixed(&[PortSpec { name: "in", frame: FrameType::Motion, required: true, doc: "frames to forward" }]),
+    outputs: &[PortSpec { name: "out", frame: FrameType::Motion, required: false, doc: "the same frames" }],
+    params: &[],
+};
+
+pub fn run_source() -> anyhow::Result<()> {
+    let mut ctx = StageContext::from_env()?;
+    let params = Params(ctx.params());
+    let frames = params.int("frames", 1000).max(1) as u64;
+    let rate_hz = params.float("rate_hz", 0.0);
+    let mut out = ctx.output::<MotionFrame>("out")?;
+    if ctx.ready()? {
+        let start = Instant::now();
+        for seq in 0..frames {
+            if ctx.should_stop() {
+                break;
+            }
+            if rate_hz > 0.0 {
+                let due = start + Duration::from_secs_f64(seq as f64 / rate_hz);
+                if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                    std::thread::sleep(wait);
+                }
+            }
+            let t0 = Instant::now();
+            let capture_ns = now_ns();
+            out.publish(FrameHeader { seq, capture_ns, ..Default::default() }, |f| {
+                f.q[0] = seq as f32;
+            })?;
+            ctx.record_source_step(Step { seq, capture_ns, flags: 0 }, t0.elapsed());
+        }
+    }
+    ctx.finish(&mut [&mut out])?;
+    Ok(())
+}
+
+pub fn run_relay() -> anyhow::Result<()> {
+    let mut ctx = StageContext::from_env()?;
+    let input = ctx.input::<MotionFrame>("in")?;
+    let mut out = ctx.output::<MotionFrame>("out")?;
+    if ctx.ready()? {
+        while let Some(step) = ctx.next()? {
+            let frame = *ctx.get(&input);
+            out.publish(step.header(), |o| *o = frame)?;
+        }
+    }
+    ctx.finish(&mut [&mut out])?;
+    Ok(())
+}
+
+fn chain_graph(stages: usize, frames: u64, rate_hz: f64) -> String {
+    let mut toml = format!(
+        "name = \"bench-transport\"\n[stages.s0]\nkind = \"bench-source\"\nparams = {{ frames = {frames}, rate_hz = {rate_hz:.1} }}\n"
+    );
+    for i in 1..stages {
+        toml += &format!("[stages.s{i}]\nkind = \"relay\"\ninputs = {{ in = \"s{}.out\" }}\n", i - 1);
+    }
+    toml
+}
+
+/// User + system CPU time of all reaped children so far.
+fn children_cpu() -> Duration {
+    // SAFETY: getrusage writes into the zeroed struct we pass; no other memory is touched.
+    #[allow(unsafe_code)]
+    let usage = unsafe {
+        let mut usage: libc::rusage = std::mem::zeroed();
+        libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage);
+        usage
+    };
+    let tv = |t: libc::timeval| Duration::from_secs(t.tv_sec as u64) + Duration::from_micros(t.tv_usec as u64);
+    tv(usage.ru_utime) + tv(usage.ru_stime)
+}
+
+struct ChainResult {
+    hops: Vec<(f64, f64)>,
+    wall_s: f64,
+    cpu_s: f64,
+    frames: u64,
+}
+
+fn run_chain(stages: usize, frames: u64, rate_hz: f64) -> anyhow::Result<ChainResult> {
+    let registry = crate::registry::registry();
+    let graph = Graph::from_str_with(Path::new("<bench>"), &chain_graph(stages, frames, rate_hz), &[], &registry)?;
+    let options = LaunchOptions {
+        imuflow_exe: std::env::current_exe().context("cannot find the imuflow executable")?,
+        progress: false,
+        forward_logs: false,
+    };
+    let cpu_before = children_cpu();
+    let report = launch::run(&graph, &options)?;
+    let cpu_s = (children_cpu() - cpu_before).as_secs_f64();
+    let mut hops = Vec::new();
+    for i in 1..stages {
+        let Some((_, s)) = report.stages.get(&format!("s{i}")) else {
+            bail!("stage s{i} reported no summary");
+        };
+        if s.frames_in != frames {
+            bail!("stage s{i} saw {} of {frames} frames", s.frames_in);
+        }
+        hops.push((s.latency_p50_us, s.latency_p99_us));
+    }
+    Ok(ChainResult { hops, wall_s: report.wall.as_secs_f64(), cpu_s, frames })
+}
+
+pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
+    let BenchCommand::Transport { stages, frames, rate_hz, throughput_frames } = cmd;
+    if stages < 2 {
+        bail!("--stages must be at least 2 (a source and a relay)");
+    }
+    println!(
+        "transport benchmark: {stages} stage processes, {} hops, MotionFrame = {} bytes",
+        stages - 1,
+        std::mem::size_of::<MotionFrame>()
+    );
+    let paced = run_chain(stages, frames, rate_hz)?;
+    println!("\npaced run: {} frames at {rate_hz} Hz ({:.1} s)", paced.frames, paced.wall_s);
+    println!("{:<8} {:>10} {:>10}", "hop", "p50 µs", "p99 µs");
+    for (i, (p50, p99)) in paced.hops.iter().enumerate() {
+        println!("{:<8} {:>10.1} {:>10.1}", format!("s{i}->s{}", i + 1), p50, p99);
+    }
+    let mut p50s: Vec<f64> = paced.hops.iter().map(|h| h.0).collect();
+    let mut p99s: Vec<f64> = paced.hops.iter().map(|h| h.1).collect();
+    p50s.sort_by(f64::total_cmp);
+    p99s.sort_by(f64::total_cmp);
+    println!(
+        "per hop: median of p50 {:.1} µs, worst p50 {:.1} µs, median of p99 {:.1} µs, worst p99 {:.1} µs",
+        p50s[p50s.len() / 2],
+        p50s[p50s.len() - 1],
+        p99s[p99s.len() / 2],
+        p99s[p99s.len() - 1]
+    );
+    println!(
+        "CPU: {:.2} s over {:.1} s for {stages} processes = {:.1}% of one core per stage",
+        paced.cpu_s,
+        paced.wall_s,
+        100.0 * paced.cpu_s / paced.wall_s / stages as f64
+    );
+
+    let fast = run_chain(stages, throughput_frames, 0.0)?;
+    println!(
+        "\nthroughput run: {} frames through {} hops in {:.2} s = {:.0} frames/s ({:.1} MB/s per hop)",
+        fast.frames,
+        stages - 1,
+        fast.wall_s,
+        fast.frames as f64 / fast.wall_s,
+        fast.frames as f64 * std::mem::size_of::<MotionFrame>() as f64 / fast.wall_s / 1e6
+    );
+    Ok(())
+}

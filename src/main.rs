@@ -1,0 +1,229 @@
+//! `imuflow`: the command line. A thin dispatcher: the work lives in the crates.
+
+mod bench;
+mod registry;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand};
+use imuflow_graph::launch::{self, LaunchOptions, RunError};
+use imuflow_graph::{Graph, GraphLoadError};
+
+/// Full-body motion from six IMUs, as a dataflow of stages over shared memory.
+///
+/// A graph file (configs/*.toml) names the stages and wires their ports; `imuflow run` starts one
+/// process per stage and streams frames between them. Swap the graph file to swap the method.
+#[derive(Parser)]
+#[command(name = "imuflow", version, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a graph: validate it, start one process per stage, stream until the sources end.
+    ///
+    /// Offline graphs run as fast as the slowest stage allows; live graphs run at sensor rate.
+    /// Ctrl-C ends the stream at the sources, so every recorder finalizes its file. Prints a
+    /// per-stage summary at the end (frames, drops, processing time and input latency).
+    Run {
+        #[command(flatten)]
+        graph: GraphArgs,
+        /// Don't show the progress bar.
+        #[arg(long)]
+        no_progress: bool,
+        /// Don't forward the stages' log lines.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+    /// Inspect graph files.
+    #[command(subcommand)]
+    Graph(GraphCommand),
+    /// Run one stage process (used by `imuflow run`; not for direct use).
+    ///
+    /// With --list, prints every built-in stage kind with its ports and parameters.
+    Stage {
+        /// The stage kind to run.
+        kind: Option<String>,
+        /// List the built-in stage kinds.
+        #[arg(long)]
+        list: bool,
+    },
+    /// Remove shared-memory files left by imuflow processes that died (a crash, kill -9).
+    Clean,
+    /// Benchmarks.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+#[derive(Subcommand)]
+enum GraphCommand {
+    /// Validate a graph file and report every problem (file, stage, key).
+    Check {
+        #[command(flatten)]
+        graph: GraphArgs,
+    },
+    /// Print a graph's wiring: stages in flow order, their inputs, outputs and readers.
+    Show {
+        #[command(flatten)]
+        graph: GraphArgs,
+    },
+}
+
+#[derive(Args)]
+struct GraphArgs {
+    /// The graph file (e.g. configs/examples/smoke.toml).
+    file: PathBuf,
+    /// Override any graph key, e.g. --set stages.kin.params.net=globalpose (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    sets: Vec<String>,
+}
+
+impl GraphArgs {
+    fn load(&self) -> Result<Graph, GraphLoadError> {
+        Graph::load(&self.file, &self.sets, &registry::registry())
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_logging(matches!(cli.command, Command::Stage { .. }));
+    match cli.command {
+        Command::Run {
+            graph,
+            no_progress,
+            quiet,
+        } => run(&graph, !no_progress, !quiet),
+        Command::Graph(GraphCommand::Check { graph }) => match graph.load() {
+            Ok(g) => {
+                for w in &g.warnings {
+                    eprintln!("warning: {w}");
+                }
+                println!("{}: ok ({} stages)", graph.file.display(), g.stages.len());
+                ExitCode::SUCCESS
+            }
+            Err(e) => invalid(e),
+        },
+        Command::Graph(GraphCommand::Show { graph }) => match graph.load() {
+            Ok(g) => {
+                print!("{}", g.describe());
+                ExitCode::SUCCESS
+            }
+            Err(e) => invalid(e),
+        },
+        Command::Stage { list: true, .. } => {
+            print!("{}", registry::describe_kinds());
+            ExitCode::SUCCESS
+        }
+        Command::Stage { kind: Some(kind), .. } => match registry::run_stage(&kind) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                tracing::error!("{e:#}");
+                ExitCode::FAILURE
+            }
+        },
+        Command::Stage { kind: None, .. } => {
+            eprintln!("error: name a stage kind, or use --list");
+            ExitCode::from(2)
+        }
+        Command::Clean => clean(),
+        Command::Bench(cmd) => match bench::run(cmd) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
+    }
+}
+
+fn init_logging(stage_process: bool) {
+    let filter = tracing_subscriber::EnvFilter::try_from_env("IMUFLOW_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(false);
+    // Stage processes' lines are prefixed by the launcher with the stage id and time-ordered
+    // there; keep them short.
+    if stage_process {
+        builder.without_time().with_target(false).init();
+    } else {
+        builder.with_target(false).init();
+    }
+}
+
+fn invalid(e: GraphLoadError) -> ExitCode {
+    eprintln!("error: {e}");
+    ExitCode::from(2)
+}
+
+fn run(args: &GraphArgs, progress: bool, forward_logs: bool) -> ExitCode {
+    let graph = match args.load() {
+        Ok(g) => g,
+        Err(e) => return invalid(e),
+    };
+    for w in &graph.warnings {
+        eprintln!("warning: {w}");
+    }
+    let imuflow_exe = match std::env::current_exe() {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("error: cannot find the imuflow executable: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let options = LaunchOptions {
+        imuflow_exe,
+        progress,
+        forward_logs,
+    };
+    match launch::run(&graph, &options) {
+        Ok(report) => {
+            print_summary(&graph, &report);
+            if report.interrupted {
+                eprintln!("stopped by the user; outputs were finalized");
+                ExitCode::from(130)
+            } else {
+                ExitCode::SUCCESS
+            }
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            if let RunError::StageFailed { .. } = e {
+                eprintln!("the other stages were stopped and their outputs finalized");
+            }
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn print_summary(graph: &Graph, report: &launch::RunReport) {
+    println!(
+        "graph '{}' finished in {:.2} s (run {})",
+        graph.name,
+        report.wall.as_secs_f64(),
+        report.run_id
+    );
+    println!(
+        "{:<14} {:<14} {:>9} {:>9} {:>8} {:>10} {:>10} {:>12} {:>12}",
+        "stage", "kind", "frames in", "out", "dropped", "mean µs", "p99 µs", "in-lat p50", "in-lat p99"
+    );
+    for node in graph.topological_order() {
+        if let Some((kind, s)) = report.stages.get(&node.id) {
+            println!(
+                "{:<14} {:<14} {:>9} {:>9} {:>8} {:>10.1} {:>10.1} {:>12.1} {:>12.1}",
+                node.id, kind, s.frames_in, s.frames_out, s.dropped, s.mean_us, s.p99_us, s.latency_p50_us, s.latency_p99_us
+            );
+        }
+    }
+}
+
+fn clean() -> ExitCode {
+    let base = imuflow_graph::transport::base_shm_prefix();
+    let removed = launch::remove_stale_runs(&base);
+    println!("removed {removed} shared-memory file(s) of imuflow runs that are no longer alive");
+    ExitCode::SUCCESS
+}

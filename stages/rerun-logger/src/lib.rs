@@ -1,0 +1,206 @@
+//! The rerun-logger stage: logs the frames it receives to a `.rrd` file or a live rerun viewer.
+//!
+//! Time axes: `seq` (the source's frame index) and `capture_time` (the frame's capture timestamp:
+//! time since the start of the recording offline, wall-clock time live).
+//!
+//! What is logged per frame type (entity paths start with the input's name):
+//! - ImuFrame / BodyImuFrame: each sensor's orientation as a transform with axes (sensors laid
+//!   out side by side along x so they do not overlap), and its acceleration, angular rate and
+//!   valid flag as time series under `plots/`.
+//! - Every frame type: each small field (up to 6 scalars, e.g. stationary probabilities, root
+//!   velocity) as a time series under `plots/<input>/<field>`, and the INVALID flag.
+//!
+//! The model frame M is x = left, y = up, z = forward (SMPL), logged as the world's view
+//! coordinates so the viewer shows "up" correctly.
+
+use anyhow::{Context, bail};
+use imuflow_graph::frames::{
+    BodyImuFrame, FrameLayout, FrameType, ImuFrame, NUM_IMUS, ScalarType, flags,
+};
+use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, Role, StageSpec};
+use imuflow_graph::stage::Params;
+use imuflow_graph::transport::{HeldFrame, frame_ref};
+use imuflow_graph::{Mode, StageContext};
+
+/// Sensor names in IMU order (ARCHITECTURE.md).
+pub const SENSOR_NAMES: [&str; NUM_IMUS] = [
+    "left_forearm",
+    "right_forearm",
+    "left_lower_leg",
+    "right_lower_leg",
+    "head",
+    "pelvis",
+];
+/// rerun application id: groups imuflow recordings in the viewer.
+pub const APPLICATION_ID: &str = "imuflow";
+/// Spacing of the sensors' display positions along x, m.
+const SENSOR_SPACING_M: f32 = 0.3;
+/// Length of the drawn axes, m.
+const AXIS_LENGTH_M: f32 = 0.1;
+/// Fields with at most this many scalars are logged as time series.
+const MAX_SERIES_SCALARS: usize = 6;
+
+pub const SPEC: StageSpec = StageSpec {
+    kind: "rerun-logger",
+    role: Role::Sink,
+    summary: "logs frames to a rerun .rrd file or a live rerun viewer",
+    inputs: InputsSpec::Any,
+    outputs: &[],
+    params: &[
+        ParamSpec {
+            name: "path",
+            ty: ParamType::Path,
+            required: false,
+            default: "",
+            doc: ".rrd file to write (set this or `connect`)",
+        },
+        ParamSpec {
+            name: "connect",
+            ty: ParamType::String,
+            required: false,
+            default: "",
+            doc: "stream to a running viewer: \"default\" or a URL like rerun+http://127.0.0.1:9876/proxy",
+        },
+    ],
+};
+
+/// Runs the logger as the current process's stage.
+pub fn run() -> anyhow::Result<()> {
+    let mut ctx = StageContext::from_env()?;
+    let params = Params(ctx.params());
+    let builder = rerun::RecordingStreamBuilder::new(APPLICATION_ID);
+    let rec = match (params.str("path"), params.str("connect")) {
+        (Some(path), None) => {
+            if let Some(dir) = std::path::Path::new(path).parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+            }
+            builder.save(path).with_context(|| format!("{path}: cannot open for writing"))?
+        }
+        (None, Some("default")) => builder.connect_grpc().context("cannot connect to the rerun viewer")?,
+        (None, Some(url)) => builder
+            .connect_grpc_opts(url)
+            .with_context(|| format!("cannot connect to the rerun viewer at {url}"))?,
+        (Some(_), Some(_)) => bail!("stage '{}': set either params.path or params.connect, not both", ctx.id()),
+        (None, None) => bail!("stage '{}': set params.path (an .rrd file) or params.connect (a viewer)", ctx.id()),
+    };
+    rec.log_static("/", &rerun::ViewCoordinates::LUF())?;
+
+    let inputs: Vec<(String, FrameType)> = ctx
+        .input_names()
+        .into_iter()
+        .map(|name| {
+            let frame = ctx.node().inputs[&name].frame;
+            (name, frame)
+        })
+        .collect();
+    for (name, frame) in &inputs {
+        if matches!(frame, FrameType::Imu | FrameType::BodyImu) {
+            for (k, sensor) in SENSOR_NAMES.iter().enumerate() {
+                let base = format!("{name}/{sensor}");
+                rec.log_static(base.clone(), &rerun::Transform3D::from_translation([k as f32 * SENSOR_SPACING_M, 0.0, 0.0]))?;
+                rec.log_static(format!("{base}/orientation"), &rerun::TransformAxes3D::new(AXIS_LENGTH_M))?;
+            }
+        }
+    }
+
+    let live = ctx.mode() == Mode::Live;
+    let logged = if ctx.ready()? {
+        log_frames(&mut ctx, &rec, &inputs, live)
+    } else {
+        Ok(())
+    };
+    let flushed = rec.flush_blocking().context("cannot flush the rerun stream");
+    drop(rec);
+    logged?;
+    flushed?;
+    ctx.finish(&mut [])?;
+    Ok(())
+}
+
+fn log_frames(
+    ctx: &mut StageContext,
+    rec: &rerun::RecordingStream,
+    inputs: &[(String, FrameType)],
+    live: bool,
+) -> anyhow::Result<()> {
+    while let Some(index) = ctx.next_any()? {
+        let (Some(held), Some((name, frame))) = (ctx.held(index), inputs.get(index)) else {
+            continue;
+        };
+        let header = *held.header();
+        rec.set_time_sequence("seq", header.seq as i64);
+        if live {
+            rec.set_timestamp_nanos_since_epoch("capture_time", header.capture_ns as i64);
+        } else {
+            rec.set_duration_secs("capture_time", header.capture_ns as f64 * 1e-9);
+        }
+        let invalid = if header.has(flags::INVALID) { 1.0 } else { 0.0 };
+        rec.log(format!("plots/{name}/invalid"), &rerun::Scalars::single(invalid))?;
+        match frame {
+            FrameType::Imu => {
+                if let Some(f) = frame_ref::<ImuFrame>(held) {
+                    log_sensors(rec, name, &f.orientation_wxyz, &f.specific_force_mps2, &f.angular_rate_radps, f.valid_mask, ["specific_force_mps2", "angular_rate_radps"])?;
+                }
+            }
+            FrameType::BodyImu => {
+                if let Some(f) = frame_ref::<BodyImuFrame>(held) {
+                    log_sensors(rec, name, &f.bone_orientation_wxyz, &f.free_acceleration_mps2, &f.angular_velocity_radps, f.valid_mask, ["free_acceleration_mps2", "angular_velocity_radps"])?;
+                }
+            }
+            _ => {}
+        }
+        log_small_fields(rec, name, frame.layout(), held)?;
+    }
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn log_sensors(
+    rec: &rerun::RecordingStream,
+    input: &str,
+    orientation_wxyz: &[[f32; 4]; NUM_IMUS],
+    accel: &[[f32; 3]; NUM_IMUS],
+    rate: &[[f32; 3]; NUM_IMUS],
+    valid_mask: u32,
+    names: [&str; 2],
+) -> anyhow::Result<()> {
+    for (k, sensor) in SENSOR_NAMES.iter().enumerate() {
+        let valid = valid_mask & (1 << k) != 0;
+        let [w, x, y, z] = orientation_wxyz[k];
+        if valid && [w, x, y, z].iter().all(|v| v.is_finite()) {
+            rec.log(
+                format!("{input}/{sensor}/orientation"),
+                &rerun::Transform3D::from_rotation(rerun::Quaternion::from_xyzw([x, y, z, w])),
+            )?;
+            rec.log(format!("plots/{input}/{sensor}/{}", names[0]), &rerun::Scalars::new(accel[k]))?;
+            rec.log(format!("plots/{input}/{sensor}/{}", names[1]), &rerun::Scalars::new(rate[k]))?;
+        }
+        rec.log(format!("plots/{input}/{sensor}/valid"), &rerun::Scalars::single(if valid { 1.0 } else { 0.0 }))?;
+    }
+    Ok(())
+}
+
+/// Logs every field with few scalars (probabilities, velocities, counters) as a time series.
+fn log_small_fields(
+    rec: &rerun::RecordingStream,
+    input: &str,
+    layout: &FrameLayout,
+    held: &dyn HeldFrame,
+) -> anyhow::Result<()> {
+    let bytes = held.bytes();
+    for field in layout.fields.iter().filter(|f| !f.name.starts_with("header.") && f.len() <= MAX_SERIES_SCALARS && !f.name.starts_with("reserved")) {
+        let size = field.scalar.size();
+        let values: Vec<f64> = (0..field.len())
+            .filter_map(|i| bytes.get(field.offset + i * size..field.offset + (i + 1) * size))
+            .map(|b| match field.scalar {
+                ScalarType::F32 => f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+                ScalarType::U32 => f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+                ScalarType::U64 => u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]) as f64,
+            })
+            .collect();
+        if values.iter().all(|v| v.is_finite()) {
+            rec.log(format!("plots/{input}/{}", field.name), &rerun::Scalars::new(values))?;
+        }
+    }
+    Ok(())
+}

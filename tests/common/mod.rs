@@ -1,0 +1,102 @@
+//! Helpers for tests that run real multi-process graphs through the `imuflow` binary.
+
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::atomic::{AtomicU32, Ordering};
+
+pub const IMUFLOW: &str = env!("CARGO_BIN_EXE_imuflow");
+
+/// A scratch directory and a shared-memory prefix of its own, so parallel tests never see each
+/// other's files and each can check that its runs left nothing behind.
+pub struct Sandbox {
+    pub dir: PathBuf,
+    pub shm_prefix: String,
+}
+
+impl Sandbox {
+    pub fn new(name: &str) -> Self {
+        static COUNTER: AtomicU32 = AtomicU32::new(0);
+        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+        let tag = format!("{}_{}_{n}", std::process::id(), name);
+        let dir = std::env::temp_dir().join(format!("imuflow-test-{tag}"));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("create sandbox dir");
+        Sandbox {
+            dir,
+            shm_prefix: format!("imft{}_{n}_", std::process::id()),
+        }
+    }
+
+    pub fn path(&self, file: &str) -> PathBuf {
+        self.dir.join(file)
+    }
+
+    /// Writes a graph file into the sandbox; `{dir}` in the text becomes the sandbox path.
+    pub fn graph(&self, file: &str, text: &str) -> PathBuf {
+        let path = self.path(file);
+        std::fs::write(&path, text.replace("{dir}", &self.dir.display().to_string())).expect("write graph");
+        path
+    }
+
+    pub fn command(&self, args: &[&str]) -> Command {
+        let mut c = Command::new(IMUFLOW);
+        c.args(args).env("IMUFLOW_SHM_PREFIX", &self.shm_prefix).env("IMUFLOW_LOG", "warn");
+        c
+    }
+
+    pub fn run(&self, args: &[&str]) -> Output {
+        self.command(args).output().expect("run imuflow")
+    }
+
+    /// Shared-memory / iceoryx2 files this sandbox's runs left behind.
+    pub fn leftovers(&self) -> Vec<PathBuf> {
+        imuflow_graph::launch::shared_memory_files(&self.shm_prefix)
+    }
+
+    /// Processes still running with this sandbox's prefix in their environment.
+    pub fn stray_processes(&self) -> Vec<String> {
+        let needle = format!("IMUFLOW_SHM_PREFIX={}", self.shm_prefix);
+        let mut found = Vec::new();
+        let me = std::process::id().to_string();
+        for entry in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
+            let pid = entry.file_name().to_string_lossy().to_string();
+            if !pid.chars().all(|c| c.is_ascii_digit()) || pid == me {
+                continue;
+            }
+            if let Ok(env) = std::fs::read(entry.path().join("environ"))
+                && env.split(|&b| b == 0).any(|v| v == needle.as_bytes())
+            {
+                let cmd = std::fs::read(entry.path().join("cmdline")).unwrap_or_default();
+                found.push(format!("{pid}: {}", String::from_utf8_lossy(&cmd).replace('\0', " ")));
+            }
+        }
+        found
+    }
+}
+
+impl Drop for Sandbox {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+pub fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// Messages per topic of an mcap file, read with the mcap crate's reader (which checks the
+/// footer, summary and CRCs), as (topic, sequence, data).
+pub fn mcap_messages(path: &Path) -> Vec<(String, u32, Vec<u8>)> {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let summary = mcap::Summary::read(&bytes).expect("mcap summary readable").expect("mcap has a summary section (finalized)");
+    assert!(summary.stats.is_some(), "finalized mcap has statistics");
+    mcap::MessageStream::new(&bytes)
+        .expect("mcap stream")
+        .map(|m| {
+            let m = m.expect("valid mcap message");
+            (m.channel.topic.clone(), m.sequence, m.data.into_owned())
+        })
+        .collect()
+}
