@@ -293,8 +293,9 @@ impl<T: Frame> Output<T> {
         })
     }
 
-    /// Publishes one frame: `fill` writes the payload into shared memory (starting from zeros);
-    /// the header's `seq`, `capture_ns` and `flags` come from `header`, `publish_ns` is stamped now.
+    /// Publishes one frame: `fill` writes the payload into shared memory (starting from zeros).
+    /// `seq` and `capture_ns` come from `header`; the flags are `header`'s plus any `fill` set
+    /// (e.g. INVALID for a bad sample); `publish_ns` is stamped now.
     pub fn publish(
         &mut self,
         header: FrameHeader,
@@ -307,8 +308,10 @@ impl<T: Frame> Output<T> {
         let mut sample = sample.write_payload(T::zeroed());
         let frame = sample.payload_mut();
         fill(frame);
+        let flags_from_fill = frame.header().flags;
         *frame.header_mut() = FrameHeader {
             publish_ns: now_ns(),
+            flags: header.flags | flags_from_fill,
             reserved: 0,
             ..header
         };

@@ -1,0 +1,46 @@
+//! An external stage built on imuflow-graph's Stage API, run by a graph with `exec = "..."`.
+//!
+//! It reads IMU frames and its own previous output through a feedback edge, and writes a
+//! MotionFrame whose `q[0]` counts frames: previous `q[0]` + 1, starting from 0 when the feedback
+//! input still holds its initial value. The count equals `seq` only if feedback delivers exactly
+//! the previous frame, which the integration tests check.
+//!
+//! ```toml
+//! [stages.counter]
+//! exec = "target/debug/examples/external_counter"
+//! inputs = { imu = "source.imu", prev = "counter.count", feedback = ["prev"] }
+//! outputs = { count = "MotionFrame" }
+//! ```
+
+use imuflow_graph::StageContext;
+use imuflow_graph::frames::{ImuFrame, MotionFrame, flags};
+
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("external_counter: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> anyhow::Result<()> {
+    let mut ctx = StageContext::from_env()?;
+    let imu = ctx.input::<ImuFrame>("imu")?;
+    let prev = ctx.input::<MotionFrame>("prev")?;
+    let mut out = ctx.output::<MotionFrame>("count")?;
+    if ctx.ready()? {
+        while let Some(step) = ctx.next()? {
+            let last = ctx.get(&prev);
+            let count = if last.header.has(flags::FEEDBACK_INITIAL) { 0.0 } else { last.q[0] + 1.0 };
+            let valid_imus = ctx.get(&imu).valid_mask.count_ones() as f32;
+            out.publish(step.header(), |m| {
+                m.q[0] = count;
+                m.q[1] = valid_imus;
+            })?;
+        }
+    }
+    ctx.finish(&mut [&mut out])?;
+    Ok(())
+}
