@@ -33,7 +33,11 @@ fn run() -> anyhow::Result<()> {
     if ctx.ready()? {
         while let Some(step) = ctx.next()? {
             let last = ctx.get(&prev);
-            let count = if last.header.has(flags::FEEDBACK_INITIAL) { 0.0 } else { last.q[0] + 1.0 };
+            let count = if last.header.has(flags::FEEDBACK_INITIAL) {
+                0.0
+            } else {
+                last.q[0] + 1.0
+            };
             let valid_imus = ctx.get(&imu).valid_mask.count_ones() as f32;
             out.publish(step.header(), |m| {
                 m.q[0] = count;

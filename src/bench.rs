@@ -40,10 +40,30 @@ pub const SOURCE_SPEC: StageSpec = StageSpec {
     role: Role::Source,
     summary: "benchmark source: MotionFrames at a fixed rate (or as fast as possible); used by `imuflow bench`",
     inputs: InputsSpec::Fixed(&[]),
-    outputs: &[PortSpec { name: "out", frame: FrameType::Motion, required: false, doc: "MotionFrames with a counter payload" }],
+    outputs: &[PortSpec {
+        name: "out",
+        frame: FrameType::Motion,
+        required: false,
+        doc: "MotionFrames with a counter payload",
+    }],
     params: &[
-        ParamSpec { name: "frames", ty: ParamType::Int { min: 1, max: 1 << 40 }, required: false, default: "1000", doc: "frames to send" },
-        ParamSpec { name: "rate_hz", ty: ParamType::Float { min: 0.0, max: 1e6 }, required: false, default: "0", doc: "send rate; 0 = as fast as possible" },
+        ParamSpec {
+            name: "frames",
+            ty: ParamType::Int {
+                min: 1,
+                max: 1 << 40,
+            },
+            required: false,
+            default: "1000",
+            doc: "frames to send",
+        },
+        ParamSpec {
+            name: "rate_hz",
+            ty: ParamType::Float { min: 0.0, max: 1e6 },
+            required: false,
+            default: "0",
+            doc: "send rate; 0 = as fast as possible",
+        },
     ],
 };
 
@@ -51,8 +71,18 @@ pub const RELAY_SPEC: StageSpec = StageSpec {
     kind: "relay",
     role: Role::Transform,
     summary: "copies each MotionFrame from its input to its output; used by `imuflow bench`",
-    inputs: InputsSpec::Fixed(&[PortSpec { name: "in", frame: FrameType::Motion, required: true, doc: "frames to forward" }]),
-    outputs: &[PortSpec { name: "out", frame: FrameType::Motion, required: false, doc: "the same frames" }],
+    inputs: InputsSpec::Fixed(&[PortSpec {
+        name: "in",
+        frame: FrameType::Motion,
+        required: true,
+        doc: "frames to forward",
+    }]),
+    outputs: &[PortSpec {
+        name: "out",
+        frame: FrameType::Motion,
+        required: false,
+        doc: "the same frames",
+    }],
     params: &[],
 };
 
@@ -76,10 +106,24 @@ pub fn run_source() -> anyhow::Result<()> {
             }
             let t0 = Instant::now();
             let capture_ns = now_ns();
-            out.publish(FrameHeader { seq, capture_ns, ..Default::default() }, |f| {
-                f.q[0] = seq as f32;
-            })?;
-            ctx.record_source_step(Step { seq, capture_ns, flags: 0 }, t0.elapsed());
+            out.publish(
+                FrameHeader {
+                    seq,
+                    capture_ns,
+                    ..Default::default()
+                },
+                |f| {
+                    f.q[0] = seq as f32;
+                },
+            )?;
+            ctx.record_source_step(
+                Step {
+                    seq,
+                    capture_ns,
+                    flags: 0,
+                },
+                t0.elapsed(),
+            );
         }
     }
     ctx.finish(&mut [&mut out])?;
@@ -105,7 +149,10 @@ fn chain_graph(stages: usize, frames: u64, rate_hz: f64) -> String {
         "name = \"bench-transport\"\n[stages.s0]\nkind = \"bench-source\"\nparams = {{ frames = {frames}, rate_hz = {rate_hz:.1} }}\n"
     );
     for i in 1..stages {
-        toml += &format!("[stages.s{i}]\nkind = \"relay\"\ninputs = {{ in = \"s{}.out\" }}\n", i - 1);
+        toml += &format!(
+            "[stages.s{i}]\nkind = \"relay\"\ninputs = {{ in = \"s{}.out\" }}\n",
+            i - 1
+        );
     }
     toml
 }
@@ -119,7 +166,9 @@ fn children_cpu() -> Duration {
         libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage);
         usage
     };
-    let tv = |t: libc::timeval| Duration::from_secs(t.tv_sec as u64) + Duration::from_micros(t.tv_usec as u64);
+    let tv = |t: libc::timeval| {
+        Duration::from_secs(t.tv_sec as u64) + Duration::from_micros(t.tv_usec as u64)
+    };
     tv(usage.ru_utime) + tv(usage.ru_stime)
 }
 
@@ -132,7 +181,12 @@ struct ChainResult {
 
 fn run_chain(stages: usize, frames: u64, rate_hz: f64) -> anyhow::Result<ChainResult> {
     let registry = crate::registry::registry();
-    let graph = Graph::from_str_with(Path::new("<bench>"), &chain_graph(stages, frames, rate_hz), &[], &registry)?;
+    let graph = Graph::from_str_with(
+        Path::new("<bench>"),
+        &chain_graph(stages, frames, rate_hz),
+        &[],
+        &registry,
+    )?;
     let options = LaunchOptions {
         imuflow_exe: std::env::current_exe().context("cannot find the imuflow executable")?,
         progress: false,
@@ -151,11 +205,21 @@ fn run_chain(stages: usize, frames: u64, rate_hz: f64) -> anyhow::Result<ChainRe
         }
         hops.push((s.latency_p50_us, s.latency_p99_us));
     }
-    Ok(ChainResult { hops, wall_s: report.wall.as_secs_f64(), cpu_s, frames })
+    Ok(ChainResult {
+        hops,
+        wall_s: report.wall.as_secs_f64(),
+        cpu_s,
+        frames,
+    })
 }
 
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
-    let BenchCommand::Transport { stages, frames, rate_hz, throughput_frames } = cmd;
+    let BenchCommand::Transport {
+        stages,
+        frames,
+        rate_hz,
+        throughput_frames,
+    } = cmd;
     if stages < 2 {
         bail!("--stages must be at least 2 (a source and a relay)");
     }
@@ -165,10 +229,18 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         std::mem::size_of::<MotionFrame>()
     );
     let paced = run_chain(stages, frames, rate_hz)?;
-    println!("\npaced run: {} frames at {rate_hz} Hz ({:.1} s)", paced.frames, paced.wall_s);
+    println!(
+        "\npaced run: {} frames at {rate_hz} Hz ({:.1} s)",
+        paced.frames, paced.wall_s
+    );
     println!("{:<8} {:>10} {:>10}", "hop", "p50 µs", "p99 µs");
     for (i, (p50, p99)) in paced.hops.iter().enumerate() {
-        println!("{:<8} {:>10.1} {:>10.1}", format!("s{i}->s{}", i + 1), p50, p99);
+        println!(
+            "{:<8} {:>10.1} {:>10.1}",
+            format!("s{i}->s{}", i + 1),
+            p50,
+            p99
+        );
     }
     let mut p50s: Vec<f64> = paced.hops.iter().map(|h| h.0).collect();
     let mut p99s: Vec<f64> = paced.hops.iter().map(|h| h.1).collect();

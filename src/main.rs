@@ -117,7 +117,9 @@ fn main() -> ExitCode {
             print!("{}", registry::describe_kinds());
             ExitCode::SUCCESS
         }
-        Command::Stage { kind: Some(kind), .. } => match registry::run_stage(&kind) {
+        Command::Stage {
+            kind: Some(kind), ..
+        } => match registry::run_stage(&kind) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
                 tracing::error!("{e:#}");
@@ -209,13 +211,29 @@ fn print_summary(graph: &Graph, report: &launch::RunReport) {
     );
     println!(
         "{:<14} {:<14} {:>9} {:>9} {:>8} {:>10} {:>10} {:>12} {:>12}",
-        "stage", "kind", "frames in", "out", "dropped", "mean µs", "p99 µs", "in-lat p50", "in-lat p99"
+        "stage",
+        "kind",
+        "frames in",
+        "out",
+        "dropped",
+        "mean µs",
+        "p99 µs",
+        "in-lat p50",
+        "in-lat p99"
     );
     for node in graph.topological_order() {
         if let Some((kind, s)) = report.stages.get(&node.id) {
             println!(
                 "{:<14} {:<14} {:>9} {:>9} {:>8} {:>10.1} {:>10.1} {:>12.1} {:>12.1}",
-                node.id, kind, s.frames_in, s.frames_out, s.dropped, s.mean_us, s.p99_us, s.latency_p50_us, s.latency_p99_us
+                node.id,
+                kind,
+                s.frames_in,
+                s.frames_out,
+                s.dropped,
+                s.mean_us,
+                s.p99_us,
+                s.latency_p50_us,
+                s.latency_p99_us
             );
         }
     }

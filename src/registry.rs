@@ -46,7 +46,13 @@ pub fn describe_kinds() -> String {
             InputsSpec::Fixed(ports) => {
                 for p in ports {
                     let req = if p.required { "required" } else { "optional" };
-                    let _ = writeln!(out, "  in  {:<12} {:<16} {req}: {}", p.name, p.frame.name(), p.doc);
+                    let _ = writeln!(
+                        out,
+                        "  in  {:<12} {:<16} {req}: {}",
+                        p.name,
+                        p.frame.name(),
+                        p.doc
+                    );
                 }
             }
         }
@@ -61,7 +67,13 @@ pub fn describe_kinds() -> String {
             } else {
                 format!("default {}", p.default)
             };
-            let _ = writeln!(out, "  param {:<16} {} ({default}): {}", p.name, p.ty.expected(), p.doc);
+            let _ = writeln!(
+                out,
+                "  param {:<16} {} ({default}): {}",
+                p.name,
+                p.ty.expected(),
+                p.doc
+            );
         }
         out.push('\n');
     }

@@ -38,11 +38,19 @@ fn smoke_graph_records_every_frame_to_mcap_and_rrd() {
     assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
     let stdout = text(&out.stdout);
     assert!(stdout.contains("graph 'smoke-test' finished"), "{stdout}");
-    assert!(stdout.lines().any(|l| l.starts_with("record") && l.contains(" 120 ")), "summary counts frames:\n{stdout}");
+    assert!(
+        stdout
+            .lines()
+            .any(|l| l.starts_with("record") && l.contains(" 120 ")),
+        "summary counts frames:\n{stdout}"
+    );
 
     let messages = mcap_messages(&sb.path("out.mcap"));
     let raw: Vec<_> = messages.iter().filter(|m| m.0 == "source.imu").collect();
-    let json: Vec<_> = messages.iter().filter(|m| m.0 == "source.imu/json").collect();
+    let json: Vec<_> = messages
+        .iter()
+        .filter(|m| m.0 == "source.imu/json")
+        .collect();
     assert_eq!(raw.len(), 120);
     assert_eq!(json.len(), 120);
     for (i, (_, seq, data)) in raw.iter().enumerate() {
@@ -51,7 +59,11 @@ fn smoke_graph_records_every_frame_to_mcap_and_rrd() {
         assert_eq!(*seq, i as u32);
         // invalid_every = 40: frames 39, 79, 119 lose sensor 0 and are flagged INVALID.
         let expect_invalid = i % 40 == 39;
-        assert_eq!(frame.header.has(flags::INVALID), expect_invalid, "frame {i}");
+        assert_eq!(
+            frame.header.has(flags::INVALID),
+            expect_invalid,
+            "frame {i}"
+        );
         assert_eq!(frame.valid_mask & 1 == 0, expect_invalid, "frame {i}");
         // Offline capture time is seq / rate (60 Hz).
         assert_eq!(frame.header.capture_ns, (i as f64 * 1e9 / 60.0) as u64);
@@ -73,7 +85,13 @@ fn replaying_the_same_input_twice_records_identical_frames() {
     for name in ["a.mcap", "b.mcap"] {
         let path = sb.path(name);
         let set = format!("stages.record.params.path={}", path.display());
-        let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress", "--set", &set]);
+        let out = sb.run(&[
+            "run",
+            graph.to_str().expect("utf8"),
+            "--no-progress",
+            "--set",
+            &set,
+        ]);
         assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
         runs.push(mcap_messages(&path));
     }
@@ -91,7 +109,10 @@ fn replaying_the_same_input_twice_records_identical_frames() {
     };
     let (a, b) = (strip(&runs[0]), strip(&runs[1]));
     assert_eq!(a.len(), 120);
-    assert!(a == b, "recorded frames differ between two runs of the same input");
+    assert!(
+        a == b,
+        "recorded frames differ between two runs of the same input"
+    );
     assert_clean(&sb);
 }
 
@@ -127,14 +148,23 @@ fn a_failing_stage_stops_the_run_quickly_naming_it_and_recordings_stay_valid() {
     let took = start.elapsed();
     let stderr = text(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "stderr:\n{stderr}");
-    assert!(stderr.contains("stage 'crasher' failed: exited with code 3"), "{stderr}");
-    assert!(stderr.contains("boom: simulated sensor failure"), "last stderr lines shown:\n{stderr}");
+    assert!(
+        stderr.contains("stage 'crasher' failed: exited with code 3"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("boom: simulated sensor failure"),
+        "last stderr lines shown:\n{stderr}"
+    );
     // Start-up plus 0.5 s of running plus the stop must stay well under the 100000-frame stream.
     assert!(took < Duration::from_secs(4), "run took {took:?}");
 
     let messages = mcap_messages(&sb.path("crash.mcap"));
     let frames = messages.iter().filter(|m| m.0 == "source.imu").count();
-    assert!(frames >= 10, "the recorder kept what it had received ({frames} frames)");
+    assert!(
+        frames >= 10,
+        "the recorder kept what it had received ({frames} frames)"
+    );
     assert_clean(&sb);
 }
 
@@ -144,7 +174,10 @@ fn sigint_stops_the_graph_cleanly_with_valid_files() {
     let graph = sb.graph(
         "live.toml",
         &SMOKE
-            .replace("name = \"smoke-test\"", "name = \"sigint-test\"\nmode = \"live\"")
+            .replace(
+                "name = \"smoke-test\"",
+                "name = \"sigint-test\"\nmode = \"live\"",
+            )
             .replace("frames = 120", "frames = 100000"),
     );
     let mut child = sb
@@ -164,7 +197,10 @@ fn sigint_stops_the_graph_cleanly_with_valid_files() {
         if let Some(status) = child.try_wait().expect("wait") {
             break status;
         }
-        assert!(Instant::now() < deadline, "imuflow did not stop within 10 s of SIGINT");
+        assert!(
+            Instant::now() < deadline,
+            "imuflow did not stop within 10 s of SIGINT"
+        );
         std::thread::sleep(Duration::from_millis(20));
     };
     let out = child.wait_with_output().expect("output");
@@ -173,20 +209,32 @@ fn sigint_stops_the_graph_cleanly_with_valid_files() {
     let frames = messages.iter().filter(|m| m.0 == "source.imu").count();
     // ~1.5 s at 60 Hz, minus start-up.
     assert!((20..200).contains(&frames), "recorded {frames} frames");
-    assert!(std::fs::metadata(sb.path("out.rrd")).map(|m| m.len()).unwrap_or(0) > 1000);
+    assert!(
+        std::fs::metadata(sb.path("out.rrd"))
+            .map(|m| m.len())
+            .unwrap_or(0)
+            > 1000
+    );
     assert_clean(&sb);
 }
 
 fn example_exe(name: &str) -> std::path::PathBuf {
     let bin = std::path::Path::new(common::IMUFLOW);
-    bin.parent().expect("target dir").join("examples").join(name)
+    bin.parent()
+        .expect("target dir")
+        .join("examples")
+        .join(name)
 }
 
 #[test]
 fn feedback_edges_deliver_the_previous_frame_to_an_external_stage() {
     let sb = Sandbox::new("feedback");
     let exe = example_exe("external_counter");
-    assert!(exe.is_file(), "cargo test builds examples: {}", exe.display());
+    assert!(
+        exe.is_file(),
+        "cargo test builds examples: {}",
+        exe.display()
+    );
     let graph = sb.graph(
         "feedback.toml",
         &format!(
@@ -214,7 +262,12 @@ params = {{ path = "{{dir}}/count.mcap" }}
     for (i, (_, _, data)) in messages.iter().enumerate() {
         let m: MotionFrame = frame_from_bytes(data).expect("MotionFrame");
         assert_eq!(m.header.seq, i as u64);
-        assert_eq!(m.q[0], i as f32, "frame {i}: feedback must hold exactly frame {}", i as i64 - 1);
+        assert_eq!(
+            m.q[0],
+            i as f32,
+            "frame {i}: feedback must hold exactly frame {}",
+            i as i64 - 1
+        );
         // INVALID from the source propagates through the external stage.
         assert_eq!(m.header.has(flags::INVALID), i % 50 == 49, "frame {i}");
         assert_eq!(m.q[1], if i % 50 == 49 { 5.0 } else { 6.0 });
@@ -248,7 +301,10 @@ params = { path = "{dir}/b.mcap" }
     let b = mcap_messages(&sb.path("b.mcap"));
     assert_eq!(a.len(), 300);
     assert_eq!(b.len(), 300);
-    assert!(a.iter().zip(&b).all(|(x, y)| x.2 == y.2), "both readers got the same frames");
+    assert!(
+        a.iter().zip(&b).all(|(x, y)| x.2 == y.2),
+        "both readers got the same frames"
+    );
     assert_clean(&sb);
 }
 
@@ -270,7 +326,10 @@ inputs = { imu = "source.imu" }
     let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     let stderr = text(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("stage 'broken' failed: exited with code 7"), "{stderr}");
+    assert!(
+        stderr.contains("stage 'broken' failed: exited with code 7"),
+        "{stderr}"
+    );
     assert!(stderr.contains("cannot open the sensor port"), "{stderr}");
     assert_clean(&sb);
 }
@@ -278,16 +337,31 @@ inputs = { imu = "source.imu" }
 #[test]
 fn a_run_removes_what_a_killed_earlier_run_left_behind() {
     let sb = Sandbox::new("stale");
-    let graph = sb.graph("live.toml", &SMOKE.replace("name = \"smoke-test\"", "name = \"stale\"\nmode = \"live\"").replace("frames = 120", "frames = 100000"));
-    let mut child = sb.command(&["run", graph.to_str().expect("utf8"), "--no-progress", "-q"]).spawn().expect("start");
+    let graph = sb.graph(
+        "live.toml",
+        &SMOKE
+            .replace("name = \"smoke-test\"", "name = \"stale\"\nmode = \"live\"")
+            .replace("frames = 120", "frames = 100000"),
+    );
+    let mut child = sb
+        .command(&["run", graph.to_str().expect("utf8"), "--no-progress", "-q"])
+        .spawn()
+        .expect("start");
     std::thread::sleep(Duration::from_millis(1200));
     // kill -9 the launcher: nobody cleans up; its stages see stdin close and exit.
     child.kill().expect("kill");
     let _ = child.wait();
     std::thread::sleep(Duration::from_millis(500));
-    assert!(!sb.leftovers().is_empty(), "a killed launcher leaves shared memory behind");
+    assert!(
+        !sb.leftovers().is_empty(),
+        "a killed launcher leaves shared memory behind"
+    );
     let out = sb.run(&["clean"]);
     assert!(out.status.success());
-    assert!(text(&out.stdout).contains("removed"), "{}", text(&out.stdout));
+    assert!(
+        text(&out.stdout).contains("removed"),
+        "{}",
+        text(&out.stdout)
+    );
     assert_clean(&sb);
 }

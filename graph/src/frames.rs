@@ -446,7 +446,8 @@ pub fn frame_from_bytes<T: Frame>(bytes: &[u8]) -> Option<T> {
 const _: () = assert!(std::mem::size_of::<FrameHeader>() == 32);
 const _: () = assert!(std::mem::size_of::<ImuFrame>() == 32 + 96 + 72 + 72 + 8);
 const _: () = assert!(std::mem::size_of::<BodyImuFrame>() == 32 + 96 + 72 + 72 + 24 + 8);
-const _: () = assert!(std::mem::size_of::<KinematicsFrame>() == 32 + 384 + 288 + 288 + 8 + 20 + 24 + 4);
+const _: () =
+    assert!(std::mem::size_of::<KinematicsFrame>() == 32 + 384 + 288 + 288 + 8 + 20 + 24 + 4);
 const _: () = assert!(std::mem::align_of::<MotionFrame>() == 8);
 
 #[cfg(test)]
@@ -484,7 +485,10 @@ mod tests {
             .expect("field exists");
         assert_eq!(field.shape, vec![6, 3]);
         let at = field.offset + (2 * 3 + 1) * 4;
-        assert_eq!(f32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes")), 1.5);
+        assert_eq!(
+            f32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes")),
+            1.5
+        );
     }
 
     #[test]

@@ -155,10 +155,12 @@ impl Graph {
         sets: &[String],
         registry: &Registry,
     ) -> Result<Graph, GraphLoadError> {
-        let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| GraphLoadError::Parse {
-            path: path.to_owned(),
-            message: e.to_string().trim_end().to_owned(),
-        })?;
+        let mut table: toml::Table =
+            text.parse()
+                .map_err(|e: toml::de::Error| GraphLoadError::Parse {
+                    path: path.to_owned(),
+                    message: e.to_string().trim_end().to_owned(),
+                })?;
         for assignment in sets {
             overrides::apply(&mut table, assignment).map_err(|message| {
                 GraphLoadError::Override {
@@ -203,7 +205,11 @@ impl Graph {
             }
             if placed.len() == before {
                 // Unreachable for validated graphs; keep the rest in id order rather than loop.
-                placed.extend(self.stages.values().filter(|n| !done.contains(n.id.as_str())));
+                placed.extend(
+                    self.stages
+                        .values()
+                        .filter(|n| !done.contains(n.id.as_str())),
+                );
                 break;
             }
         }
@@ -227,9 +233,19 @@ impl Graph {
             self.rate_hz
         );
         for node in self.topological_order() {
-            let _ = writeln!(out, "\n[{}] {} ({:?})", node.id, node.kind_label(), node.role);
+            let _ = writeln!(
+                out,
+                "\n[{}] {} ({:?})",
+                node.id,
+                node.kind_label(),
+                node.role
+            );
             for (name, edge) in &node.inputs {
-                let fb = if edge.feedback { "  (feedback: previous frame)" } else { "" };
+                let fb = if edge.feedback {
+                    "  (feedback: previous frame)"
+                } else {
+                    ""
+                };
                 let _ = writeln!(
                     out,
                     "  in  {name:<12} <- {}.{}  {}{fb}",
@@ -237,7 +253,11 @@ impl Graph {
                 );
             }
             for (name, frame) in &node.outputs {
-                let readers = node.readers.get(name).map(Vec::as_slice).unwrap_or_default();
+                let readers = node
+                    .readers
+                    .get(name)
+                    .map(Vec::as_slice)
+                    .unwrap_or_default();
                 let to = if readers.is_empty() {
                     "(not read)".to_owned()
                 } else {

@@ -75,7 +75,10 @@ pub enum RunError {
         status: String,
         stderr_tail: Vec<String>,
     },
-    #[error("stage '{stage}' did not report ready within {timeout_s} s (ready_timeout_s in the graph){}", tail_text(stderr_tail))]
+    #[error(
+        "stage '{stage}' did not report ready within {timeout_s} s (ready_timeout_s in the graph){}",
+        tail_text(stderr_tail)
+    )]
     NotReady {
         stage: String,
         timeout_s: f64,
@@ -91,7 +94,11 @@ fn tail_text(lines: &[String]) -> String {
     } else {
         format!(
             "\n  last stderr lines:\n{}",
-            lines.iter().map(|l| format!("    | {l}")).collect::<Vec<_>>().join("\n")
+            lines
+                .iter()
+                .map(|l| format!("    | {l}"))
+                .collect::<Vec<_>>()
+                .join("\n")
         )
     }
 }
@@ -194,13 +201,20 @@ fn remove_run_files(prefix: &str) -> usize {
 pub fn remove_stale_runs(base: &str) -> usize {
     let mut stale = std::collections::BTreeSet::new();
     for file in shared_memory_files(base) {
-        let name = file.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let Some(rest) = name.strip_prefix(base) else { continue };
+        let name = file
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let Some(rest) = name.strip_prefix(base) else {
+            continue;
+        };
         let mut parts = rest.splitn(3, '_');
         let (Some(pid), Some(run), Some(_)) = (parts.next(), parts.next(), parts.next()) else {
             continue;
         };
-        let Ok(pid) = pid.parse::<i32>() else { continue };
+        let Ok(pid) = pid.parse::<i32>() else {
+            continue;
+        };
         if !process_alive(pid) {
             stale.insert(format!("{base}{pid}_{run}_"));
         }
@@ -239,7 +253,15 @@ fn run_in(
     }
     let (tx, rx) = mpsc::channel();
     let mut stages = Vec::new();
-    let spawned = spawn_all(graph, options, run_id, run_dir, shm_prefix, &tx, &mut stages);
+    let spawned = spawn_all(
+        graph,
+        options,
+        run_id,
+        run_dir,
+        shm_prefix,
+        &tx,
+        &mut stages,
+    );
     let result = spawned.and_then(|()| supervise(graph, options, &mut stages, &rx, &interrupted));
     if result.is_err() {
         stop_all(&mut stages);
@@ -405,7 +427,11 @@ fn supervise(
             return Err(RunError::NotReady {
                 stage: s.id.clone(),
                 timeout_s: graph.ready_timeout_s,
-                stderr_tail: s.stderr_tail.lock().map(|t| t.iter().cloned().collect()).unwrap_or_default(),
+                stderr_tail: s
+                    .stderr_tail
+                    .lock()
+                    .map(|t| t.iter().cloned().collect())
+                    .unwrap_or_default(),
             });
         }
     }
@@ -421,7 +447,9 @@ fn supervise(
         handle_events(stages, rx, &bar, &log)?;
         reap(stages)?;
         if interrupted.load(Ordering::Relaxed) && stop_requested_at.is_none() {
-            bar.suspend(|| eprintln!("stopping: ending the stream at the sources (Ctrl-C again to force)"));
+            bar.suspend(|| {
+                eprintln!("stopping: ending the stream at the sources (Ctrl-C again to force)")
+            });
             for s in stages.iter_mut().filter(|s| s.role == Role::Source) {
                 s.send("stop");
             }

@@ -61,7 +61,11 @@ mod tests {
     #[test]
     fn rejects_bad_assignments() {
         let mut t: toml::Table = "name = \"g\"".parse().expect("valid toml");
-        assert!(apply(&mut t, "no-equals-sign").unwrap_err().contains("KEY=VALUE"));
+        assert!(
+            apply(&mut t, "no-equals-sign")
+                .unwrap_err()
+                .contains("KEY=VALUE")
+        );
         assert!(apply(&mut t, "a..b=1").unwrap_err().contains("dotted key"));
         let err = apply(&mut t, "name.inner=1").unwrap_err();
         assert!(err.contains("'name' is a string, not a table"), "{err}");

@@ -43,9 +43,15 @@ pub enum ParamType {
     Path,
     Bool,
     /// An integer within the inclusive range.
-    Int { min: i64, max: i64 },
+    Int {
+        min: i64,
+        max: i64,
+    },
     /// A finite float within the inclusive range.
-    Float { min: f64, max: f64 },
+    Float {
+        min: f64,
+        max: f64,
+    },
     /// One of the listed strings.
     Choice(&'static [&'static str]),
 }

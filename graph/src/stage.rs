@@ -65,7 +65,9 @@ pub enum StageError {
     #[error("stage '{0}' is not in the run's graph")]
     UnknownStage(String),
     /// The stage asked for a port the graph does not give it.
-    #[error("stage '{stage}': the graph has no {direction} '{port}' for this stage (it has: {known})")]
+    #[error(
+        "stage '{stage}': the graph has no {direction} '{port}' for this stage (it has: {known})"
+    )]
     NoSuchPort {
         stage: String,
         direction: &'static str,
@@ -73,7 +75,9 @@ pub enum StageError {
         known: String,
     },
     /// The stage's code and the graph disagree about a port's frame type.
-    #[error("stage '{stage}': {direction} '{port}' carries {graph} in the graph but the stage uses {code}")]
+    #[error(
+        "stage '{stage}': {direction} '{port}' carries {graph} in the graph but the stage uses {code}"
+    )]
     PortType {
         stage: String,
         direction: &'static str,
@@ -285,7 +289,12 @@ impl StageContext {
                 stage: self.stage.id.clone(),
                 direction: "input",
                 port: name.to_owned(),
-                known: self.inputs.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join(", "),
+                known: self
+                    .inputs
+                    .iter()
+                    .map(|s| s.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
             })?;
         let frame = self.inputs[index].subscriber.frame_type();
         if frame != T::TYPE {
@@ -310,12 +319,22 @@ impl StageContext {
 
     /// Opens output `port` as frame type `T`.
     pub fn output<T: Frame>(&self, port: &str) -> Result<Output<T>, StageError> {
-        let frame = *self.stage.outputs.get(port).ok_or_else(|| StageError::NoSuchPort {
-            stage: self.stage.id.clone(),
-            direction: "output",
-            port: port.to_owned(),
-            known: self.stage.outputs.keys().cloned().collect::<Vec<_>>().join(", "),
-        })?;
+        let frame = *self
+            .stage
+            .outputs
+            .get(port)
+            .ok_or_else(|| StageError::NoSuchPort {
+                stage: self.stage.id.clone(),
+                direction: "output",
+                port: port.to_owned(),
+                known: self
+                    .stage
+                    .outputs
+                    .keys()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })?;
         if frame != T::TYPE {
             return Err(StageError::PortType {
                 stage: self.stage.id.clone(),
@@ -364,6 +383,8 @@ impl StageContext {
 
     /// Waits for the next aligned set of input frames. `None` when every input reached
     /// END_OF_STREAM or the stage was told to stop.
+    // Not an Iterator: it is fallible and lends frames out of the context.
+    #[allow(clippy::should_implement_trait)]
     pub fn next(&mut self) -> Result<Option<Step>, StageError> {
         if let Some(t) = self.step_started.take() {
             self.stats.record_processing(t.elapsed());
@@ -440,7 +461,8 @@ impl StageContext {
                 }
                 slot.last_seq = Some(header.seq);
                 slot.current = Some(frame);
-                self.stats.record_latency(header.publish_ns, transport::now_ns());
+                self.stats
+                    .record_latency(header.publish_ns, transport::now_ns());
                 self.any_cursor = i + 1;
                 self.stats.frames_in += 1;
                 self.step_started = Some(Instant::now());
@@ -511,7 +533,11 @@ impl StageContext {
         }
         let mut unmatched = 0;
         for slot in self.inputs.iter_mut().filter(|s| !s.feedback) {
-            if slot.current.as_ref().is_some_and(|f| f.header().seq < target) {
+            if slot
+                .current
+                .as_ref()
+                .is_some_and(|f| f.header().seq < target)
+            {
                 slot.current = None;
                 unmatched += 1;
             }
@@ -533,10 +559,12 @@ impl StageContext {
             }
         }
         // Offline: a feedback input must hold the previous frame (its producer cannot be ahead).
-        if self.graph.mode == Mode::Offline && target > 0 && step.flags & flags::END_OF_STREAM == 0 {
-            let behind = self.inputs.iter().filter(|s| s.feedback).any(|s| {
-                !s.ended && s.last_seq.is_none_or(|seq| seq.saturating_add(1) < target)
-            });
+        if self.graph.mode == Mode::Offline && target > 0 && step.flags & flags::END_OF_STREAM == 0
+        {
+            let behind =
+                self.inputs.iter().filter(|s| s.feedback).any(|s| {
+                    !s.ended && s.last_seq.is_none_or(|seq| seq.saturating_add(1) < target)
+                });
             if behind {
                 return None;
             }
@@ -568,13 +596,14 @@ impl StageContext {
     }
 
     /// Ends the stage: END_OF_STREAM on every output, the summary to the launcher.
-    pub fn finish(mut self, outputs: &mut [&mut dyn EndOutput]) -> Result<StageSummary, StageError> {
+    pub fn finish(
+        mut self,
+        outputs: &mut [&mut dyn EndOutput],
+    ) -> Result<StageSummary, StageError> {
         if let Some(t) = self.step_started.take() {
             self.stats.record_processing(t.elapsed());
         }
-        let (seq, capture_ns) = self
-            .last_step
-            .map_or((0, 0), |s| (s.seq + 1, s.capture_ns));
+        let (seq, capture_ns) = self.last_step.map_or((0, 0), |s| (s.seq + 1, s.capture_ns));
         let mut end_error = None;
         for out in outputs.iter_mut() {
             if let Err(e) = out.end(seq, capture_ns) {
@@ -650,7 +679,9 @@ impl ControlMessage {
             "progress" => {
                 let mut it = args.split_whitespace().map(str::parse::<u64>);
                 match (it.next(), it.next()) {
-                    (Some(Ok(done)), Some(Ok(total))) => Some(ControlMessage::Progress { done, total }),
+                    (Some(Ok(done)), Some(Ok(total))) => {
+                        Some(ControlMessage::Progress { done, total })
+                    }
                     _ => None,
                 }
             }
@@ -668,10 +699,16 @@ impl Params<'_> {
         self.0.get(key).and_then(toml::Value::as_str)
     }
     pub fn bool(&self, key: &str, default: bool) -> bool {
-        self.0.get(key).and_then(toml::Value::as_bool).unwrap_or(default)
+        self.0
+            .get(key)
+            .and_then(toml::Value::as_bool)
+            .unwrap_or(default)
     }
     pub fn int(&self, key: &str, default: i64) -> i64 {
-        self.0.get(key).and_then(toml::Value::as_integer).unwrap_or(default)
+        self.0
+            .get(key)
+            .and_then(toml::Value::as_integer)
+            .unwrap_or(default)
     }
     pub fn float(&self, key: &str, default: f64) -> f64 {
         match self.0.get(key) {

@@ -26,7 +26,8 @@ impl StageStats {
     /// Records how long an input frame took from its publisher to this stage (transport latency).
     pub fn record_latency(&mut self, publish_ns: u64, received_ns: u64) {
         if publish_ns > 0 {
-            self.latency_us.push(received_ns.saturating_sub(publish_ns) as f32 / 1e3);
+            self.latency_us
+                .push(received_ns.saturating_sub(publish_ns) as f32 / 1e3);
         }
     }
 
@@ -101,7 +102,10 @@ mod tests {
 
     #[test]
     fn summary_mean_and_counts() {
-        let mut s = StageStats { frames_in: 3, ..Default::default() };
+        let mut s = StageStats {
+            frames_in: 3,
+            ..Default::default()
+        };
         for us in [10, 20, 30] {
             s.record_processing(Duration::from_micros(us));
         }

@@ -195,14 +195,21 @@ pub struct WakeListener {
 }
 
 impl WakeListener {
-    pub fn open(node: &Node<ipc::Service>, run_id: &str, stage: &str) -> Result<Self, TransportError> {
+    pub fn open(
+        node: &Node<ipc::Service>,
+        run_id: &str,
+        stage: &str,
+    ) -> Result<Self, TransportError> {
         let name = wake_service_name(run_id, stage);
         let service = open_event(node, &name)?;
-        let listener = service.listener_builder().create().map_err(|e| TransportError::Port {
-            what: "listener",
-            service: name,
-            message: format!("{e:?}"),
-        })?;
+        let listener = service
+            .listener_builder()
+            .create()
+            .map_err(|e| TransportError::Port {
+                what: "listener",
+                service: name,
+                message: format!("{e:?}"),
+            })?;
         Ok(Self {
             listener,
             _service: service,
@@ -226,7 +233,10 @@ pub struct Output<T: Frame> {
     service_label: String,
     publisher: iceoryx2::port::publisher::Publisher<ipc::Service, T, ()>,
     notifiers: Vec<iceoryx2::port::notifier::Notifier<ipc::Service>>,
-    _services: (PubSub<T>, Vec<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>>),
+    _services: (
+        PubSub<T>,
+        Vec<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>>,
+    ),
     sent: u64,
 }
 
@@ -277,10 +287,12 @@ impl<T: Frame> Output<T> {
         for reader in distinct {
             let wake = wake_service_name(run_id, reader);
             let event = open_event(node, &wake)?;
-            notifiers.push(event.notifier_builder().create().map_err(|e| TransportError::Port {
-                what: "notifier",
-                service: wake.clone(),
-                message: format!("{e:?}"),
+            notifiers.push(event.notifier_builder().create().map_err(|e| {
+                TransportError::Port {
+                    what: "notifier",
+                    service: wake.clone(),
+                    message: format!("{e:?}"),
+                }
             })?);
             wake_services.push(event);
         }
@@ -301,10 +313,13 @@ impl<T: Frame> Output<T> {
         header: FrameHeader,
         fill: impl FnOnce(&mut T),
     ) -> Result<(), TransportError> {
-        let sample = self.publisher.loan_uninit().map_err(|e| TransportError::Send {
-            service: self.service_label.clone(),
-            message: format!("{e:?}"),
-        })?;
+        let sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(|e| TransportError::Send {
+                service: self.service_label.clone(),
+                message: format!("{e:?}"),
+            })?;
         let mut sample = sample.write_payload(T::zeroed());
         let frame = sample.payload_mut();
         fill(frame);
@@ -444,11 +459,14 @@ fn open_typed<T: Frame>(
 ) -> Result<Box<dyn ErasedSubscriber>, TransportError> {
     let name = output_service_name(run_id, from_stage, from_port);
     let service = open_pubsub::<T>(node, &name, mode, readers)?;
-    let subscriber = service.subscriber_builder().create().map_err(|e| TransportError::Port {
-        what: "subscriber",
-        service: name.clone(),
-        message: format!("{e:?}"),
-    })?;
+    let subscriber = service
+        .subscriber_builder()
+        .create()
+        .map_err(|e| TransportError::Port {
+            what: "subscriber",
+            service: name.clone(),
+            message: format!("{e:?}"),
+        })?;
     Ok(Box::new(TypedSubscriber {
         label: format!("{from_stage}.{from_port}"),
         subscriber,
@@ -468,12 +486,24 @@ pub fn open_subscriber(
     readers: usize,
 ) -> Result<Box<dyn ErasedSubscriber>, TransportError> {
     match frame {
-        FrameType::Imu => open_typed::<ImuFrame>(node, run_id, from_stage, from_port, mode, readers),
-        FrameType::BodyImu => open_typed::<BodyImuFrame>(node, run_id, from_stage, from_port, mode, readers),
-        FrameType::Kinematics => open_typed::<KinematicsFrame>(node, run_id, from_stage, from_port, mode, readers),
-        FrameType::Contact => open_typed::<ContactFrame>(node, run_id, from_stage, from_port, mode, readers),
-        FrameType::Motion => open_typed::<MotionFrame>(node, run_id, from_stage, from_port, mode, readers),
-        FrameType::Validation => open_typed::<ValidationFrame>(node, run_id, from_stage, from_port, mode, readers),
+        FrameType::Imu => {
+            open_typed::<ImuFrame>(node, run_id, from_stage, from_port, mode, readers)
+        }
+        FrameType::BodyImu => {
+            open_typed::<BodyImuFrame>(node, run_id, from_stage, from_port, mode, readers)
+        }
+        FrameType::Kinematics => {
+            open_typed::<KinematicsFrame>(node, run_id, from_stage, from_port, mode, readers)
+        }
+        FrameType::Contact => {
+            open_typed::<ContactFrame>(node, run_id, from_stage, from_port, mode, readers)
+        }
+        FrameType::Motion => {
+            open_typed::<MotionFrame>(node, run_id, from_stage, from_port, mode, readers)
+        }
+        FrameType::Validation => {
+            open_typed::<ValidationFrame>(node, run_id, from_stage, from_port, mode, readers)
+        }
     }
 }
 

@@ -56,14 +56,20 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
     let rate_hz = match &file.rate_hz {
         None => DEFAULT_RATE_HZ,
         Some(v) => positive_number(v).unwrap_or_else(|| {
-            problems.file("rate_hz", format!("must be a positive finite number of Hz (got {v})"));
+            problems.file(
+                "rate_hz",
+                format!("must be a positive finite number of Hz (got {v})"),
+            );
             DEFAULT_RATE_HZ
         }),
     };
     let ready_timeout_s = match &file.ready_timeout_s {
         None => DEFAULT_READY_TIMEOUT_S,
         Some(v) => positive_number(v).unwrap_or_else(|| {
-            problems.file("ready_timeout_s", format!("must be a positive number of seconds (got {v})"));
+            problems.file(
+                "ready_timeout_s",
+                format!("must be a positive number of seconds (got {v})"),
+            );
             DEFAULT_READY_TIMEOUT_S
         }),
     };
@@ -71,7 +77,10 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
         None | Some("offline") => Mode::Offline,
         Some("live") => Mode::Live,
         Some(other) => {
-            problems.file("mode", format!("must be \"offline\" or \"live\" (got \"{other}\")"));
+            problems.file(
+                "mode",
+                format!("must be \"offline\" or \"live\" (got \"{other}\")"),
+            );
             Mode::Offline
         }
     };
@@ -106,7 +115,12 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
                 continue;
             };
             let Some(&frame) = upstream.outputs.get(from_port) else {
-                let known = upstream.outputs.keys().cloned().collect::<Vec<_>>().join(", ");
+                let known = upstream
+                    .outputs
+                    .keys()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(", ");
                 problems.stage(
                     d.id,
                     Some(&key),
@@ -161,7 +175,12 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
         .values()
         .flat_map(|n| {
             n.inputs.iter().map(|(input, e)| {
-                (e.from_stage.clone(), e.from_port.clone(), n.id.clone(), input.clone())
+                (
+                    e.from_stage.clone(),
+                    e.from_port.clone(),
+                    n.id.clone(),
+                    input.clone(),
+                )
             })
         })
         .collect();
@@ -196,6 +215,16 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
                 node.outputs.keys().cloned().collect::<Vec<_>>().join(", ")
             ));
         }
+        if node.role != Role::Source
+            && !node.inputs.is_empty()
+            && node.inputs.values().all(|e| e.feedback)
+        {
+            problems.stage(
+                &node.id,
+                Some("inputs"),
+                "every input is feedback, so nothing would ever drive this stage; it needs at least one input that is not feedback",
+            );
+        }
         if let Runner::Exec { path: exe, .. } = &node.runner
             && !exe.is_file()
         {
@@ -207,7 +236,10 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
         }
     }
     if !stages.is_empty() && !stages.values().any(|n| n.role == Role::Source) {
-        problems.file("stages", "the graph has no source stage, so nothing would ever flow");
+        problems.file(
+            "stages",
+            "the graph has no source stage, so nothing would ever flow",
+        );
     }
 
     if problems.0.is_empty() {
@@ -265,33 +297,66 @@ fn declare<'a>(
     }
     let (runner, spec, role, outputs) = match (&entry.kind, &entry.exec) {
         (Some(_), Some(_)) => {
-            problems.stage(id, Some("kind"), "set either `kind` (built-in) or `exec` (external), not both");
+            problems.stage(
+                id,
+                Some("kind"),
+                "set either `kind` (built-in) or `exec` (external), not both",
+            );
             return None;
         }
         (None, None) => {
-            problems.stage(id, Some("kind"), "missing: set `kind` to a built-in stage kind or `exec` to an executable");
+            problems.stage(
+                id,
+                Some("kind"),
+                "missing: set `kind` to a built-in stage kind or `exec` to an executable",
+            );
             return None;
         }
         (Some(kind), None) => {
             let Some(spec) = registry.get(kind) else {
-                let known = registry.kinds().map(|s| s.kind).collect::<Vec<_>>().join(", ");
-                problems.stage(id, Some("kind"), format!("unknown stage kind '{kind}' (known kinds: {known})"));
+                let known = registry
+                    .kinds()
+                    .map(|s| s.kind)
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                problems.stage(
+                    id,
+                    Some("kind"),
+                    format!("unknown stage kind '{kind}' (known kinds: {known})"),
+                );
                 return None;
             };
             if !entry.args.is_empty() {
                 problems.stage(id, Some("args"), "only `exec` stages take `args`");
             }
             if !entry.outputs.is_empty() {
-                problems.stage(id, Some("outputs"), format!("built-in kind '{kind}' declares its own outputs; remove `outputs`"));
+                problems.stage(
+                    id,
+                    Some("outputs"),
+                    format!("built-in kind '{kind}' declares its own outputs; remove `outputs`"),
+                );
             }
-            let outputs = spec.outputs.iter().map(|p| (p.name.to_owned(), p.frame)).collect();
-            (Runner::Builtin { kind: kind.clone() }, Some(spec), spec.role, outputs)
+            let outputs = spec
+                .outputs
+                .iter()
+                .map(|p| (p.name.to_owned(), p.frame))
+                .collect();
+            (
+                Runner::Builtin { kind: kind.clone() },
+                Some(spec),
+                spec.role,
+                outputs,
+            )
         }
         (None, Some(exec)) => {
             let mut outputs = BTreeMap::new();
             for (port, ty) in &entry.outputs {
                 if let Err(why) = check_identifier(port) {
-                    problems.stage(id, Some(&format!("outputs.{port}")), format!("invalid port name: {why}"));
+                    problems.stage(
+                        id,
+                        Some(&format!("outputs.{port}")),
+                        format!("invalid port name: {why}"),
+                    );
                     continue;
                 }
                 match FrameType::from_name(ty) {
@@ -300,7 +365,11 @@ fn declare<'a>(
                     }
                     None => {
                         let known = FrameType::ALL.map(|t| t.name()).join(", ");
-                        problems.stage(id, Some(&format!("outputs.{port}")), format!("unknown frame type '{ty}' (known: {known})"));
+                        problems.stage(
+                            id,
+                            Some(&format!("outputs.{port}")),
+                            format!("unknown frame type '{ty}' (known: {known})"),
+                        );
                     }
                 }
             }
@@ -309,7 +378,10 @@ fn declare<'a>(
                 (false, true) => Role::Sink,
                 (false, false) => Role::Transform,
             };
-            let runner = Runner::Exec { path: exec.into(), args: entry.args.clone() };
+            let runner = Runner::Exec {
+                path: exec.into(),
+                args: entry.args.clone(),
+            };
             (runner, None, role, outputs)
         }
     };
@@ -321,10 +393,23 @@ fn declare<'a>(
     }
     for name in &feedback {
         if !inputs.contains_key(name) {
-            problems.stage(id, Some("inputs.feedback"), format!("names '{name}', which is not an input of this stage"));
+            problems.stage(
+                id,
+                Some("inputs.feedback"),
+                format!("names '{name}', which is not an input of this stage"),
+            );
         }
     }
-    Some(Declared { id, runner, role, spec, outputs, inputs, feedback, params: entry.params.clone() })
+    Some(Declared {
+        id,
+        runner,
+        role,
+        spec,
+        outputs,
+        inputs,
+        feedback,
+        params: entry.params.clone(),
+    })
 }
 
 type ParsedInputs = (BTreeMap<String, (String, String)>, BTreeSet<String>);
@@ -342,11 +427,19 @@ fn parse_inputs(id: &str, table: &toml::Table, problems: &mut Problems) -> Parse
                             Some(s) => {
                                 feedback.insert(s.to_owned());
                             }
-                            None => problems.stage(id, Some(&key), format!("must list input names as strings (got {item})")),
+                            None => problems.stage(
+                                id,
+                                Some(&key),
+                                format!("must list input names as strings (got {item})"),
+                            ),
                         }
                     }
                 }
-                None => problems.stage(id, Some(&key), format!("must be an array of input names (got {value})")),
+                None => problems.stage(
+                    id,
+                    Some(&key),
+                    format!("must be an array of input names (got {value})"),
+                ),
             }
             continue;
         }
@@ -355,14 +448,22 @@ fn parse_inputs(id: &str, table: &toml::Table, problems: &mut Problems) -> Parse
             continue;
         }
         let Some(text) = value.as_str() else {
-            problems.stage(id, Some(&key), format!("must be \"stage.port\" (got {value})"));
+            problems.stage(
+                id,
+                Some(&key),
+                format!("must be \"stage.port\" (got {value})"),
+            );
             continue;
         };
         match text.split_once('.') {
             Some((stage, port)) if !stage.is_empty() && !port.is_empty() && !port.contains('.') => {
                 inputs.insert(name.clone(), (stage.to_owned(), port.to_owned()));
             }
-            _ => problems.stage(id, Some(&key), format!("must be \"stage.port\" (got \"{text}\")")),
+            _ => problems.stage(
+                id,
+                Some(&key),
+                format!("must be \"stage.port\" (got \"{text}\")"),
+            ),
         }
     }
     (inputs, feedback)
@@ -377,20 +478,42 @@ fn check_inputs_against_spec(
     match spec.inputs {
         InputsSpec::Any => {
             if spec.role == Role::Source && !inputs.is_empty() {
-                problems.stage(id, Some("inputs"), format!("kind '{}' is a source and takes no inputs", spec.kind));
+                problems.stage(
+                    id,
+                    Some("inputs"),
+                    format!("kind '{}' is a source and takes no inputs", spec.kind),
+                );
             }
         }
         InputsSpec::Fixed(ports) => {
             for name in inputs.keys() {
                 if !ports.iter().any(|p| p.name == name) {
                     let known = ports.iter().map(|p| p.name).collect::<Vec<_>>();
-                    let known = if known.is_empty() { "none".to_owned() } else { known.join(", ") };
-                    problems.stage(id, Some(&format!("inputs.{name}")), format!("kind '{}' has no input '{name}' (inputs: {known})", spec.kind));
+                    let known = if known.is_empty() {
+                        "none".to_owned()
+                    } else {
+                        known.join(", ")
+                    };
+                    problems.stage(
+                        id,
+                        Some(&format!("inputs.{name}")),
+                        format!(
+                            "kind '{}' has no input '{name}' (inputs: {known})",
+                            spec.kind
+                        ),
+                    );
                 }
             }
             for port in ports.iter().filter(|p| p.required) {
                 if !inputs.contains_key(port.name) {
-                    problems.stage(id, Some(&format!("inputs.{}", port.name)), format!("required input '{}' ({}) is not connected", port.name, port.frame));
+                    problems.stage(
+                        id,
+                        Some(&format!("inputs.{}", port.name)),
+                        format!(
+                            "required input '{}' ({}) is not connected",
+                            port.name, port.frame
+                        ),
+                    );
                 }
             }
         }
@@ -403,8 +526,19 @@ fn check_params(id: &str, spec: &StageSpec, params: &toml::Table, problems: &mut
         match spec.param(name) {
             None => {
                 let known = spec.params.iter().map(|p| p.name).collect::<Vec<_>>();
-                let known = if known.is_empty() { "none".to_owned() } else { known.join(", ") };
-                problems.stage(id, Some(&key), format!("unknown parameter for kind '{}' (parameters: {known})", spec.kind));
+                let known = if known.is_empty() {
+                    "none".to_owned()
+                } else {
+                    known.join(", ")
+                };
+                problems.stage(
+                    id,
+                    Some(&key),
+                    format!(
+                        "unknown parameter for kind '{}' (parameters: {known})",
+                        spec.kind
+                    ),
+                );
             }
             Some(p) => {
                 if let Err(why) = p.ty.check(value) {
@@ -415,7 +549,15 @@ fn check_params(id: &str, spec: &StageSpec, params: &toml::Table, problems: &mut
     }
     for p in spec.params.iter().filter(|p| p.required) {
         if !params.contains_key(p.name) {
-            problems.stage(id, Some(&format!("params.{}", p.name)), format!("required parameter is missing ({}: {})", p.ty.expected(), p.doc));
+            problems.stage(
+                id,
+                Some(&format!("params.{}", p.name)),
+                format!(
+                    "required parameter is missing ({}: {})",
+                    p.ty.expected(),
+                    p.doc
+                ),
+            );
         }
     }
 }
@@ -442,8 +584,10 @@ fn find_cycle(stages: &BTreeMap<String, StageNode>) -> Option<Vec<String>> {
                 match marks.get(&edge.from_stage).copied().unwrap_or(Mark::Done) {
                     Mark::Active => {
                         let start = path.iter().position(|p| *p == edge.from_stage).unwrap_or(0);
-                        // Report in flow direction: upstream first.
+                        // Report in flow direction (upstream first), from the smallest id.
                         let mut cycle: Vec<String> = path[start..].iter().rev().cloned().collect();
+                        let first = (0..cycle.len()).min_by_key(|&i| &cycle[i]).unwrap_or(0);
+                        cycle.rotate_left(first);
                         cycle.push(cycle[0].clone());
                         return Some(cycle);
                     }

@@ -36,13 +36,19 @@ impl Sandbox {
     /// Writes a graph file into the sandbox; `{dir}` in the text becomes the sandbox path.
     pub fn graph(&self, file: &str, text: &str) -> PathBuf {
         let path = self.path(file);
-        std::fs::write(&path, text.replace("{dir}", &self.dir.display().to_string())).expect("write graph");
+        std::fs::write(
+            &path,
+            text.replace("{dir}", &self.dir.display().to_string()),
+        )
+        .expect("write graph");
         path
     }
 
     pub fn command(&self, args: &[&str]) -> Command {
         let mut c = Command::new(IMUFLOW);
-        c.args(args).env("IMUFLOW_SHM_PREFIX", &self.shm_prefix).env("IMUFLOW_LOG", "warn");
+        c.args(args)
+            .env("IMUFLOW_SHM_PREFIX", &self.shm_prefix)
+            .env("IMUFLOW_LOG", "warn");
         c
     }
 
@@ -69,7 +75,10 @@ impl Sandbox {
                 && env.split(|&b| b == 0).any(|v| v == needle.as_bytes())
             {
                 let cmd = std::fs::read(entry.path().join("cmdline")).unwrap_or_default();
-                found.push(format!("{pid}: {}", String::from_utf8_lossy(&cmd).replace('\0', " ")));
+                found.push(format!(
+                    "{pid}: {}",
+                    String::from_utf8_lossy(&cmd).replace('\0', " ")
+                ));
             }
         }
         found
@@ -90,7 +99,9 @@ pub fn text(bytes: &[u8]) -> String {
 /// footer, summary and CRCs), as (topic, sequence, data).
 pub fn mcap_messages(path: &Path) -> Vec<(String, u32, Vec<u8>)> {
     let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let summary = mcap::Summary::read(&bytes).expect("mcap summary readable").expect("mcap has a summary section (finalized)");
+    let summary = mcap::Summary::read(&bytes)
+        .expect("mcap summary readable")
+        .expect("mcap has a summary section (finalized)");
     assert!(summary.stats.is_some(), "finalized mcap has statistics");
     mcap::MessageStream::new(&bytes)
         .expect("mcap stream")

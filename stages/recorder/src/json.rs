@@ -69,7 +69,9 @@ fn field_value(field: &FieldLayout, bytes: &[u8]) -> Value {
                     serde_json::Number::from_f64(f64::from(x)).map_or(Value::Null, Value::Number)
                 }
                 ScalarType::U32 => json!(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-                ScalarType::U64 => json!(u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]])),
+                ScalarType::U64 => json!(u64::from_le_bytes([
+                    b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]
+                ])),
             }
         })
         .collect();
@@ -107,9 +109,16 @@ mod tests {
         let props = s["properties"].as_object().expect("object");
         assert_eq!(props["specific_force_mps2"]["minItems"], json!(6));
         assert_eq!(props["specific_force_mps2"]["items"]["maxItems"], json!(3));
-        assert_eq!(props["header"]["properties"]["flags"]["type"], json!("integer"));
+        assert_eq!(
+            props["header"]["properties"]["flags"]["type"],
+            json!("integer")
+        );
         // Every non-header field plus the header object.
-        let non_header = ImuFrame::layout().fields.iter().filter(|f| !f.name.starts_with("header.")).count();
+        let non_header = ImuFrame::layout()
+            .fields
+            .iter()
+            .filter(|f| !f.name.starts_with("header."))
+            .count();
         assert_eq!(props.len(), non_header + 1);
     }
 }

@@ -18,10 +18,10 @@ use std::io::BufWriter;
 use std::path::PathBuf;
 
 use anyhow::Context;
+use imuflow_graph::StageContext;
 use imuflow_graph::frames::FrameType;
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, Role, StageSpec};
 use imuflow_graph::stage::Params;
-use imuflow_graph::StageContext;
 
 /// Schema encoding of the raw channels: the frame layout as JSON.
 pub const LAYOUT_ENCODING: &str = "imuflow-layout";
@@ -81,7 +81,10 @@ pub fn run() -> anyhow::Result<()> {
         .with_context(|| format!("{}: cannot write channel headers", path.display()))?;
     let mut metadata = BTreeMap::new();
     metadata.insert("graph".to_owned(), ctx.graph().name.clone());
-    metadata.insert("graph_file".to_owned(), ctx.graph().file.display().to_string());
+    metadata.insert(
+        "graph_file".to_owned(),
+        ctx.graph().file.display().to_string(),
+    );
     metadata.insert("rate_hz".to_owned(), ctx.graph().rate_hz.to_string());
     metadata.insert("stage".to_owned(), ctx.id().to_owned());
     writer
@@ -125,7 +128,11 @@ fn add_channels<W: std::io::Write + std::io::Seek>(
         let raw_schema = match schemas.get(&(edge.frame, false)) {
             Some(id) => *id,
             None => {
-                let id = writer.add_schema(layout.type_name, LAYOUT_ENCODING, &serde_json::to_vec_pretty(layout)?)?;
+                let id = writer.add_schema(
+                    layout.type_name,
+                    LAYOUT_ENCODING,
+                    &serde_json::to_vec_pretty(layout)?,
+                )?;
                 schemas.insert((edge.frame, false), id);
                 id
             }
@@ -135,16 +142,29 @@ fn add_channels<W: std::io::Write + std::io::Seek>(
             let schema = match schemas.get(&(edge.frame, true)) {
                 Some(id) => *id,
                 None => {
-                    let id = writer.add_schema(layout.type_name, "jsonschema", &serde_json::to_vec(&json::schema(layout))?)?;
+                    let id = writer.add_schema(
+                        layout.type_name,
+                        "jsonschema",
+                        &serde_json::to_vec(&json::schema(layout))?,
+                    )?;
                     schemas.insert((edge.frame, true), id);
                     id
                 }
             };
-            Some(writer.add_channel(schema, &format!("{topic}{JSON_TOPIC_SUFFIX}"), "json", &meta)?)
+            Some(writer.add_channel(
+                schema,
+                &format!("{topic}{JSON_TOPIC_SUFFIX}"),
+                "json",
+                &meta,
+            )?)
         } else {
             None
         };
-        channels.push(Channels { raw, json, frame: edge.frame });
+        channels.push(Channels {
+            raw,
+            json,
+            frame: edge.frame,
+        });
     }
     Ok(channels)
 }
@@ -171,7 +191,10 @@ fn record<W: std::io::Write + std::io::Seek>(
         if let Some(json_channel) = ch.json {
             let value = json::encode(ch.frame.layout(), bytes);
             writer.write_to_known_channel(
-                &mcap::records::MessageHeader { channel_id: json_channel, ..message },
+                &mcap::records::MessageHeader {
+                    channel_id: json_channel,
+                    ..message
+                },
                 &serde_json::to_vec(&value)?,
             )?;
         }

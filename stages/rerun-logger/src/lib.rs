@@ -71,17 +71,31 @@ pub fn run() -> anyhow::Result<()> {
     let builder = rerun::RecordingStreamBuilder::new(APPLICATION_ID);
     let rec = match (params.str("path"), params.str("connect")) {
         (Some(path), None) => {
-            if let Some(dir) = std::path::Path::new(path).parent().filter(|d| !d.as_os_str().is_empty()) {
-                std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+            if let Some(dir) = std::path::Path::new(path)
+                .parent()
+                .filter(|d| !d.as_os_str().is_empty())
+            {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("cannot create {}", dir.display()))?;
             }
-            builder.save(path).with_context(|| format!("{path}: cannot open for writing"))?
+            builder
+                .save(path)
+                .with_context(|| format!("{path}: cannot open for writing"))?
         }
-        (None, Some("default")) => builder.connect_grpc().context("cannot connect to the rerun viewer")?,
+        (None, Some("default")) => builder
+            .connect_grpc()
+            .context("cannot connect to the rerun viewer")?,
         (None, Some(url)) => builder
             .connect_grpc_opts(url)
             .with_context(|| format!("cannot connect to the rerun viewer at {url}"))?,
-        (Some(_), Some(_)) => bail!("stage '{}': set either params.path or params.connect, not both", ctx.id()),
-        (None, None) => bail!("stage '{}': set params.path (an .rrd file) or params.connect (a viewer)", ctx.id()),
+        (Some(_), Some(_)) => bail!(
+            "stage '{}': set either params.path or params.connect, not both",
+            ctx.id()
+        ),
+        (None, None) => bail!(
+            "stage '{}': set params.path (an .rrd file) or params.connect (a viewer)",
+            ctx.id()
+        ),
     };
     rec.log_static("/", &rerun::ViewCoordinates::LUF())?;
 
@@ -97,8 +111,14 @@ pub fn run() -> anyhow::Result<()> {
         if matches!(frame, FrameType::Imu | FrameType::BodyImu) {
             for (k, sensor) in SENSOR_NAMES.iter().enumerate() {
                 let base = format!("{name}/{sensor}");
-                rec.log_static(base.clone(), &rerun::Transform3D::from_translation([k as f32 * SENSOR_SPACING_M, 0.0, 0.0]))?;
-                rec.log_static(format!("{base}/orientation"), &rerun::TransformAxes3D::new(AXIS_LENGTH_M))?;
+                rec.log_static(
+                    base.clone(),
+                    &rerun::Transform3D::from_translation([k as f32 * SENSOR_SPACING_M, 0.0, 0.0]),
+                )?;
+                rec.log_static(
+                    format!("{base}/orientation"),
+                    &rerun::TransformAxes3D::new(AXIS_LENGTH_M),
+                )?;
             }
         }
     }
@@ -109,7 +129,9 @@ pub fn run() -> anyhow::Result<()> {
     } else {
         Ok(())
     };
-    let flushed = rec.flush_blocking().context("cannot flush the rerun stream");
+    let flushed = rec
+        .flush_blocking()
+        .context("cannot flush the rerun stream");
     drop(rec);
     logged?;
     flushed?;
@@ -135,16 +157,35 @@ fn log_frames(
             rec.set_duration_secs("capture_time", header.capture_ns as f64 * 1e-9);
         }
         let invalid = if header.has(flags::INVALID) { 1.0 } else { 0.0 };
-        rec.log(format!("plots/{name}/invalid"), &rerun::Scalars::single(invalid))?;
+        rec.log(
+            format!("plots/{name}/invalid"),
+            &rerun::Scalars::single(invalid),
+        )?;
         match frame {
             FrameType::Imu => {
                 if let Some(f) = frame_ref::<ImuFrame>(held) {
-                    log_sensors(rec, name, &f.orientation_wxyz, &f.specific_force_mps2, &f.angular_rate_radps, f.valid_mask, ["specific_force_mps2", "angular_rate_radps"])?;
+                    log_sensors(
+                        rec,
+                        name,
+                        &f.orientation_wxyz,
+                        &f.specific_force_mps2,
+                        &f.angular_rate_radps,
+                        f.valid_mask,
+                        ["specific_force_mps2", "angular_rate_radps"],
+                    )?;
                 }
             }
             FrameType::BodyImu => {
                 if let Some(f) = frame_ref::<BodyImuFrame>(held) {
-                    log_sensors(rec, name, &f.bone_orientation_wxyz, &f.free_acceleration_mps2, &f.angular_velocity_radps, f.valid_mask, ["free_acceleration_mps2", "angular_velocity_radps"])?;
+                    log_sensors(
+                        rec,
+                        name,
+                        &f.bone_orientation_wxyz,
+                        &f.free_acceleration_mps2,
+                        &f.angular_velocity_radps,
+                        f.valid_mask,
+                        ["free_acceleration_mps2", "angular_velocity_radps"],
+                    )?;
                 }
             }
             _ => {}
@@ -172,10 +213,19 @@ fn log_sensors(
                 format!("{input}/{sensor}/orientation"),
                 &rerun::Transform3D::from_rotation(rerun::Quaternion::from_xyzw([x, y, z, w])),
             )?;
-            rec.log(format!("plots/{input}/{sensor}/{}", names[0]), &rerun::Scalars::new(accel[k]))?;
-            rec.log(format!("plots/{input}/{sensor}/{}", names[1]), &rerun::Scalars::new(rate[k]))?;
+            rec.log(
+                format!("plots/{input}/{sensor}/{}", names[0]),
+                &rerun::Scalars::new(accel[k]),
+            )?;
+            rec.log(
+                format!("plots/{input}/{sensor}/{}", names[1]),
+                &rerun::Scalars::new(rate[k]),
+            )?;
         }
-        rec.log(format!("plots/{input}/{sensor}/valid"), &rerun::Scalars::single(if valid { 1.0 } else { 0.0 }))?;
+        rec.log(
+            format!("plots/{input}/{sensor}/valid"),
+            &rerun::Scalars::single(if valid { 1.0 } else { 0.0 }),
+        )?;
     }
     Ok(())
 }
@@ -188,18 +238,27 @@ fn log_small_fields(
     held: &dyn HeldFrame,
 ) -> anyhow::Result<()> {
     let bytes = held.bytes();
-    for field in layout.fields.iter().filter(|f| !f.name.starts_with("header.") && f.len() <= MAX_SERIES_SCALARS && !f.name.starts_with("reserved")) {
+    for field in layout.fields.iter().filter(|f| {
+        !f.name.starts_with("header.")
+            && f.len() <= MAX_SERIES_SCALARS
+            && !f.name.starts_with("reserved")
+    }) {
         let size = field.scalar.size();
         let values: Vec<f64> = (0..field.len())
             .filter_map(|i| bytes.get(field.offset + i * size..field.offset + (i + 1) * size))
             .map(|b| match field.scalar {
                 ScalarType::F32 => f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
                 ScalarType::U32 => f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-                ScalarType::U64 => u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]) as f64,
+                ScalarType::U64 => {
+                    u64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]) as f64
+                }
             })
             .collect();
         if values.iter().all(|v| v.is_finite()) {
-            rec.log(format!("plots/{input}/{}", field.name), &rerun::Scalars::new(values))?;
+            rec.log(
+                format!("plots/{input}/{}", field.name),
+                &rerun::Scalars::new(values),
+            )?;
         }
     }
     Ok(())

@@ -34,21 +34,30 @@ pub const SPEC: StageSpec = StageSpec {
     params: &[
         ParamSpec {
             name: "frames",
-            ty: ParamType::Int { min: 0, max: 1 << 40 },
+            ty: ParamType::Int {
+                min: 0,
+                max: 1 << 40,
+            },
             required: false,
             default: "600",
             doc: "number of frames to emit before END_OF_STREAM (600 = 10 s at 60 Hz)",
         },
         ParamSpec {
             name: "seed",
-            ty: ParamType::Int { min: 0, max: i64::MAX },
+            ty: ParamType::Int {
+                min: 0,
+                max: i64::MAX,
+            },
             required: false,
             default: "0",
             doc: "selects the motion (amplitudes, frequencies, phases)",
         },
         ParamSpec {
             name: "invalid_every",
-            ty: ParamType::Int { min: 0, max: 1 << 40 },
+            ty: ParamType::Int {
+                min: 0,
+                max: 1 << 40,
+            },
             required: false,
             default: "0",
             doc: "every N-th frame sensor 0 reports NaN (valid bit cleared, frame INVALID); 0 = never",
@@ -73,9 +82,13 @@ impl SensorMotion {
     /// The motions of the six sensors for a seed (a small LCG keeps this free of dependencies
     /// and stable across versions, which recordings rely on).
     pub fn for_seed(seed: u64) -> [SensorMotion; NUM_IMUS] {
-        let mut state = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        let mut state = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         let mut next = || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((state >> 40) as f32) / ((1u64 << 24) as f32)
         };
         std::array::from_fn(|_| {
@@ -94,7 +107,10 @@ impl SensorMotion {
     pub fn angle_and_rate(&self, t_s: f32) -> (f32, f32) {
         let w = std::f32::consts::TAU * self.frequency_hz;
         let arg = w * t_s + self.phase_rad;
-        (self.amplitude_rad * arg.sin(), self.amplitude_rad * w * arg.cos())
+        (
+            self.amplitude_rad * arg.sin(),
+            self.amplitude_rad * w * arg.cos(),
+        )
     }
 }
 
@@ -113,11 +129,21 @@ pub fn rotate_inverse(q: [f32; 4], v: [f32; 3]) -> [f32; 3] {
 }
 
 fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 /// Fills the payload of frame `seq` (at `rate_hz`) for the given motions.
-pub fn synthesize(frame: &mut ImuFrame, motions: &[SensorMotion; NUM_IMUS], seq: u64, rate_hz: f64, invalid_every: u64) {
+pub fn synthesize(
+    frame: &mut ImuFrame,
+    motions: &[SensorMotion; NUM_IMUS],
+    seq: u64,
+    rate_hz: f64,
+    invalid_every: u64,
+) {
     let t = (seq as f64 / rate_hz) as f32;
     let mut valid = 0u32;
     for (i, m) in motions.iter().enumerate() {
@@ -168,8 +194,16 @@ pub fn run() -> anyhow::Result<()> {
             }
         }
         let t0 = Instant::now();
-        let capture_ns = if live { now_ns() } else { (seq as f64 * 1e9 / rate_hz) as u64 };
-        let mut header = FrameHeader { seq, capture_ns, ..Default::default() };
+        let capture_ns = if live {
+            now_ns()
+        } else {
+            (seq as f64 * 1e9 / rate_hz) as u64
+        };
+        let mut header = FrameHeader {
+            seq,
+            capture_ns,
+            ..Default::default()
+        };
         let mut flags_out = 0;
         out.publish(header, |f| {
             synthesize(f, &motions, seq, rate_hz, invalid_every);
@@ -180,7 +214,14 @@ pub fn run() -> anyhow::Result<()> {
         })
         .with_context(|| format!("publishing frame {seq}"))?;
         header.flags = flags_out;
-        ctx.record_source_step(Step { seq, capture_ns, flags: header.flags }, t0.elapsed());
+        ctx.record_source_step(
+            Step {
+                seq,
+                capture_ns,
+                flags: header.flags,
+            },
+            t0.elapsed(),
+        );
         if seq % 30 == 0 || seq + 1 == frames {
             ctx.progress(seq + 1, frames)?;
         }
@@ -203,7 +244,10 @@ mod tests {
         let s = std::f32::consts::FRAC_1_SQRT_2;
         let q = [s, 0.0, s, 0.0]; // 90° about +y
         let v = rotate(q, [0.0, 0.0, 1.0]);
-        assert!((v[0] - 1.0).abs() < 1e-6 && v[1].abs() < 1e-6 && v[2].abs() < 1e-6, "{v:?}");
+        assert!(
+            (v[0] - 1.0).abs() < 1e-6 && v[1].abs() < 1e-6 && v[2].abs() < 1e-6,
+            "{v:?}"
+        );
         let back = rotate_inverse(q, v);
         assert!((back[2] - 1.0).abs() < 1e-6);
     }
@@ -228,7 +272,10 @@ mod tests {
             for k in 0..3 {
                 let fd = 2.0 * rel[k + 1] * rate as f32;
                 let mid = 0.5 * (a.angular_rate_radps[i][k] + b.angular_rate_radps[i][k]);
-                assert!((fd - mid).abs() < 2e-2, "sensor {i} axis {k}: fd {fd} vs {mid}");
+                assert!(
+                    (fd - mid).abs() < 2e-2,
+                    "sensor {i} axis {k}: fd {fd} vs {mid}"
+                );
             }
         }
     }

@@ -1,0 +1,251 @@
+//! Forward and inverse kinematics on the 24-joint skeleton.
+//!
+//! Model/Data split (pinocchio style): the [`Skeleton`] is immutable, [`FkData`] is a workspace allocated
+//! once and overwritten every frame, and the algorithms are free functions that allocate nothing.
+//! Following the reference `ParametricModel` (§0): joint i's local transform is (R_local[i], bone[i]) and
+//! `root_in_world_m` is the world position of the root joint itself.
+
+use nalgebra::{Rotation3, Vector3};
+
+use crate::body_model::BodyModel;
+use crate::skeleton::{Imu, JointId, NUM_IMUS, NUM_JOINTS, Skeleton};
+
+/// One frame of body pose.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pose {
+    /// Local joint rotations `parent_from_joint`, indexed by [`JointId::index`]; the root's entry is its
+    /// global rotation `world_from_pelvis`. Identity everywhere is the T-pose facing +z.
+    pub parent_from_joint: [Rotation3<f64>; NUM_JOINTS],
+    /// World position of the root joint (m, frame M).
+    pub root_in_world_m: Vector3<f64>,
+}
+
+impl Pose {
+    /// The T-pose (all identity) with the root at `root_in_world_m`.
+    pub fn t_pose(root_in_world_m: Vector3<f64>) -> Pose {
+        Pose {
+            parent_from_joint: [Rotation3::identity(); NUM_JOINTS],
+            root_in_world_m,
+        }
+    }
+
+    /// Whether every number in the pose is finite.
+    pub fn is_finite(&self) -> bool {
+        self.root_in_world_m.iter().all(|v| v.is_finite())
+            && self
+                .parent_from_joint
+                .iter()
+                .all(|r| r.matrix().iter().all(|v| v.is_finite()))
+    }
+}
+
+impl Default for Pose {
+    fn default() -> Pose {
+        Pose::t_pose(Vector3::zeros())
+    }
+}
+
+/// Output workspace of [`forward_kinematics`]; allocate once and reuse.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FkData {
+    /// Global joint rotations `world_from_joint` (frame M).
+    pub world_from_joint: [Rotation3<f64>; NUM_JOINTS],
+    /// Joint positions in the world (m, frame M).
+    pub joint_in_world_m: [Vector3<f64>; NUM_JOINTS],
+}
+
+impl FkData {
+    /// A workspace holding the T-pose at the origin.
+    pub fn new() -> FkData {
+        FkData {
+            world_from_joint: [Rotation3::identity(); NUM_JOINTS],
+            joint_in_world_m: [Vector3::zeros(); NUM_JOINTS],
+        }
+    }
+
+    /// Global rotation of `joint`.
+    pub fn world_from(&self, joint: JointId) -> &Rotation3<f64> {
+        &self.world_from_joint[joint.index()]
+    }
+
+    /// World position of `joint` (m).
+    pub fn position(&self, joint: JointId) -> &Vector3<f64> {
+        &self.joint_in_world_m[joint.index()]
+    }
+}
+
+impl Default for FkData {
+    fn default() -> FkData {
+        FkData::new()
+    }
+}
+
+/// Forward kinematics: local rotations + root position -> global rotations and joint positions.
+/// Allocation-free; overwrites all of `out`.
+pub fn forward_kinematics(skeleton: &Skeleton, pose: &Pose, out: &mut FkData) {
+    for j in JointId::all() {
+        let i = j.index();
+        match j.parent() {
+            None => {
+                out.world_from_joint[i] = pose.parent_from_joint[i];
+                out.joint_in_world_m[i] = pose.root_in_world_m;
+            }
+            Some(p) => {
+                let world_from_parent = out.world_from_joint[p.index()];
+                out.world_from_joint[i] = world_from_parent * pose.parent_from_joint[i];
+                out.joint_in_world_m[i] = out.joint_in_world_m[p.index()]
+                    + world_from_parent * skeleton.offset_in_parent_m(j);
+            }
+        }
+    }
+}
+
+/// Local to global rotations only (no positions): `world_from_joint[i] = world_from_joint[parent] · parent_from_joint[i]`.
+pub fn local_to_global_rotations(
+    parent_from_joint: &[Rotation3<f64>; NUM_JOINTS],
+    world_from_joint: &mut [Rotation3<f64>; NUM_JOINTS],
+) {
+    for j in JointId::all() {
+        let i = j.index();
+        world_from_joint[i] = match j.parent() {
+            None => parent_from_joint[i],
+            Some(p) => world_from_joint[p.index()] * parent_from_joint[i],
+        };
+    }
+}
+
+/// Inverse kinematics of rotations (reference `inverse_kinematics_R`):
+/// `parent_from_joint[i] = world_from_joint[parent]ᵀ · world_from_joint[i]`; the root keeps its global rotation.
+pub fn global_to_local_rotations(
+    world_from_joint: &[Rotation3<f64>; NUM_JOINTS],
+    parent_from_joint: &mut [Rotation3<f64>; NUM_JOINTS],
+) {
+    for j in JointId::all() {
+        let i = j.index();
+        parent_from_joint[i] = match j.parent() {
+            None => world_from_joint[i],
+            Some(p) => world_from_joint[p.index()].transpose() * world_from_joint[i],
+        };
+    }
+}
+
+/// IMU positions in the world (m, frame M) from an FK result, in IMU order.
+pub fn imu_positions_in_world(body: &BodyModel, fk: &FkData, out: &mut [Vector3<f64>; NUM_IMUS]) {
+    for imu in Imu::ALL {
+        let j = imu.joint();
+        out[imu.index()] =
+            fk.position(j) + fk.world_from(j) * body.imu_offsets_in_joint_m[imu.index()];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::body_model::BodyParams;
+    use crate::rotation::{Axis, angle_between};
+    use crate::test_util::random_rotations;
+    use approx::assert_relative_eq;
+    use std::f64::consts::FRAC_PI_2;
+
+    fn body() -> BodyModel {
+        BodyModel::new(&BodyParams::builtin().unwrap(), 1.741, 73.0).unwrap()
+    }
+
+    #[test]
+    fn fk_of_a_hand_built_pose_matches_hand_computed_positions() {
+        let body = body();
+        let sk = &body.skeleton;
+        let hip_x = sk.offset_in_parent_m(JointId::LEFT_HIP).x;
+        let thigh = -sk.offset_in_parent_m(JointId::LEFT_KNEE).y;
+        let shank = -sk.offset_in_parent_m(JointId::LEFT_ANKLE).y;
+        let mut pose = Pose::t_pose(Vector3::new(1.0, 2.0, 3.0));
+        // Root turned 90° about y: the body faces +x, its left (+x) points to −z.
+        pose.parent_from_joint[JointId::ROOT.index()] = Axis::Y.rotation(FRAC_PI_2);
+        // Knee flexed 90° about x: the shank's −y becomes −z in the thigh frame.
+        pose.parent_from_joint[JointId::LEFT_KNEE.index()] = Axis::X.rotation(FRAC_PI_2);
+        let mut fk = FkData::new();
+        forward_kinematics(sk, &pose, &mut fk);
+
+        let hip = Vector3::new(1.0, 2.0, 3.0 - hip_x);
+        assert_relative_eq!(*fk.position(JointId::LEFT_HIP), hip, epsilon = 1e-12);
+        let knee = hip + Vector3::new(0.0, -thigh, 0.0);
+        assert_relative_eq!(*fk.position(JointId::LEFT_KNEE), knee, epsilon = 1e-12);
+        // Shank direction: Ry(90°)·Rx(90°)·(0,−1,0) = Ry(90°)·(0,0,−1) = (−1,0,0).
+        let ankle = knee + Vector3::new(-shank, 0.0, 0.0);
+        assert_relative_eq!(*fk.position(JointId::LEFT_ANKLE), ankle, epsilon = 1e-12);
+        // The right leg is untouched: straight down below the right hip.
+        let r_hip = *fk.position(JointId::RIGHT_HIP);
+        assert_relative_eq!(r_hip, Vector3::new(1.0, 2.0, 3.0 + hip_x), epsilon = 1e-12);
+        assert_relative_eq!(
+            fk.position(JointId::RIGHT_ANKLE).y,
+            r_hip.y - thigh - shank,
+            epsilon = 1e-12
+        );
+    }
+
+    #[test]
+    fn bone_lengths_are_preserved_for_random_poses() {
+        let body = body();
+        let rots = random_rotations(NUM_JOINTS * 5, 21);
+        let mut fk = FkData::new();
+        for chunk in rots.chunks(NUM_JOINTS) {
+            let mut pose = Pose::t_pose(Vector3::new(0.3, 0.9, -2.0));
+            pose.parent_from_joint.copy_from_slice(chunk);
+            forward_kinematics(&body.skeleton, &pose, &mut fk);
+            for j in JointId::all() {
+                if let Some(p) = j.parent() {
+                    let d = (fk.position(j) - fk.position(p)).norm();
+                    assert_relative_eq!(
+                        d,
+                        body.skeleton.offset_in_parent_m(j).norm(),
+                        epsilon = 1e-12
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn ik_inverts_fk_rotations() {
+        let body = body();
+        let rots = random_rotations(NUM_JOINTS, 33);
+        let mut pose = Pose::default();
+        pose.parent_from_joint.copy_from_slice(&rots);
+        let mut fk = FkData::new();
+        forward_kinematics(&body.skeleton, &pose, &mut fk);
+        let mut local = [Rotation3::identity(); NUM_JOINTS];
+        global_to_local_rotations(&fk.world_from_joint, &mut local);
+        for j in JointId::all() {
+            assert!(
+                angle_between(&local[j.index()], &rots[j.index()]) < 1e-9,
+                "{j}"
+            );
+        }
+        let mut global = [Rotation3::identity(); NUM_JOINTS];
+        local_to_global_rotations(&local, &mut global);
+        for j in JointId::all() {
+            assert!(angle_between(&global[j.index()], &fk.world_from_joint[j.index()]) < 1e-9);
+        }
+    }
+
+    #[test]
+    fn imu_positions_follow_their_bones() {
+        let body = body();
+        let mut pose = Pose::t_pose(Vector3::zeros());
+        // Left elbow bent 90° forward: forearm (+x) rotates about −y towards +z.
+        pose.parent_from_joint[JointId::LEFT_ELBOW.index()] = Axis::Y.rotation(-FRAC_PI_2);
+        let mut fk = FkData::new();
+        forward_kinematics(&body.skeleton, &pose, &mut fk);
+        let mut imus = [Vector3::zeros(); NUM_IMUS];
+        imu_positions_in_world(&body, &fk, &mut imus);
+        let elbow = fk.position(JointId::LEFT_ELBOW);
+        let o = body.imu_offsets_in_joint_m[Imu::LeftForearm.index()];
+        // (ox, oy, 0) rotated by −90° about y -> (0, oy, ox).
+        assert_relative_eq!(
+            imus[0],
+            elbow + Vector3::new(0.0, o.y, o.x),
+            epsilon = 1e-12
+        );
+        assert!(fk.position(JointId::LEFT_WRIST).z > elbow.z + 0.2);
+    }
+}

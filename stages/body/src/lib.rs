@@ -1,0 +1,32 @@
+//! imuflow-body: the shared body-model library (no process). See `README.md` in this crate.
+//!
+//! Frame M everywhere: x = left, y = up, z = forward (the subject faces +z in the T-pose), gravity
+//! (0, −9.81, 0); SI units; rotations act on column vectors.
+//!
+//! - [`skeleton`]: the 24-joint SMPL topology, joint handles and joint sets, IMU joints.
+//! - [`body_model`]: dimensions, segment masses/inertias and IMU placement from `models/body.toml`.
+//! - [`rotation`]: 6D, Euler, axis-angle, from-to, slerp, geodesic angle.
+//! - [`kinematics`]: forward and inverse kinematics with preallocated buffers.
+//! - [`bvh`]: BVH parsing and writing; [`retarget`]: BVH onto the 24-joint body, resampling, export.
+//! - [`metrics`]: evaluation metrics (SIP, angle and position errors, jitter, foot contact).
+
+// Library code returns errors; panicking helpers are for tests only.
+#![cfg_attr(
+    not(test),
+    deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)
+)]
+
+pub mod body_model;
+pub mod bvh;
+pub mod kinematics;
+pub mod metrics;
+pub mod retarget;
+pub mod rotation;
+pub mod skeleton;
+
+pub use body_model::{BodyModel, BodyParams, GRAVITY_IN_MODEL_MPS2};
+pub use kinematics::{FkData, Pose, forward_kinematics};
+pub use skeleton::{Imu, JointId, NUM_IMUS, NUM_JOINTS, Skeleton};
+
+#[cfg(test)]
+mod test_util;

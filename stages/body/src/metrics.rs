@@ -1,0 +1,269 @@
+//! Evaluation metrics (reference §6, articulate `FullMotionEvaluator`, 60 fps).
+//!
+//! Per-frame metrics take FK results or poses; sequence metrics take per-frame joint positions. Protocols:
+//! - "reduced/local" (TransPose, PIP, PNP): [`apply_ignored_joints`] with [`IGNORED_JOINTS`] on both
+//!   prediction and ground truth before FK, no translation;
+//! - GlobalPose "G": ignored joints without the root ([`GLOBALPOSE_IGNORED_JOINTS`]), with translation.
+//!
+//! Position errors are root-position aligned (the prediction is shifted so its root matches the ground
+//! truth). Foot skating and ground penetration are imuflow's own definitions (documented below); the
+//! reference evaluates neither.
+
+use nalgebra::{Rotation3, Vector3};
+
+use crate::kinematics::{FkData, Pose};
+use crate::rotation::angle_between;
+use crate::skeleton::{JointId, NUM_JOINTS, SIP_JOINTS};
+
+pub use crate::skeleton::IGNORED_JOINTS;
+
+/// GlobalPose's ignored mask: the reduced protocol's without the root (reference §6).
+pub const GLOBALPOSE_IGNORED_JOINTS: [JointId; 8] = [
+    JointId::LEFT_ANKLE,
+    JointId::RIGHT_ANKLE,
+    JointId::LEFT_FOOT,
+    JointId::RIGHT_FOOT,
+    JointId::LEFT_WRIST,
+    JointId::RIGHT_WRIST,
+    JointId::LEFT_HAND,
+    JointId::RIGHT_HAND,
+];
+
+/// Set the local rotations of `joints` to identity (applied to prediction AND ground truth).
+pub fn apply_ignored_joints(pose: &mut Pose, joints: &[JointId]) {
+    for j in joints {
+        pose.parent_from_joint[j.index()] = Rotation3::identity();
+    }
+}
+
+/// Mean geodesic angle (degrees) between `a[j]` and `b[j]` over `joints`; 0 for an empty set.
+pub fn mean_angle_error_deg(
+    a: &[Rotation3<f64>; NUM_JOINTS],
+    b: &[Rotation3<f64>; NUM_JOINTS],
+    joints: &[JointId],
+) -> f64 {
+    if joints.is_empty() {
+        return 0.0;
+    }
+    let sum: f64 = joints
+        .iter()
+        .map(|j| angle_between(&a[j.index()], &b[j.index()]))
+        .sum();
+    (sum / joints.len() as f64).to_degrees()
+}
+
+/// SIP error (degrees): mean global angle error over hips and shoulders [1, 2, 16, 17].
+pub fn sip_error_deg(predicted: &FkData, truth: &FkData) -> f64 {
+    mean_angle_error_deg(
+        &predicted.world_from_joint,
+        &truth.world_from_joint,
+        &SIP_JOINTS,
+    )
+}
+
+/// Global angle error (degrees): mean over all 24 joints of the angle between global rotations.
+pub fn global_angle_error_deg(predicted: &FkData, truth: &FkData) -> f64 {
+    let all: Vec<JointId> = JointId::all().collect();
+    mean_angle_error_deg(&predicted.world_from_joint, &truth.world_from_joint, &all)
+}
+
+/// Local angle error (degrees): mean over all 24 joints of the angle between local rotations.
+pub fn local_angle_error_deg(predicted: &Pose, truth: &Pose) -> f64 {
+    let all: Vec<JointId> = JointId::all().collect();
+    mean_angle_error_deg(&predicted.parent_from_joint, &truth.parent_from_joint, &all)
+}
+
+/// Joint position error (m): mean over all 24 joints of ‖p_pred + (root_truth − root_pred) − p_truth‖
+/// (root-position aligned, so the root contributes 0).
+pub fn joint_position_error_m(predicted: &FkData, truth: &FkData) -> f64 {
+    let shift = truth.position(JointId::ROOT) - predicted.position(JointId::ROOT);
+    let sum: f64 = JointId::all()
+        .map(|j| (predicted.position(j) + shift - truth.position(j)).norm())
+        .sum();
+    sum / NUM_JOINTS as f64
+}
+
+/// Jitter (km/s³): mean over frames t ∈ [0, N−4] and all joints of the finite-difference jerk
+/// ‖x(t+3) − 3x(t+2) + 3x(t+1) − x(t)‖·f³, divided by 1000 (PIP/PNP units; reference §6 uses f = 60).
+/// `positions[t]` holds the joint positions (m) of frame t. Returns 0 for fewer than 4 frames.
+pub fn jitter_km_per_s3(positions: &[[Vector3<f64>; NUM_JOINTS]], rate_hz: f64) -> f64 {
+    if positions.len() < 4 {
+        return 0.0;
+    }
+    let f3 = rate_hz.powi(3);
+    let mut sum = 0.0;
+    let mut count = 0usize;
+    for w in positions.windows(4) {
+        // `windows(4)` yields exactly four frames.
+        for (((x0, x1), x2), x3) in w[0].iter().zip(&w[1]).zip(&w[2]).zip(&w[3]) {
+            let jerk = x3 - 3.0 * x2 + 3.0 * x1 - x0;
+            sum += jerk.norm() * f3;
+            count += 1;
+        }
+    }
+    sum / count as f64 / 1000.0
+}
+
+/// Foot joints used by the contact metrics.
+pub const FOOT_JOINTS: [JointId; 2] = [JointId::LEFT_FOOT, JointId::RIGHT_FOOT];
+
+/// Foot skating (m/s): mean horizontal (x–z) speed of a foot joint over the consecutive-frame pairs in
+/// which it is in contact, i.e. at most `contact_height_m` above `floor_y_m` in both frames (imuflow's
+/// definition; 0.05 m is a sensible threshold for the foot joint at the ball of the foot). Returns 0
+/// when no foot is ever in contact.
+pub fn foot_skating_mps(
+    positions: &[[Vector3<f64>; NUM_JOINTS]],
+    rate_hz: f64,
+    floor_y_m: f64,
+    contact_height_m: f64,
+) -> f64 {
+    let mut sum = 0.0;
+    let mut count = 0usize;
+    for w in positions.windows(2) {
+        for foot in FOOT_JOINTS {
+            let (a, b) = (w[0][foot.index()], w[1][foot.index()]);
+            if a.y - floor_y_m <= contact_height_m && b.y - floor_y_m <= contact_height_m {
+                let d = b - a;
+                sum += (d.x * d.x + d.z * d.z).sqrt() * rate_hz;
+                count += 1;
+            }
+        }
+    }
+    if count == 0 { 0.0 } else { sum / count as f64 }
+}
+
+/// Ground penetration (m): mean over frames of the deepest foot joint's depth below `floor_y_m`
+/// (0 for frames with both feet on or above the floor; imuflow's definition).
+pub fn ground_penetration_m(positions: &[[Vector3<f64>; NUM_JOINTS]], floor_y_m: f64) -> f64 {
+    if positions.is_empty() {
+        return 0.0;
+    }
+    let sum: f64 = positions
+        .iter()
+        .map(|p| {
+            FOOT_JOINTS
+                .iter()
+                .map(|f| (floor_y_m - p[f.index()].y).max(0.0))
+                .fold(0.0, f64::max)
+        })
+        .sum();
+    sum / positions.len() as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::body_model::{BodyModel, BodyParams};
+    use crate::kinematics::forward_kinematics;
+    use crate::rotation::Axis;
+    use approx::assert_relative_eq;
+
+    fn body() -> BodyModel {
+        BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap()
+    }
+
+    fn fk(body: &BodyModel, pose: &Pose) -> FkData {
+        let mut out = FkData::new();
+        forward_kinematics(&body.skeleton, pose, &mut out);
+        out
+    }
+
+    #[test]
+    fn angle_errors_match_hand_counts() {
+        let body = body();
+        let truth = Pose::t_pose(Vector3::new(0.0, 1.0, 0.0));
+        let mut pred = truth.clone();
+        pred.parent_from_joint[JointId::LEFT_HIP.index()] = Axis::X.rotation(10f64.to_radians());
+        pred.parent_from_joint[JointId::LEFT_SHOULDER.index()] =
+            Axis::Z.rotation(-20f64.to_radians());
+        let (p, t) = (fk(&body, &pred), fk(&body, &truth));
+        // SIP: hips and shoulders, (10 + 0 + 20 + 0) / 4.
+        assert_relative_eq!(sip_error_deg(&p, &t), 7.5, epsilon = 1e-9);
+        // Global: the hip error reaches hip, knee, ankle, foot (4 × 10°); the shoulder error reaches
+        // shoulder, elbow, wrist, hand (4 × 20°); over 24 joints.
+        assert_relative_eq!(global_angle_error_deg(&p, &t), 120.0 / 24.0, epsilon = 1e-9);
+        // Local: only the two changed joints.
+        assert_relative_eq!(
+            local_angle_error_deg(&pred, &truth),
+            30.0 / 24.0,
+            epsilon = 1e-9
+        );
+        // The reduced protocol removes differences at ignored joints only.
+        let mut a = truth.clone();
+        a.parent_from_joint[JointId::LEFT_WRIST.index()] = Axis::Y.rotation(1.0);
+        apply_ignored_joints(&mut a, &IGNORED_JOINTS);
+        assert_eq!(a, truth);
+    }
+
+    #[test]
+    fn joint_position_error_is_root_aligned() {
+        let body = body();
+        let truth = Pose::t_pose(Vector3::new(0.0, 1.0, 0.0));
+        let mut pred = truth.clone();
+        pred.root_in_world_m += Vector3::new(1.0, 2.0, 3.0);
+        assert_relative_eq!(
+            joint_position_error_m(&fk(&body, &pred), &fk(&body, &truth)),
+            0.0,
+            epsilon = 1e-12
+        );
+        // Turning the left ankle 180° about the (vertical) shank axis flips the foot joint from +f to
+        // −f forward: one joint off by 2f.
+        pred.parent_from_joint[JointId::LEFT_ANKLE.index()] =
+            Axis::Y.rotation(std::f64::consts::PI);
+        let f = body.skeleton.offset_in_parent_m(JointId::LEFT_FOOT).z;
+        assert_relative_eq!(
+            joint_position_error_m(&fk(&body, &pred), &fk(&body, &truth)),
+            2.0 * f / 24.0,
+            epsilon = 1e-12
+        );
+    }
+
+    #[test]
+    fn jitter_of_a_cubic_is_its_third_derivative() {
+        // x(t) = c t³ has x''' = 6c everywhere, and the third difference of a cubic is exact.
+        let c = 1000.0;
+        let frames: Vec<[Vector3<f64>; NUM_JOINTS]> = (0..20)
+            .map(|k| {
+                let t = k as f64 / 60.0;
+                [Vector3::new(c * t * t * t, 0.5, 0.0); NUM_JOINTS]
+            })
+            .collect();
+        assert_relative_eq!(
+            jitter_km_per_s3(&frames, 60.0),
+            6.0 * c / 1000.0,
+            epsilon = 1e-6
+        );
+        // Constant velocity has no jerk.
+        let line: Vec<_> = (0..10)
+            .map(|k| [Vector3::new(k as f64, 0.0, 0.0); NUM_JOINTS])
+            .collect();
+        assert_relative_eq!(jitter_km_per_s3(&line, 60.0), 0.0, epsilon = 1e-9);
+        assert_eq!(jitter_km_per_s3(&line[..3], 60.0), 0.0);
+    }
+
+    #[test]
+    fn foot_skating_and_penetration_on_constructed_feet() {
+        let mut frames = vec![[Vector3::new(0.0, 1.0, 0.0); NUM_JOINTS]; 3];
+        // Left foot on the floor sliding 1 cm per frame along x; right foot lifted (no contact).
+        for (k, f) in frames.iter_mut().enumerate() {
+            f[JointId::LEFT_FOOT.index()] = Vector3::new(0.01 * k as f64, 0.0, 0.0);
+            f[JointId::RIGHT_FOOT.index()] = Vector3::new(0.0, 0.3, 0.1 * k as f64);
+        }
+        // 0.01 m per 1/60 s.
+        assert_relative_eq!(
+            foot_skating_mps(&frames, 60.0, 0.0, 0.05),
+            0.6,
+            epsilon = 1e-12
+        );
+        assert_eq!(ground_penetration_m(&frames, 0.0), 0.0);
+        // Sink the left foot 2 cm in one of the three frames.
+        frames[1][JointId::LEFT_FOOT.index()].y = -0.02;
+        assert_relative_eq!(
+            ground_penetration_m(&frames, 0.0),
+            0.02 / 3.0,
+            epsilon = 1e-12
+        );
+        // No contact at all -> 0.
+        assert_eq!(foot_skating_mps(&frames, 60.0, -1.0, 0.05), 0.0);
+    }
+}

@@ -1,0 +1,323 @@
+//! The 24-joint SMPL topology: joint handles, names, parents, joint sets and IMU placement joints.
+//!
+//! Topology, joint order and joint sets follow SMPL's kinematic tree as used by TransPose/PIP/GlobalPose
+//! (shared/reference/original-implementations.md §1). Geometry (bone lengths) lives in [`crate::body_model`].
+
+use std::fmt;
+
+use nalgebra::Vector3;
+
+/// Number of joints in the skeleton (SMPL's 24).
+pub const NUM_JOINTS: usize = 24;
+
+/// Number of body-worn IMUs.
+pub const NUM_IMUS: usize = 6;
+
+/// Handle to one of the 24 joints. Only valid handles can be constructed (the constants below or
+/// [`JointId::from_index`] / [`JointId::from_name`]), so indexing a `[T; NUM_JOINTS]` with
+/// [`JointId::index`] never goes out of bounds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[repr(transparent)]
+pub struct JointId(u8);
+
+const NAMES: [&str; NUM_JOINTS] = [
+    "pelvis",
+    "left_hip",
+    "right_hip",
+    "spine1",
+    "left_knee",
+    "right_knee",
+    "spine2",
+    "left_ankle",
+    "right_ankle",
+    "spine3",
+    "left_foot",
+    "right_foot",
+    "neck",
+    "left_collar",
+    "right_collar",
+    "head",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hand",
+    "right_hand",
+];
+
+/// SMPL parent array (reference §1); -1 marks the root.
+const PARENT_INDEX: [i8; NUM_JOINTS] = [
+    -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
+];
+
+impl JointId {
+    pub const PELVIS: JointId = JointId(0);
+    pub const LEFT_HIP: JointId = JointId(1);
+    pub const RIGHT_HIP: JointId = JointId(2);
+    pub const SPINE1: JointId = JointId(3);
+    pub const LEFT_KNEE: JointId = JointId(4);
+    pub const RIGHT_KNEE: JointId = JointId(5);
+    pub const SPINE2: JointId = JointId(6);
+    pub const LEFT_ANKLE: JointId = JointId(7);
+    pub const RIGHT_ANKLE: JointId = JointId(8);
+    pub const SPINE3: JointId = JointId(9);
+    pub const LEFT_FOOT: JointId = JointId(10);
+    pub const RIGHT_FOOT: JointId = JointId(11);
+    pub const NECK: JointId = JointId(12);
+    pub const LEFT_COLLAR: JointId = JointId(13);
+    pub const RIGHT_COLLAR: JointId = JointId(14);
+    pub const HEAD: JointId = JointId(15);
+    pub const LEFT_SHOULDER: JointId = JointId(16);
+    pub const RIGHT_SHOULDER: JointId = JointId(17);
+    pub const LEFT_ELBOW: JointId = JointId(18);
+    pub const RIGHT_ELBOW: JointId = JointId(19);
+    pub const LEFT_WRIST: JointId = JointId(20);
+    pub const RIGHT_WRIST: JointId = JointId(21);
+    pub const LEFT_HAND: JointId = JointId(22);
+    pub const RIGHT_HAND: JointId = JointId(23);
+
+    /// The root joint (pelvis); its global transform is the body's placement in the world.
+    pub const ROOT: JointId = JointId::PELVIS;
+
+    /// Index into per-joint arrays, in SMPL order (0..24).
+    pub const fn index(self) -> usize {
+        self.0 as usize
+    }
+
+    /// Handle for an SMPL joint index, `None` when `index >= 24`.
+    pub const fn from_index(index: usize) -> Option<JointId> {
+        if index < NUM_JOINTS {
+            Some(JointId(index as u8))
+        } else {
+            None
+        }
+    }
+
+    /// Handle for a joint name as returned by [`JointId::name`] (e.g. `"left_elbow"`).
+    pub fn from_name(name: &str) -> Option<JointId> {
+        NAMES
+            .iter()
+            .position(|n| *n == name)
+            .and_then(JointId::from_index)
+    }
+
+    /// Lower-case snake_case joint name (`"pelvis"`, `"left_hip"`, ...).
+    pub const fn name(self) -> &'static str {
+        NAMES[self.0 as usize]
+    }
+
+    /// Parent joint, `None` for the root.
+    pub const fn parent(self) -> Option<JointId> {
+        let p = PARENT_INDEX[self.0 as usize];
+        if p < 0 { None } else { Some(JointId(p as u8)) }
+    }
+
+    /// Children of this joint, in index order.
+    pub fn children(self) -> impl Iterator<Item = JointId> {
+        JointId::all().filter(move |j| j.parent() == Some(self))
+    }
+
+    /// All 24 joints in SMPL order; every joint comes after its parent.
+    pub fn all() -> impl DoubleEndedIterator<Item = JointId> + ExactSizeIterator {
+        (0..NUM_JOINTS as u8).map(JointId)
+    }
+
+    /// Whether `self` lies on the path from `ancestor` down to the leaves (a joint is its own descendant).
+    pub fn is_descendant_of(self, ancestor: JointId) -> bool {
+        let mut j = Some(self);
+        while let Some(k) = j {
+            if k == ancestor {
+                return true;
+            }
+            j = k.parent();
+        }
+        false
+    }
+}
+
+impl fmt::Display for JointId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+const fn ids<const N: usize>(idx: [u8; N]) -> [JointId; N] {
+    let mut out = [JointId(0); N];
+    let mut i = 0;
+    while i < N {
+        out[i] = JointId(idx[i]);
+        i += 1;
+    }
+    out
+}
+
+/// Leaf joints whose positions PIP/TransPose predict first: L/R ankle, neck (not head), L/R wrist (reference §1).
+pub const LEAF_JOINTS: [JointId; 5] = ids([7, 8, 12, 20, 21]);
+
+/// All joints but the root (reference §1, "full").
+pub const FULL_JOINTS: [JointId; 23] = ids([
+    1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23,
+]);
+
+/// Joints whose local rotations the networks predict (reference §1, "reduced").
+pub const REDUCED_JOINTS: [JointId; 15] =
+    ids([1, 2, 3, 4, 5, 6, 9, 12, 13, 14, 15, 16, 17, 18, 19]);
+
+/// Joints whose local rotations are forced to identity (reference §1, "ignored"; the root is then
+/// overwritten by the pelvis IMU orientation).
+pub const IGNORED_JOINTS: [JointId; 9] = ids([0, 7, 8, 10, 11, 20, 21, 22, 23]);
+
+/// Joints of the SIP evaluation metric: hips and shoulders (reference §1/§6).
+pub const SIP_JOINTS: [JointId; 4] = ids([1, 2, 16, 17]);
+
+/// GlobalPose contact ("stationary") joints: pelvis, L/R foot, L/R hand (reference §1).
+pub const CONTACT_JOINTS: [JointId; 5] = ids([0, 10, 11, 22, 23]);
+
+/// One of the six body-worn IMUs, in the order used everywhere in imuflow.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Imu {
+    LeftForearm = 0,
+    RightForearm = 1,
+    LeftLowerLeg = 2,
+    RightLowerLeg = 3,
+    Head = 4,
+    Pelvis = 5,
+}
+
+impl Imu {
+    /// The six IMUs in wire order: [left forearm, right forearm, left lower leg, right lower leg, head, pelvis].
+    pub const ALL: [Imu; NUM_IMUS] = [
+        Imu::LeftForearm,
+        Imu::RightForearm,
+        Imu::LeftLowerLeg,
+        Imu::RightLowerLeg,
+        Imu::Head,
+        Imu::Pelvis,
+    ];
+
+    /// Index in wire order (0..6).
+    pub const fn index(self) -> usize {
+        self as usize
+    }
+
+    /// The joint whose global rotation is this IMU's bone orientation (reference §1: joints 18, 19, 4, 5, 15, 0).
+    pub const fn joint(self) -> JointId {
+        IMU_JOINTS[self as usize]
+    }
+
+    /// Lower-case snake_case name, also the key in models/body.toml.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Imu::LeftForearm => "left_forearm",
+            Imu::RightForearm => "right_forearm",
+            Imu::LeftLowerLeg => "left_lower_leg",
+            Imu::RightLowerLeg => "right_lower_leg",
+            Imu::Head => "head",
+            Imu::Pelvis => "pelvis",
+        }
+    }
+}
+
+/// Bone (joint) carrying each IMU, in IMU order: L elbow, R elbow, L knee, R knee, head, pelvis.
+pub const IMU_JOINTS: [JointId; NUM_IMUS] = ids([18, 19, 4, 5, 15, 0]);
+
+/// Skeleton geometry: the rest (T-pose) offset of every joint from its parent. Immutable model data;
+/// per-frame state lives in [`crate::kinematics::FkData`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct Skeleton {
+    /// Bone vector from the parent joint to this joint (m), in the parent's frame at rest, which equals
+    /// the model frame M because rest local rotations are identity (T-pose). The root's entry is zero.
+    offsets_in_parent_m: [Vector3<f64>; NUM_JOINTS],
+}
+
+impl Skeleton {
+    /// Build from rest offsets (m, model frame M, T-pose). The root offset is ignored (set to zero).
+    pub fn from_offsets(mut offsets_in_parent_m: [Vector3<f64>; NUM_JOINTS]) -> Skeleton {
+        offsets_in_parent_m[JointId::ROOT.index()] = Vector3::zeros();
+        Skeleton {
+            offsets_in_parent_m,
+        }
+    }
+
+    /// Rest offset of `joint` from its parent (m, parent frame = M at rest); zero for the root.
+    pub fn offset_in_parent_m(&self, joint: JointId) -> &Vector3<f64> {
+        &self.offsets_in_parent_m[joint.index()]
+    }
+
+    /// All rest offsets, indexed by [`JointId::index`].
+    pub fn offsets_in_parent_m(&self) -> &[Vector3<f64>; NUM_JOINTS] {
+        &self.offsets_in_parent_m
+    }
+
+    /// Rest (T-pose) joint positions relative to the root joint (m, model frame M).
+    pub fn rest_positions_from_root_m(&self) -> [Vector3<f64>; NUM_JOINTS] {
+        let mut p = [Vector3::zeros(); NUM_JOINTS];
+        for j in JointId::all() {
+            if let Some(parent) = j.parent() {
+                p[j.index()] = p[parent.index()] + self.offsets_in_parent_m[j.index()];
+            }
+        }
+        p
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parents_match_the_smpl_array_and_precede_children() {
+        let expected: [i32; 24] = [
+            -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
+        ];
+        for j in JointId::all() {
+            let p = j.parent().map_or(-1, |p| p.index() as i32);
+            assert_eq!(p, expected[j.index()], "{j}");
+            assert!(p < j.index() as i32, "parent after child at {j}");
+        }
+    }
+
+    #[test]
+    fn names_round_trip_and_are_unique() {
+        for j in JointId::all() {
+            assert_eq!(JointId::from_name(j.name()), Some(j));
+        }
+        assert_eq!(JointId::from_name("nope"), None);
+        assert_eq!(JointId::from_index(24), None);
+        assert_eq!(JointId::LEFT_ELBOW.name(), "left_elbow");
+    }
+
+    #[test]
+    fn joint_sets_partition_as_in_the_reference() {
+        // reduced and ignored are disjoint and together cover all joints.
+        let mut seen = [0u8; NUM_JOINTS];
+        for j in REDUCED_JOINTS.iter().chain(IGNORED_JOINTS.iter()) {
+            seen[j.index()] += 1;
+        }
+        assert!(seen.iter().all(|&c| c == 1), "{seen:?}");
+        assert_eq!(FULL_JOINTS.len(), 23);
+        assert!(!FULL_JOINTS.contains(&JointId::ROOT));
+        assert_eq!(LEAF_JOINTS[2], JointId::NECK);
+    }
+
+    #[test]
+    fn imu_joints_follow_the_wire_order() {
+        assert_eq!(Imu::LeftForearm.joint(), JointId::LEFT_ELBOW);
+        assert_eq!(Imu::RightLowerLeg.joint(), JointId::RIGHT_KNEE);
+        assert_eq!(Imu::Pelvis.joint(), JointId::PELVIS);
+        assert_eq!(Imu::ALL.map(|i| i.index()), [0, 1, 2, 3, 4, 5]);
+    }
+
+    #[test]
+    fn children_and_descendants() {
+        let c: Vec<_> = JointId::SPINE3.children().collect();
+        assert_eq!(
+            c,
+            vec![JointId::NECK, JointId::LEFT_COLLAR, JointId::RIGHT_COLLAR]
+        );
+        assert!(JointId::LEFT_HAND.is_descendant_of(JointId::SPINE1));
+        assert!(!JointId::LEFT_HAND.is_descendant_of(JointId::LEFT_HIP));
+    }
+}
