@@ -133,7 +133,7 @@ inputs = { imu = "source.imu" }
 params = { path = "{dir}/crash.mcap" }
 [stages.crasher]
 exec = "/bin/sh"
-args = ["-c", "echo '@imuflow ready'; sleep 0.5; echo 'boom: simulated sensor failure' >&2; exit 3"]
+args = ["-c", "echo '@imuflow ready'; echo '@imuflow connected'; sleep 0.5; echo 'boom: simulated sensor failure' >&2; exit 3"]
 inputs = { imu = "source.imu" }
 "#,
     )
@@ -363,5 +363,40 @@ fn a_run_removes_what_a_killed_earlier_run_left_behind() {
         "{}",
         text(&out.stdout)
     );
+    assert_clean(&sb);
+}
+
+#[test]
+fn offline_back_pressure_loses_nothing_when_a_reader_starts_late() {
+    // The relay subscribes before the source's publisher exists (the source is slow to set up),
+    // and reads its first frame long after the source filled its buffer. Offline graphs must
+    // block the source, not discard: iceoryx2 discards for a reader that has not completed its
+    // half of the connection, which the start handshake (connect before go) rules out.
+    let sb = Sandbox::new("late-reader");
+    let graph = sb.graph(
+        "late.toml",
+        r#"
+name = "late-reader"
+[stages.src]
+kind = "bench-source"
+params = { frames = 3000, setup_delay_ms = 300 }
+[stages.slow]
+kind = "relay"
+inputs = { in = "src.out" }
+params = { start_delay_ms = 400 }
+[stages.rec]
+kind = "recorder"
+inputs = { m = "slow.out" }
+params = { path = "{dir}/late.mcap" }
+"#,
+    );
+    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
+    let messages = mcap_messages(&sb.path("late.mcap"));
+    assert_eq!(messages.len(), 3000, "every frame arrives");
+    for (i, (_, _, data)) in messages.iter().enumerate() {
+        let m: MotionFrame = frame_from_bytes(data).expect("MotionFrame");
+        assert_eq!(m.q[0], i as f32, "frame {i} in order");
+    }
     assert_clean(&sb);
 }

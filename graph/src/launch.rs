@@ -117,6 +117,7 @@ struct Running {
     stderr_tail: Arc<Mutex<VecDeque<String>>>,
     readers: Vec<std::thread::JoinHandle<()>>,
     ready: bool,
+    connected: bool,
     summary: Option<StageSummary>,
     exit: Option<ExitStatus>,
 }
@@ -378,6 +379,7 @@ fn spawn_all(
             stderr_tail,
             readers,
             ready: false,
+            connected: false,
             summary: None,
             exit: None,
         });
@@ -412,26 +414,30 @@ fn supervise(
         }
     };
 
-    // Phase 1: every stage reports ready.
+    // Phase 1: every stage creates its ports (ready), then connects its readers (connected).
+    // Only then may frames flow: a reader that is not yet connected would miss them.
     let ready_deadline = Instant::now() + Duration::from_secs_f64(graph.ready_timeout_s);
-    while stages.iter().any(|s| !s.ready) {
+    let mut connect_sent = false;
+    while stages.iter().any(|s| !s.connected) {
         handle_events(stages, rx, &bar, &log)?;
         reap(stages)?;
         if interrupted.load(Ordering::Relaxed) {
             stop_all(stages);
             return Ok((Duration::ZERO, true));
         }
+        if !connect_sent && stages.iter().all(|s| s.ready) {
+            for s in stages.iter_mut() {
+                s.send("connect");
+            }
+            connect_sent = true;
+        }
         if Instant::now() > ready_deadline
-            && let Some(s) = stages.iter_mut().find(|s| !s.ready)
+            && let Some(s) = stages.iter_mut().find(|s| !s.connected)
         {
             return Err(RunError::NotReady {
                 stage: s.id.clone(),
                 timeout_s: graph.ready_timeout_s,
-                stderr_tail: s
-                    .stderr_tail
-                    .lock()
-                    .map(|t| t.iter().cloned().collect())
-                    .unwrap_or_default(),
+                stderr_tail: s.stderr_tail.lock().map(|t| t.iter().cloned().collect()).unwrap_or_default(),
             });
         }
     }
@@ -507,6 +513,11 @@ fn handle_events(
                 ControlMessage::Ready => {
                     if let Some(s) = stages.get_mut(i) {
                         s.ready = true;
+                    }
+                }
+                ControlMessage::Connected => {
+                    if let Some(s) = stages.get_mut(i) {
+                        s.connected = true;
                     }
                 }
                 ControlMessage::Progress { done, total } => {

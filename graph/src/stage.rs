@@ -25,7 +25,7 @@ use std::io::{BufRead, Write};
 use std::marker::PhantomData;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
@@ -151,7 +151,7 @@ pub struct StageContext {
     stage: StageNode,
     run_id: String,
     stop: Arc<AtomicBool>,
-    go: Arc<AtomicBool>,
+    commands: Arc<AtomicU8>,
     listener: Option<WakeListener>,
     inputs: Vec<InputSlot>,
     stats: StageStats,
@@ -187,11 +187,11 @@ impl StageContext {
             .cloned()
             .ok_or_else(|| StageError::UnknownStage(stage_id.to_owned()))?;
         let stop = Arc::new(AtomicBool::new(false));
-        let go = Arc::new(AtomicBool::new(false));
+        let commands = Arc::new(AtomicU8::new(0));
         for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
             signal_hook::flag::register(signal, stop.clone())?;
         }
-        spawn_control_reader(stop.clone(), go.clone());
+        spawn_control_reader(stop.clone(), commands.clone());
 
         let node = transport::create_node(stage_id)?;
         let listener = if stage.inputs.is_empty() {
@@ -232,7 +232,7 @@ impl StageContext {
             stage,
             run_id: run_id.to_owned(),
             stop,
-            go,
+            commands,
             listener,
             inputs,
             stats: StageStats::default(),
@@ -361,18 +361,36 @@ impl StageContext {
         )?)
     }
 
-    /// Tells the launcher this stage is set up and waits for the signal that every stage is.
-    /// Returns `false` if the stage was told to stop instead.
+    /// The start handshake. Tells the launcher this stage's ports exist (`ready`); once every
+    /// stage's do (`connect`), connects its readers to their publishers and says so
+    /// (`connected`); then waits until every stage is connected (`go`). Frames published before
+    /// a reader is connected would be lost, so no frame flows before `go`. Returns `false` if
+    /// the stage was told to stop instead.
     pub fn ready(&mut self) -> Result<bool, StageError> {
         control_line("ready")?;
-        while !self.go.load(Ordering::Acquire) {
-            if self.should_stop() {
-                return Ok(false);
-            }
-            std::thread::sleep(Duration::from_millis(1));
+        if !self.wait_for_command(Command::Connect) {
+            return Ok(false);
+        }
+        for slot in &self.inputs {
+            slot.subscriber.connect()?;
+        }
+        control_line("connected")?;
+        if !self.wait_for_command(Command::Go) {
+            return Ok(false);
         }
         self.started = Instant::now();
         Ok(true)
+    }
+
+    /// Waits until the launcher sent `command` (or a later one); `false` on stop.
+    fn wait_for_command(&self, command: Command) -> bool {
+        while self.commands.load(Ordering::Acquire) < command as u8 {
+            if self.should_stop() {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        true
     }
 
     /// Reports a source's progress (`total` = 0 when unknown) to the launcher's progress bar.
@@ -640,15 +658,28 @@ fn control_line(text: &str) -> std::io::Result<()> {
     out.flush()
 }
 
-/// Reads the launcher's commands from stdin: `go` starts the stage, `stop` (or stdin closing,
-/// which means the launcher is gone) stops it.
-fn spawn_control_reader(stop: Arc<AtomicBool>, go: Arc<AtomicBool>) {
+/// The launcher's start commands, in the order it sends them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+enum Command {
+    Connect = 1,
+    Go = 2,
+}
+
+/// Reads the launcher's commands from stdin: `connect`, then `go` start the stage; `stop` (or
+/// stdin closing, which means the launcher is gone) stops it.
+fn spawn_control_reader(stop: Arc<AtomicBool>, commands: Arc<AtomicU8>) {
     let spawned = std::thread::Builder::new()
         .name("imuflow-control".into())
         .spawn(move || {
             for line in std::io::stdin().lock().lines() {
                 match line.as_deref().map(str::trim) {
-                    Ok("go") => go.store(true, Ordering::Release),
+                    Ok("connect") => {
+                        commands.fetch_max(Command::Connect as u8, Ordering::AcqRel);
+                    }
+                    Ok("go") => {
+                        commands.fetch_max(Command::Go as u8, Ordering::AcqRel);
+                    }
                     Ok("stop") => stop.store(true, Ordering::Release),
                     Ok(_) => {}
                     Err(_) => break,
@@ -664,7 +695,10 @@ fn spawn_control_reader(stop: Arc<AtomicBool>, go: Arc<AtomicBool>) {
 /// Parsed control lines from a stage's stdout (used by the launcher).
 #[derive(Debug, Clone, PartialEq)]
 pub enum ControlMessage {
+    /// The stage's ports exist.
     Ready,
+    /// The stage's readers are connected to their publishers.
+    Connected,
     Progress { done: u64, total: u64 },
     Summary(StageSummary),
 }
@@ -676,6 +710,7 @@ impl ControlMessage {
         let (word, args) = rest.split_once(' ').unwrap_or((rest, ""));
         match word {
             "ready" => Some(ControlMessage::Ready),
+            "connected" => Some(ControlMessage::Connected),
             "progress" => {
                 let mut it = args.split_whitespace().map(str::parse::<u64>);
                 match (it.next(), it.next()) {

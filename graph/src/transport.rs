@@ -422,6 +422,10 @@ pub trait ErasedSubscriber {
     fn receive(&self) -> Result<Option<Box<dyn HeldFrame>>, TransportError>;
     /// Whether a frame is pending (cheap; used while spinning).
     fn has_frames(&self) -> bool;
+    /// Completes this reader's half of the connection to every publisher of the edge. Until
+    /// then a publisher that fills the reader's buffer treats it as not connected and discards
+    /// (iceoryx2 only blocks for connected readers), so this must happen before any frame flows.
+    fn connect(&self) -> Result<(), TransportError>;
 }
 
 struct TypedSubscriber<T: Frame> {
@@ -446,6 +450,15 @@ impl<T: Frame> ErasedSubscriber for TypedSubscriber<T> {
     }
     fn has_frames(&self) -> bool {
         self.subscriber.has_samples().unwrap_or(true)
+    }
+    fn connect(&self) -> Result<(), TransportError> {
+        use iceoryx2::port::update_connections::UpdateConnections;
+        self.subscriber
+            .update_connections()
+            .map_err(|e| TransportError::Receive {
+                service: self.label.clone(),
+                message: format!("cannot connect: {e:?}"),
+            })
     }
 }
 

@@ -52,8 +52,31 @@ impl Sandbox {
         c
     }
 
+    /// Runs imuflow to completion; a run that takes over a minute is killed and fails the test
+    /// (a hang is a bug, never an answer).
     pub fn run(&self, args: &[&str]) -> Output {
-        self.command(args).output().expect("run imuflow")
+        let child = self
+            .command(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("start imuflow");
+        let id = child.id();
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = tx.send(child.wait_with_output());
+        });
+        match rx.recv_timeout(std::time::Duration::from_secs(60)) {
+            Ok(output) => output.expect("wait for imuflow"),
+            Err(_) => {
+                // SAFETY: kill(2) on the launcher we started; its stages stop when its pipes close.
+                #[allow(unsafe_code)]
+                unsafe {
+                    libc::kill(id as i32, libc::SIGKILL);
+                }
+                panic!("imuflow {args:?} did not finish within 60 s");
+            }
+        }
     }
 
     /// Shared-memory / iceoryx2 files this sandbox's runs left behind.

@@ -2,7 +2,7 @@
 //!
 //! Model/Data split (pinocchio style): the [`Skeleton`] is immutable, [`FkData`] is a workspace allocated
 //! once and overwritten every frame, and the algorithms are free functions that allocate nothing.
-//! Following the reference `ParametricModel` (§0): joint i's local transform is (R_local[i], bone[i]) and
+//! Following the reference `ParametricModel` (§0): joint i's local transform is `(R_local[i], bone[i])` and
 //! `root_in_world_m` is the world position of the root joint itself.
 
 use nalgebra::{Rotation3, Vector3};

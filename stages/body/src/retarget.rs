@@ -2,17 +2,19 @@
 //!
 //! Retargeting transfers GLOBAL bone orientations relative to each skeleton's rest pose. The source's
 //! rest (OFFSET) pose need not be a T-pose: for every mapped joint i with source joint s, the rest
-//! alignment Q_i is the shortest rotation taking the target bone direction (towards its next mapped
-//! descendant in the T-pose) to the source bone direction (same descendant, in the source's rest pose,
-//! expressed in M). The target's global rotation is then `world_from_joint[i] = A·G_s·Aᵀ · Q_i`, where
+//! alignment Q_i is a rotation taking the target bone direction (towards its next mapped descendant in
+//! the T-pose) to the source bone direction (same descendant, in the source's rest pose, expressed in
+//! M). The target's global rotation is then `world_from_joint[i] = A·G_s·Aᵀ · Q_i`, where
 //! G_s is the source joint's global rotation and A turns the source axes into M. A source bone in its
 //! rest direction thus gives the T-pose direction (identity = T-pose as in SMPL). Bones without a
 //! direction (leaves) inherit the alignment of their nearest mapped ancestor. Target joints the source
 //! lacks get an identity local rotation. The root translation is scaled by the ratio of leg lengths.
 //!
-//! The twist about each bone is fixed by the shortest-arc choice of Q_i; for skeletons whose rest pose
-//! has bone frames twisted relative to the T-pose this is the usual ambiguity of direction-based
-//! retargeting (positions are unaffected; forearm and shank twists may be off).
+//! Bone directions leave the roll (twist) about each bone open: Q_i = F_i·Rot(d_i, twist_i) with F_i the
+//! shortest arc and twist_i from the mapping's `[twist_deg]` table (0 by default). Skeletons whose joint
+//! frames are rolled or mirrored relative to the T-pose (Bandai Namco's are) need those twists; positions
+//! do not depend on them, local rotations and IMU orientations do. [`estimate_twists_deg`] measures them
+//! from a clip of ordinary motion, once per source skeleton.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -48,7 +50,7 @@ impl LengthUnit {
 }
 
 /// Up axis of a source file. Both assume the subject faces +z at rest in Y-up files; Z-up files are
-/// turned into M with the AMASS alignment A = [[1,0,0],[0,0,1],[0,−1,0]] (reference §3).
+/// turned into M with the AMASS alignment `A = [[1,0,0],[0,0,1],[0,−1,0]]` (reference §3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
 pub enum UpAxis {
     #[serde(rename = "y")]
@@ -528,7 +530,7 @@ fn alignments(
 
 /// Estimate, for every non-root joint with a bone direction, the twist (degrees) about the target bone
 /// that makes the retargeted local rotations of `bvh` closest to identity on average (maximizes
-/// Σ_frames trace(R_local), closed form θ = atan2(Σ tr(M·[d]×), Σ (tr M − dᵀMd)) for M the local rotation
+/// Σ_frames trace(R_local), closed form `θ = atan2(Σ tr(M·[d]×), Σ (tr M − dᵀMd))` for M the local rotation
 /// without twist and d the bone axis), joint by joint from the root down. Ignores `source.twist_deg`.
 ///
 /// Meant for building a mapping file once per source skeleton from a clip of ordinary motion (walking),
