@@ -66,7 +66,10 @@ pub const SOURCE_SPEC: StageSpec = StageSpec {
         },
         ParamSpec {
             name: "setup_delay_ms",
-            ty: ParamType::Int { min: 0, max: 60_000 },
+            ty: ParamType::Int {
+                min: 0,
+                max: 60_000,
+            },
             required: false,
             default: "0",
             doc: "wait this long before opening the output (a stage slow to set up)",
@@ -92,7 +95,10 @@ pub const RELAY_SPEC: StageSpec = StageSpec {
     }],
     params: &[ParamSpec {
         name: "start_delay_ms",
-        ty: ParamType::Int { min: 0, max: 60_000 },
+        ty: ParamType::Int {
+            min: 0,
+            max: 60_000,
+        },
         required: false,
         default: "0",
         doc: "wait this long after the start before reading (a stage slow to start, e.g. loading a model)",
@@ -104,7 +110,9 @@ pub fn run_source() -> anyhow::Result<()> {
     let params = Params(ctx.params());
     let frames = params.int("frames", 1000).max(1) as u64;
     let rate_hz = params.float("rate_hz", 0.0);
-    std::thread::sleep(Duration::from_millis(params.int("setup_delay_ms", 0).max(0) as u64));
+    std::thread::sleep(Duration::from_millis(
+        params.int("setup_delay_ms", 0).max(0) as u64,
+    ));
     let mut out = ctx.output::<MotionFrame>("out")?;
     if ctx.ready()? {
         let start = Instant::now();
@@ -114,9 +122,7 @@ pub fn run_source() -> anyhow::Result<()> {
             }
             if rate_hz > 0.0 {
                 let due = start + Duration::from_secs_f64(seq as f64 / rate_hz);
-                if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                    std::thread::sleep(wait);
-                }
+                imuflow_graph::wait::sleep_until(due);
             }
             let t0 = Instant::now();
             let capture_ns = now_ns();
@@ -148,7 +154,8 @@ pub fn run_relay() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let input = ctx.input::<MotionFrame>("in")?;
     let mut out = ctx.output::<MotionFrame>("out")?;
-    let start_delay = Duration::from_millis(Params(ctx.params()).int("start_delay_ms", 0).max(0) as u64);
+    let start_delay =
+        Duration::from_millis(Params(ctx.params()).int("start_delay_ms", 0).max(0) as u64);
     if ctx.ready()? {
         std::thread::sleep(start_delay);
         while let Some(step) = ctx.next()? {
@@ -218,11 +225,20 @@ fn run_chain(stages: usize, frames: u64, rate_hz: f64) -> anyhow::Result<ChainRe
         };
         if s.frames_in != frames {
             let counts: Vec<String> = (0..stages)
-                .filter_map(|k| report.stages.get(&format!("s{k}")).map(|(_, s)| {
-                    format!("s{k}: in {} out {} dropped {} unmatched {}", s.frames_in, s.frames_out, s.dropped, s.unmatched)
-                }))
+                .filter_map(|k| {
+                    report.stages.get(&format!("s{k}")).map(|(_, s)| {
+                        format!(
+                            "s{k}: in {} out {} dropped {} unmatched {}",
+                            s.frames_in, s.frames_out, s.dropped, s.unmatched
+                        )
+                    })
+                })
                 .collect();
-            bail!("stage s{i} saw {} of {frames} frames ({})", s.frames_in, counts.join("; "));
+            bail!(
+                "stage s{i} saw {} of {frames} frames ({})",
+                s.frames_in,
+                counts.join("; ")
+            );
         }
         hops.push((s.latency_p50_us, s.latency_p99_us));
     }

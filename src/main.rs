@@ -37,6 +37,10 @@ enum Command {
         /// Don't forward the stages' log lines.
         #[arg(long, short)]
         quiet: bool,
+        /// Stream every rerun-logger to a running rerun viewer instead of its file
+        /// ("default" = the local viewer, or a URL like rerun+http://127.0.0.1:9876/proxy).
+        #[arg(long, value_name = "URL", num_args = 0..=1, default_missing_value = "default")]
+        connect: Option<String>,
     },
     /// Inspect graph files.
     #[command(subcommand)]
@@ -95,7 +99,8 @@ fn main() -> ExitCode {
             graph,
             no_progress,
             quiet,
-        } => run(&graph, !no_progress, !quiet),
+            connect,
+        } => run(&graph, !no_progress, !quiet, connect.as_deref()),
         Command::Graph(GraphCommand::Check { graph }) => match graph.load() {
             Ok(g) => {
                 for w in &g.warnings {
@@ -162,11 +167,17 @@ fn invalid(e: GraphLoadError) -> ExitCode {
     ExitCode::from(2)
 }
 
-fn run(args: &GraphArgs, progress: bool, forward_logs: bool) -> ExitCode {
-    let graph = match args.load() {
+fn run(args: &GraphArgs, progress: bool, forward_logs: bool, connect: Option<&str>) -> ExitCode {
+    let mut graph = match args.load() {
         Ok(g) => g,
         Err(e) => return invalid(e),
     };
+    if let Some(url) = connect {
+        let loggers = registry::connect_rerun_loggers(&mut graph, url);
+        if loggers == 0 {
+            eprintln!("warning: --connect given but the graph has no rerun-logger stage");
+        }
+    }
     for w in &graph.warnings {
         eprintln!("warning: {w}");
     }

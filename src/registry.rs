@@ -79,3 +79,18 @@ pub fn describe_kinds() -> String {
     }
     out
 }
+
+/// Points every rerun-logger stage at a live viewer instead of its file; returns how many.
+pub fn connect_rerun_loggers(graph: &mut imuflow_graph::Graph, url: &str) -> usize {
+    let mut count = 0;
+    for node in graph.stages.values_mut() {
+        if matches!(&node.runner, imuflow_graph::graph::Runner::Builtin { kind } if kind == imuflow_rerun_logger::SPEC.kind)
+        {
+            node.params.remove("path");
+            node.params
+                .insert("connect".into(), toml::Value::String(url.to_owned()));
+            count += 1;
+        }
+    }
+    count
+}

@@ -400,3 +400,90 @@ params = { path = "{dir}/late.mcap" }
     }
     assert_clean(&sb);
 }
+
+#[test]
+fn a_live_stage_that_falls_behind_drops_and_counts_frames() {
+    // Live: the source keeps its 60 Hz pace; the relay starts reading 0.5 s late, its small
+    // buffer overflows, and the oldest frames are dropped and counted, not queued.
+    let sb = Sandbox::new("live-drop");
+    let graph = sb.graph(
+        "live.toml",
+        r#"
+name = "live-drop"
+mode = "live"
+[stages.src]
+kind = "bench-source"
+params = { frames = 90, rate_hz = 60.0 }
+[stages.slow]
+kind = "relay"
+inputs = { in = "src.out" }
+params = { start_delay_ms = 500 }
+[stages.rec]
+kind = "recorder"
+inputs = { m = "slow.out" }
+params = { path = "{dir}/live.mcap" }
+"#,
+    );
+    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    let row: Vec<&str> = stdout
+        .lines()
+        .find(|l| l.starts_with("slow "))
+        .expect("summary row for 'slow'")
+        .split_whitespace()
+        .collect();
+    let (frames_in, dropped): (u64, u64) = (
+        row[2].parse().expect("frames in"),
+        row[4].parse().expect("dropped"),
+    );
+    assert!(
+        dropped >= 20,
+        "0.5 s late at 60 Hz must drop ~28 frames, counted {dropped}\n{stdout}"
+    );
+    assert_eq!(
+        frames_in + dropped,
+        90,
+        "every frame is either processed or counted as dropped\n{stdout}"
+    );
+    assert_eq!(mcap_messages(&sb.path("live.mcap")).len() as u64, frames_in);
+    assert_clean(&sb);
+}
+
+#[test]
+fn an_unreachable_rerun_viewer_fails_the_logger_clearly_instead_of_hanging() {
+    let sb = Sandbox::new("no-viewer");
+    let graph = sb.graph("smoke.toml", SMOKE);
+    let start = Instant::now();
+    // Port 1 on loopback: nothing listens there.
+    let out = sb.run(&[
+        "run",
+        graph.to_str().expect("utf8"),
+        "--no-progress",
+        "--connect",
+        "rerun+http://127.0.0.1:1/proxy",
+    ]);
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("stage 'viz' failed"), "{stderr}");
+    assert!(
+        stderr.contains(
+            "could not deliver the log to the rerun viewer at rerun+http://127.0.0.1:1/proxy"
+        ),
+        "{stderr}"
+    );
+    assert!(
+        start.elapsed() < Duration::from_secs(30),
+        "gave up in {:?}",
+        start.elapsed()
+    );
+    // The recorder beside it still finished its file.
+    assert_eq!(
+        mcap_messages(&sb.path("out.mcap"))
+            .iter()
+            .filter(|m| m.0 == "source.imu")
+            .count(),
+        120
+    );
+    assert_clean(&sb);
+}

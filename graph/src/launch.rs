@@ -437,7 +437,11 @@ fn supervise(
             return Err(RunError::NotReady {
                 stage: s.id.clone(),
                 timeout_s: graph.ready_timeout_s,
-                stderr_tail: s.stderr_tail.lock().map(|t| t.iter().cloned().collect()).unwrap_or_default(),
+                stderr_tail: s
+                    .stderr_tail
+                    .lock()
+                    .map(|t| t.iter().cloned().collect())
+                    .unwrap_or_default(),
             });
         }
     }

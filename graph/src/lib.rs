@@ -16,6 +16,7 @@ pub mod stage;
 pub mod stats;
 pub mod transport;
 pub mod validate;
+pub mod wait;
 
 pub use frames::{Frame, FrameHeader, FrameType};
 pub use graph::{Graph, GraphLoadError, Mode};

@@ -36,6 +36,7 @@ use crate::stats::{StageStats, StageSummary};
 use crate::transport::{
     self, ErasedSubscriber, HeldFrame, Output, TransportError, WakeListener, frame_ref,
 };
+use crate::wait::ArrivalWaiter;
 
 /// Environment variable: the run directory (holds `graph.json`).
 pub const ENV_RUN_DIR: &str = "IMUFLOW_RUN_DIR";
@@ -49,8 +50,6 @@ pub const GRAPH_JSON: &str = "graph.json";
 /// Prefix of every control line on a stage's stdout.
 pub const CONTROL_PREFIX: &str = "@imuflow ";
 
-/// How long a stage spins on its inputs before blocking (see `transport::wait_for`).
-const SPIN: Duration = Duration::from_micros(50);
 /// How often a blocked stage re-checks the stop flag.
 const POLL: Duration = Duration::from_millis(20);
 
@@ -159,6 +158,7 @@ pub struct StageContext {
     last_step: Option<Step>,
     started: Instant,
     any_cursor: usize,
+    waiter: ArrivalWaiter,
 }
 
 impl StageContext {
@@ -240,6 +240,7 @@ impl StageContext {
             last_step: None,
             started: Instant::now(),
             any_cursor: 0,
+            waiter: ArrivalWaiter::default(),
         })
     }
 
@@ -429,6 +430,7 @@ impl StageContext {
                     .max()
                     .unwrap_or(0);
                 self.stats.record_latency(published, transport::now_ns());
+                self.waiter.arrived(Instant::now());
                 self.last_step = Some(step);
                 self.step_started = Some(Instant::now());
                 return Ok(Some(Step {
@@ -440,7 +442,7 @@ impl StageContext {
                 return Ok(None);
             };
             let inputs = &self.inputs;
-            transport::wait_for(listener, SPIN, POLL, || {
+            self.waiter.wait(listener, POLL, || {
                 inputs.iter().any(|s| s.subscriber.has_frames())
             });
         }
@@ -472,11 +474,7 @@ impl StageContext {
                     slot.ended = true;
                     continue;
                 }
-                if let Some(last) = slot.last_seq
-                    && header.seq > last + 1
-                {
-                    self.stats.dropped += header.seq - last - 1;
-                }
+                self.stats.dropped += missed_before(slot.last_seq, &header);
                 slot.last_seq = Some(header.seq);
                 slot.current = Some(frame);
                 self.stats
@@ -500,7 +498,7 @@ impl StageContext {
                 return Ok(None);
             };
             let inputs = &self.inputs;
-            transport::wait_for(listener, SPIN, POLL, || {
+            self.waiter.wait(listener, POLL, || {
                 inputs.iter().any(|s| !s.ended && s.subscriber.has_frames())
             });
         }
@@ -525,14 +523,12 @@ impl StageContext {
             }
             if let Some(frame) = slot.subscriber.receive()? {
                 let seq = frame.header().seq;
-                if let Some(last) = slot.last_seq
-                    && seq > last + 1
-                    && !frame.header().is_end()
-                {
+                let missed = missed_before(slot.last_seq, frame.header());
+                if missed > 0 {
                     // Live graphs overwrite the oldest frame when a reader lags: count the gap.
-                    self.stats.dropped += seq - last - 1;
+                    self.stats.dropped += missed;
                     if mode == Mode::Offline {
-                        tracing::warn!(input = %slot.name, "frames {}..{} never arrived", last + 1, seq);
+                        tracing::warn!(input = %slot.name, "{missed} frame(s) before {seq} never arrived");
                     }
                 }
                 slot.last_seq = Some(seq);
@@ -647,6 +643,18 @@ impl StageContext {
     }
 }
 
+/// Frames of an input that never arrived before `header`, given the last `seq` received (counting
+/// from frame 0 when none was).
+fn missed_before(last_seq: Option<u64>, header: &FrameHeader) -> u64 {
+    if header.is_end() {
+        return 0;
+    }
+    match last_seq {
+        Some(last) => header.seq.saturating_sub(last + 1),
+        None => header.seq,
+    }
+}
+
 fn env(name: &'static str) -> Result<String, StageError> {
     std::env::var(name).map_err(|_| StageError::MissingEnv(name))
 }
@@ -699,7 +707,10 @@ pub enum ControlMessage {
     Ready,
     /// The stage's readers are connected to their publishers.
     Connected,
-    Progress { done: u64, total: u64 },
+    Progress {
+        done: u64,
+        total: u64,
+    },
     Summary(StageSummary),
 }
 

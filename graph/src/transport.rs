@@ -7,7 +7,7 @@
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use iceoryx2::port::BackpressureAction;
 use iceoryx2::port::backpressure_strategy::BackpressureStrategy;
@@ -548,28 +548,4 @@ pub fn now_ns() -> u64 {
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_nanos() as u64)
         .unwrap_or(0)
-}
-
-/// Spins on `ready` for up to `spin`, then parks on the listener until woken or `timeout`.
-/// The short spin catches the next frame of a busy pipeline without a kernel round trip; idle
-/// stages fall back to blocking and cost no CPU.
-pub fn wait_for(
-    listener: &WakeListener,
-    spin: Duration,
-    timeout: Duration,
-    mut ready: impl FnMut() -> bool,
-) {
-    let start = Instant::now();
-    while start.elapsed() < spin {
-        if ready() {
-            listener.drain();
-            return;
-        }
-        std::hint::spin_loop();
-    }
-    if !ready() {
-        listener.wait(timeout);
-    } else {
-        listener.drain();
-    }
 }

@@ -37,6 +37,8 @@ pub const APPLICATION_ID: &str = "imuflow";
 const SENSOR_SPACING_M: f32 = 0.3;
 /// Length of the drawn axes, m.
 const AXIS_LENGTH_M: f32 = 0.1;
+/// How long the end of a run waits for the log to reach its file or viewer.
+const FLUSH_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10);
 /// Fields with at most this many scalars are logged as time series.
 const MAX_SERIES_SCALARS: usize = 6;
 
@@ -64,11 +66,21 @@ pub const SPEC: StageSpec = StageSpec {
     ],
 };
 
+/// Where the log goes, for error messages.
+enum Target {
+    File(String),
+    Viewer(String),
+}
+
 /// Runs the logger as the current process's stage.
 pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let params = Params(ctx.params());
     let builder = rerun::RecordingStreamBuilder::new(APPLICATION_ID);
+    let target = match (params.str("path"), params.str("connect")) {
+        (None, Some(url)) => Target::Viewer(url.to_owned()),
+        (path, _) => Target::File(path.unwrap_or_default().to_owned()),
+    };
     let rec = match (params.str("path"), params.str("connect")) {
         (Some(path), None) => {
             if let Some(dir) = std::path::Path::new(path)
@@ -129,10 +141,21 @@ pub fn run() -> anyhow::Result<()> {
     } else {
         Ok(())
     };
-    let flushed = rec
-        .flush_blocking()
-        .context("cannot flush the rerun stream");
-    drop(rec);
+    // Bounded: a viewer that is not running (or went away) must not hang the graph.
+    let flushed = rec.flush_with_timeout(FLUSH_TIMEOUT).map_err(|e| match &target {
+        Target::Viewer(url) => anyhow::anyhow!(
+            "could not deliver the log to the rerun viewer at {url} within {} s (is a viewer running? start one with `rerun`): {e}",
+            FLUSH_TIMEOUT.as_secs()
+        ),
+        Target::File(path) => anyhow::anyhow!("{path}: cannot write the rerun log: {e}"),
+    });
+    if flushed.is_err() {
+        // Dropping (or disconnecting) a stream flushes without a bound; after a failed bounded
+        // flush, leave its threads to end with the process instead of blocking here.
+        std::mem::forget(rec);
+    } else {
+        drop(rec);
+    }
     logged?;
     flushed?;
     ctx.finish(&mut [])?;

@@ -189,9 +189,7 @@ pub fn run() -> anyhow::Result<()> {
         if live {
             // Pace to the sensor rate against the start, so the rate does not drift.
             let due = start + period.mul_f64(seq as f64);
-            if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                std::thread::sleep(wait);
-            }
+            imuflow_graph::wait::sleep_until(due);
         }
         let t0 = Instant::now();
         let capture_ns = if live {
