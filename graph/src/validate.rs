@@ -115,18 +115,12 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
                 continue;
             };
             let Some(&frame) = upstream.outputs.get(from_port) else {
-                let known = upstream
-                    .outputs
-                    .keys()
-                    .cloned()
-                    .collect::<Vec<_>>()
-                    .join(", ");
+                let known = list_or_none(upstream.outputs.keys().map(String::as_str));
                 problems.stage(
                     d.id,
                     Some(&key),
                     format!(
-                        "reads '{from_stage}.{from_port}' but stage '{from_stage}' has no output '{from_port}' (outputs: {})",
-                        if known.is_empty() { "none" } else { &known }
+                        "reads '{from_stage}.{from_port}' but stage '{from_stage}' has no output '{from_port}' (outputs: {known})"
                     ),
                 );
                 continue;
@@ -254,6 +248,16 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
         })
     } else {
         Err(problems.0)
+    }
+}
+
+/// `a, b, c`, or `none` for an empty list (for "known: ..." hints in messages).
+fn list_or_none<'a>(names: impl Iterator<Item = &'a str>) -> String {
+    let names: Vec<&str> = names.collect();
+    if names.is_empty() {
+        "none".to_owned()
+    } else {
+        names.join(", ")
     }
 }
 
@@ -488,12 +492,7 @@ fn check_inputs_against_spec(
         InputsSpec::Fixed(ports) => {
             for name in inputs.keys() {
                 if !ports.iter().any(|p| p.name == name) {
-                    let known = ports.iter().map(|p| p.name).collect::<Vec<_>>();
-                    let known = if known.is_empty() {
-                        "none".to_owned()
-                    } else {
-                        known.join(", ")
-                    };
+                    let known = list_or_none(ports.iter().map(|p| p.name));
                     problems.stage(
                         id,
                         Some(&format!("inputs.{name}")),
@@ -525,12 +524,7 @@ fn check_params(id: &str, spec: &StageSpec, params: &toml::Table, problems: &mut
         let key = format!("params.{name}");
         match spec.param(name) {
             None => {
-                let known = spec.params.iter().map(|p| p.name).collect::<Vec<_>>();
-                let known = if known.is_empty() {
-                    "none".to_owned()
-                } else {
-                    known.join(", ")
-                };
+                let known = list_or_none(spec.params.iter().map(|p| p.name));
                 problems.stage(
                     id,
                     Some(&key),

@@ -198,28 +198,26 @@ impl SourceSkeleton {
             file: file.to_owned(),
             detail: e.to_string(),
         })?;
-        let mut joints = BTreeMap::new();
-        for (key, source) in raw.joints {
+        // A key of either table names one of our joints; errors point at its line.
+        let target_joint = |key: toml::Spanned<String>| {
             let line = line_of(text, key.span().start);
-            let Some(target) = JointId::from_name(key.get_ref()) else {
-                return Err(MappingError::UnknownTargetJoint {
+            match JointId::from_name(key.get_ref()) {
+                Some(target) => Ok((target, line)),
+                None => Err(MappingError::UnknownTargetJoint {
                     file: file.to_owned(),
                     line,
                     joint: key.into_inner(),
-                });
-            };
+                }),
+            }
+        };
+        let mut joints = BTreeMap::new();
+        for (key, source) in raw.joints {
+            let (target, line) = target_joint(key)?;
             joints.insert(target, (source, line));
         }
         let mut twist_deg = BTreeMap::new();
         for (key, deg) in raw.twist_deg {
-            let line = line_of(text, key.span().start);
-            let Some(target) = JointId::from_name(key.get_ref()) else {
-                return Err(MappingError::UnknownTargetJoint {
-                    file: file.to_owned(),
-                    line,
-                    joint: key.into_inner(),
-                });
-            };
+            let (target, line) = target_joint(key)?;
             if !deg.is_finite() {
                 return Err(MappingError::InvalidTwist {
                     file: file.to_owned(),

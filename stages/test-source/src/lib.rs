@@ -180,7 +180,6 @@ pub fn run() -> anyhow::Result<()> {
         return Ok(());
     }
     let start = Instant::now();
-    let start_ns = now_ns();
     let period = Duration::from_secs_f64(1.0 / rate_hz);
     for seq in 0..frames {
         if ctx.should_stop() {
@@ -225,7 +224,6 @@ pub fn run() -> anyhow::Result<()> {
         }
     }
     ctx.finish(&mut [&mut out])?;
-    let _ = start_ns;
     Ok(())
 }
 
