@@ -8,6 +8,8 @@
 //! - [`rotation`]: 6D, Euler, axis-angle, from-to, slerp, geodesic angle.
 //! - [`kinematics`]: forward and inverse kinematics with preallocated buffers.
 //! - [`bvh`]: BVH parsing and writing; [`retarget`]: BVH onto the 24-joint body, resampling, export.
+//! - [`imu_synthesis`]: synthetic IMU signals (orientation, acceleration, angular velocity) with a seeded
+//!   augmentation model, for training and the imu-source stage.
 //! - [`metrics`]: evaluation metrics (SIP, angle and position errors, jitter, foot contact).
 
 // Library code returns errors; panicking helpers are for tests only.
@@ -18,6 +20,7 @@
 
 pub mod body_model;
 pub mod bvh;
+pub mod imu_synthesis;
 pub mod kinematics;
 pub mod metrics;
 pub mod retarget;

@@ -1,0 +1,76 @@
+//! Re-running IMU synthesis into a sized output must not allocate (counted with a wrapping global
+//! allocator; this file holds a single test so no other test thread allocates while counting).
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use imuflow_body::imu_synthesis::{
+    AccelStencil, Augmentation, AugmentationConfig, SynthesisOptions, SyntheticImus,
+    synthesize_imus_into,
+};
+use imuflow_body::kinematics::Pose;
+use imuflow_body::retarget::MotionClip;
+use imuflow_body::rotation::Axis;
+use imuflow_body::{BodyModel, BodyParams, JointId};
+use nalgebra::Vector3;
+
+struct Counting;
+
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        // SAFETY: forwarding the caller's layout to the system allocator.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: `ptr` came from `System.alloc` with this layout.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn synthesis_into_a_sized_output_does_not_allocate() {
+    let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.8, 80.0).unwrap();
+    let poses = (0..120)
+        .map(|t| {
+            let mut p = Pose::t_pose(Vector3::new(0.01 * t as f64, 1.0, 0.0));
+            p.parent_from_joint[JointId::LEFT_ELBOW.index()] = Axis::Y.rotation(0.02 * t as f64);
+            p
+        })
+        .collect();
+    let clip = MotionClip {
+        frame_time_s: 1.0 / 60.0,
+        poses,
+    };
+    let mut out = SyntheticImus::default();
+    for stencil in [AccelStencil::Central, AccelStencil::SmoothedTransPose] {
+        for augmentation in [
+            None,
+            Some(Augmentation {
+                config: AugmentationConfig::REFERENCE,
+                seed: 5,
+            }),
+        ] {
+            let options = SynthesisOptions {
+                stencil,
+                augmentation,
+            };
+            synthesize_imus_into(&clip, &body, &options, &mut out).unwrap();
+            let before = ALLOCATIONS.load(Ordering::SeqCst);
+            synthesize_imus_into(&clip, &body, &options, &mut out).unwrap();
+            let after = ALLOCATIONS.load(Ordering::SeqCst);
+            assert_eq!(
+                after - before,
+                0,
+                "{stencil:?}, augmented {}",
+                augmentation.is_some()
+            );
+            assert_eq!(out.frames.len(), 120);
+        }
+    }
+}
