@@ -32,6 +32,8 @@ const EWMA_WEIGHT: f64 = 0.125;
 /// How far a late arrival moves the predicted phase: late frames are mostly jitter (a source
 /// paced on an absolute schedule sends the next one on time), early ones reset the phase.
 const LATE_PHASE_WEIGHT: f64 = 0.1;
+/// How long before a deadline `sleep_until` stops sleeping and spins: about `sleep`'s overshoot.
+const SLEEP_MARGIN: Duration = Duration::from_micros(100);
 /// Longest sleep between checks of the inputs while waiting for the spin window.
 const SLEEP_SLICE: Duration = Duration::from_millis(1);
 
@@ -115,11 +117,12 @@ impl ArrivalWaiter {
 }
 
 /// Sleeps until `deadline` with a precision of a few microseconds: `std::thread::sleep` overshoots
-/// by up to a few hundred, so it sleeps until [`SPIN_LEAD`] before the deadline and spins (yielding)
-/// the rest. Sources use it to pace a stream, so readers can predict the arrivals.
+/// by about 60-100 µs, so it sleeps until [`SLEEP_MARGIN`] before the deadline and spins (yielding)
+/// the rest. Sources use it to pace a stream, so readers can predict the arrivals. The margin is
+/// kept short because readers spin around the same moment and every spinner competes for the cores.
 pub fn sleep_until(deadline: Instant) {
     let now = Instant::now();
-    if let Some(early) = deadline.checked_sub(SPIN_LEAD)
+    if let Some(early) = deadline.checked_sub(SLEEP_MARGIN)
         && early > now
     {
         std::thread::sleep(early - now);
