@@ -60,6 +60,39 @@ enum Command {
     /// Benchmarks.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Training data: motion files to synthetic-IMU shards.
+    #[command(subcommand)]
+    Dataset(DatasetCommand),
+}
+
+#[derive(Subcommand)]
+enum DatasetCommand {
+    /// Retarget every .bvh under --bvh-dir (Bandai Namco skeleton), resample to 60 Hz, synthesize the
+    /// six IMUs (ideal plus augmented copies) and write safetensors shards split 80/10/10 by clip
+    /// (see tools/dataset/README.md). Clips that fail are reported and skipped.
+    Build {
+        /// Directory searched recursively for .bvh files.
+        #[arg(long, value_name = "DIR")]
+        bvh_dir: PathBuf,
+        /// Output directory (shards and split.json of an earlier run there are replaced).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Augmented copies per clip, besides the ideal one.
+        #[arg(long, default_value_t = 1)]
+        augment_copies: u32,
+        /// Base seed of the augmentation.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Use only the first N clips (sorted by path).
+        #[arg(long)]
+        limit: Option<usize>,
+        /// Close a shard before it exceeds this many frames (1,524 bytes each).
+        #[arg(long, default_value_t = imuflow_dataset::DEFAULT_MAX_SHARD_FRAMES)]
+        shard_frames: usize,
+        /// Don't show the progress bar.
+        #[arg(long)]
+        no_progress: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -136,6 +169,7 @@ fn main() -> ExitCode {
             ExitCode::from(2)
         }
         Command::Clean => clean(),
+        Command::Dataset(cmd) => dataset(cmd),
         Command::Bench(cmd) => match bench::run(cmd) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
@@ -246,6 +280,35 @@ fn print_summary(graph: &Graph, report: &launch::RunReport) {
                 s.latency_p50_us,
                 s.latency_p99_us
             );
+        }
+    }
+}
+
+fn dataset(cmd: DatasetCommand) -> ExitCode {
+    let DatasetCommand::Build {
+        bvh_dir,
+        out,
+        augment_copies,
+        seed,
+        limit,
+        shard_frames,
+        no_progress,
+    } = cmd;
+    let mut options = imuflow_dataset::BuildOptions::new(bvh_dir, out);
+    options.augment_copies = augment_copies;
+    options.seed = seed;
+    options.limit = limit;
+    options.max_shard_frames = shard_frames;
+    options.progress = !no_progress;
+    match imuflow_dataset::build(&options) {
+        Ok(summary) => {
+            print!("{}", summary.table());
+            println!("wrote {}", options.out_dir.display());
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
         }
     }
 }

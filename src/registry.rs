@@ -13,6 +13,7 @@ fn specs() -> Vec<StageSpec> {
         imuflow_test_source::SPEC,
         imuflow_recorder::SPEC,
         imuflow_rerun_logger::SPEC,
+        imuflow_imu_source::SPEC,
         bench::SOURCE_SPEC,
         bench::RELAY_SPEC,
     ]
@@ -26,6 +27,7 @@ pub fn registry() -> Registry {
 pub fn run_stage(kind: &str) -> anyhow::Result<()> {
     match kind {
         k if k == imuflow_test_source::SPEC.kind => imuflow_test_source::run(),
+        k if k == imuflow_imu_source::SPEC.kind => imuflow_imu_source::run(),
         k if k == imuflow_recorder::SPEC.kind => imuflow_recorder::run(),
         k if k == imuflow_rerun_logger::SPEC.kind => imuflow_rerun_logger::run(),
         k if k == bench::SOURCE_SPEC.kind => bench::run_source(),

@@ -10,6 +10,7 @@
 //! - [`bvh`]: BVH parsing and writing; [`retarget`]: BVH onto the 24-joint body, resampling, export.
 //! - [`imu_synthesis`]: synthetic IMU signals (orientation, acceleration, angular velocity) with a seeded
 //!   augmentation model, for training and the imu-source stage.
+//! - [`npz`]: AMASS-style `.npz` motion import and export (Z-up SMPL `trans` ↔ Y-up root position).
 //! - [`metrics`]: evaluation metrics (SIP, angle and position errors, jitter, foot contact).
 
 // Library code returns errors; panicking helpers are for tests only.
@@ -23,6 +24,7 @@ pub mod bvh;
 pub mod imu_synthesis;
 pub mod kinematics;
 pub mod metrics;
+pub mod npz;
 pub mod retarget;
 pub mod rotation;
 pub mod skeleton;

@@ -1,0 +1,360 @@
+//! The imu-source stage: six IMUs' frames from a motion file (synthesized), an mcap recording
+//! (replayed) or live sensors over UDP, as `ImuFrame`s on output `imu`, plus the ground-truth pose
+//! (`MotionFrame`) on output `truth` where one is known.
+//!
+//! Modes (param `mode`):
+//! - `synthesize`: BVH -> 24-joint clip (joint mapping, default the built-in Bandai Namco one) ->
+//!   resampled to the graph's rate -> synthetic IMUs ([`imuflow_body::imu_synthesis`]). Orientation
+//!   is `R_MS` (the sensor's inertial frame is the model frame M); specific force and angular rate
+//!   are in the sensor frame. `truth` carries the clip's pose of the same `seq`.
+//! - `replay`: re-publishes the `ImuFrame`s (and `MotionFrame`s, if any) of a recorder's mcap file
+//!   in file order, keeping their `seq`, `capture_ns` and flags.
+//! - `udp`: receives the packets described in [`udp`] from live sensors.
+//!
+//! A sample that is not finite clears its sensor's bit of `valid_mask` and flags the frame
+//! INVALID; it never stops the stage.
+
+pub mod replay;
+pub mod synth;
+pub mod udp;
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, NUM_IMUS, flags};
+use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
+use imuflow_graph::stage::{Params, Step};
+use imuflow_graph::transport::Output;
+use imuflow_graph::{FrameType, Mode, StageContext};
+
+/// Every sensor valid.
+pub const ALL_VALID: u32 = (1 << NUM_IMUS) - 1;
+
+/// How often (frames) a source reports progress to the launcher.
+const PROGRESS_EVERY: u64 = 30;
+
+pub const SPEC: StageSpec = StageSpec {
+    kind: "imu-source",
+    role: Role::Source,
+    summary: "six IMUs from a BVH motion (synthesized), an mcap recording (replayed) or UDP sensors",
+    inputs: InputsSpec::Fixed(&[]),
+    outputs: &[
+        PortSpec {
+            name: "imu",
+            frame: FrameType::Imu,
+            required: false,
+            doc: "six IMUs: orientation R_IS, specific force and angular rate in the sensor frame",
+        },
+        PortSpec {
+            name: "truth",
+            frame: FrameType::Motion,
+            required: false,
+            doc: "ground-truth pose of the same seq (synthesize; replay when recorded); physics fields zero",
+        },
+    ],
+    params: &[
+        ParamSpec {
+            name: "mode",
+            ty: ParamType::Choice(&["synthesize", "replay", "udp"]),
+            required: false,
+            default: "synthesize",
+            doc: "where the frames come from",
+        },
+        ParamSpec {
+            name: "path",
+            ty: ParamType::Path,
+            required: false,
+            default: "",
+            doc: "synthesize: the .bvh motion; replay: the .mcap recording (required for both)",
+        },
+        ParamSpec {
+            name: "mapping",
+            ty: ParamType::Path,
+            required: false,
+            default: "",
+            doc: "synthesize: joint-mapping TOML of the BVH skeleton (default: built-in Bandai Namco)",
+        },
+        ParamSpec {
+            name: "stature_m",
+            ty: ParamType::Float { min: 0.5, max: 2.5 },
+            required: false,
+            default: "",
+            doc: "synthesize: subject stature, m (default: the body model's reference subject)",
+        },
+        ParamSpec {
+            name: "mass_kg",
+            ty: ParamType::Float {
+                min: 10.0,
+                max: 300.0,
+            },
+            required: false,
+            default: "",
+            doc: "synthesize: subject mass, kg (default: the body model's reference subject)",
+        },
+        ParamSpec {
+            name: "augment",
+            ty: ParamType::Bool,
+            required: false,
+            default: "false",
+            doc: "synthesize: add the reference sensor errors (mounting, noise, bias, heading drift)",
+        },
+        ParamSpec {
+            name: "seed",
+            ty: ParamType::Int {
+                min: 0,
+                max: i64::MAX,
+            },
+            required: false,
+            default: "0",
+            doc: "synthesize: seed of the augmentation's random draws",
+        },
+        ParamSpec {
+            name: "stencil",
+            ty: ParamType::Choice(&["smoothed", "central"]),
+            required: false,
+            default: "smoothed",
+            doc: "synthesize: acceleration stencil (TransPose/PIP smoothed, or central differences)",
+        },
+        ParamSpec {
+            name: "realtime",
+            ty: ParamType::Bool,
+            required: false,
+            default: "false offline, true live",
+            doc: "synthesize/replay: pace frames in real time (graph rate / recorded capture times)",
+        },
+        ParamSpec {
+            name: "topic",
+            ty: ParamType::String,
+            required: false,
+            default: "",
+            doc: "replay: ImuFrame channel (default: the first imuflow.ImuFrame.v1 raw channel)",
+        },
+        ParamSpec {
+            name: "truth_topic",
+            ty: ParamType::String,
+            required: false,
+            default: "",
+            doc: "replay: MotionFrame channel for `truth` (default: the first imuflow.MotionFrame.v1 raw channel, if any)",
+        },
+        ParamSpec {
+            name: "bind",
+            ty: ParamType::String,
+            required: false,
+            default: "127.0.0.1:8777",
+            doc: "udp: local address to receive sensor packets on",
+        },
+        ParamSpec {
+            name: "timeout_ms",
+            ty: ParamType::Int {
+                min: 1,
+                max: 3_600_000,
+            },
+            required: false,
+            default: "2000",
+            doc: "udp: end the stream when no packet arrived for this long",
+        },
+        ParamSpec {
+            name: "frames",
+            ty: ParamType::Int {
+                min: 0,
+                max: 1 << 40,
+            },
+            required: false,
+            default: "0",
+            doc: "udp: end the stream after this many packets (0 = only on timeout or stop)",
+        },
+    ],
+};
+
+/// Runs the imu-source as the current process's stage.
+pub fn run() -> anyhow::Result<()> {
+    let ctx = StageContext::from_env()?;
+    let stage = ctx.id().to_owned();
+    let params = Params(ctx.params());
+    let mode = params.str("mode").unwrap_or("synthesize").to_owned();
+    let realtime = params.bool("realtime", ctx.mode() == Mode::Live);
+    match mode.as_str() {
+        "synthesize" => {
+            let path = required_path(&params, &stage, &mode)?;
+            let options = synth::Options {
+                mapping: params.str("mapping").map(PathBuf::from),
+                stature_m: params
+                    .0
+                    .get("stature_m")
+                    .map(|_| params.float("stature_m", 0.0)),
+                mass_kg: params
+                    .0
+                    .get("mass_kg")
+                    .map(|_| params.float("mass_kg", 0.0)),
+                augment: params.bool("augment", false),
+                seed: params.int("seed", 0).max(0) as u64,
+                central_stencil: params.str("stencil") == Some("central"),
+            };
+            let rate_hz = ctx.graph().rate_hz;
+            let motion = synth::Motion::load(&path, &options, rate_hz).with_context(|| {
+                format!(
+                    "stage '{stage}': cannot synthesize IMUs from '{}'",
+                    path.display()
+                )
+            })?;
+            synth::run(ctx, &motion, realtime)
+        }
+        "replay" => {
+            let path = required_path(&params, &stage, &mode)?;
+            let recording = replay::Recording::load(
+                &path,
+                params.str("topic").filter(|t| !t.is_empty()),
+                params.str("truth_topic").filter(|t| !t.is_empty()),
+            )
+            .with_context(|| format!("stage '{stage}': cannot replay"))?;
+            replay::run(ctx, &recording, realtime)
+        }
+        "udp" => {
+            let options = udp::Options {
+                bind: params.str("bind").unwrap_or("127.0.0.1:8777").to_owned(),
+                timeout: Duration::from_millis(params.int("timeout_ms", 2000).max(1) as u64),
+                frames: params.int("frames", 0).max(0) as u64,
+            };
+            udp::run(ctx, &options)
+                .with_context(|| format!("stage '{stage}': udp source on '{}'", options.bind))
+        }
+        other => bail!("stage '{stage}': unknown mode '{other}' (synthesize, replay or udp)"),
+    }
+}
+
+fn required_path(params: &Params<'_>, stage: &str, mode: &str) -> anyhow::Result<PathBuf> {
+    match params.str("path") {
+        Some(p) if !p.is_empty() => Ok(PathBuf::from(p)),
+        _ => bail!("stage '{stage}': mode '{mode}' needs param `path`"),
+    }
+}
+
+/// Marks non-finite sensors of `frame` invalid: clears their `valid_mask` bits (starting from
+/// `valid_mask` as given) and sets the INVALID flag when any sensor is invalid.
+pub fn mark_invalid_sensors(frame: &mut ImuFrame) {
+    for i in 0..NUM_IMUS {
+        let finite = frame.orientation_wxyz[i].iter().all(|v| v.is_finite())
+            && frame.specific_force_mps2[i].iter().all(|v| v.is_finite())
+            && frame.angular_rate_radps[i].iter().all(|v| v.is_finite());
+        if !finite {
+            frame.valid_mask &= !(1 << i);
+        }
+    }
+    if frame.valid_mask & ALL_VALID != ALL_VALID {
+        frame.header.flags |= flags::INVALID;
+    }
+}
+
+/// The publishing side shared by the modes: both outputs, pacing and progress.
+pub(crate) struct Publisher {
+    pub ctx: StageContext,
+    pub imu: Output<ImuFrame>,
+    pub truth: Output<MotionFrame>,
+    start: Instant,
+    total: u64,
+    published: u64,
+}
+
+impl Publisher {
+    /// Opens both outputs and does the start handshake; `None` when told to stop first (the
+    /// outputs are already closed then).
+    pub fn start(ctx: StageContext, total: u64) -> anyhow::Result<Option<Self>> {
+        let imu = ctx.output::<ImuFrame>("imu")?;
+        let truth = ctx.output::<MotionFrame>("truth")?;
+        let mut p = Publisher {
+            ctx,
+            imu,
+            truth,
+            start: Instant::now(),
+            total,
+            published: 0,
+        };
+        if !p.ctx.ready()? {
+            p.finish()?;
+            return Ok(None);
+        }
+        p.start = Instant::now();
+        Ok(Some(p))
+    }
+
+    /// Sleeps until `offset` after the start of the stream.
+    pub fn pace(&self, offset: Duration) {
+        imuflow_graph::wait::sleep_until(self.start + offset);
+    }
+
+    /// Publishes one IMU frame: `frame`'s payload with its header's seq, capture time and flags.
+    pub fn publish_imu(&mut self, frame: &ImuFrame, started: Instant) -> anyhow::Result<()> {
+        let header = FrameHeader {
+            seq: frame.header.seq,
+            capture_ns: frame.header.capture_ns,
+            flags: frame.header.flags,
+            ..Default::default()
+        };
+        self.imu
+            .publish(header, |f| *f = *frame)
+            .with_context(|| format!("publishing imu frame {}", header.seq))?;
+        self.ctx.record_source_step(
+            Step {
+                seq: header.seq,
+                capture_ns: header.capture_ns,
+                flags: header.flags,
+            },
+            started.elapsed(),
+        );
+        self.published += 1;
+        if self.published % PROGRESS_EVERY == 1 || self.published == self.total {
+            self.ctx.progress(self.published, self.total)?;
+        }
+        Ok(())
+    }
+
+    /// Publishes one truth frame (its header's seq, capture time and flags).
+    pub fn publish_truth(&mut self, frame: &MotionFrame) -> anyhow::Result<()> {
+        let header = FrameHeader {
+            seq: frame.header.seq,
+            capture_ns: frame.header.capture_ns,
+            flags: frame.header.flags,
+            ..Default::default()
+        };
+        self.truth
+            .publish(header, |f| *f = *frame)
+            .with_context(|| format!("publishing truth frame {}", header.seq))?;
+        Ok(())
+    }
+
+    /// END_OF_STREAM on both outputs and the summary to the launcher.
+    pub fn finish(self) -> anyhow::Result<()> {
+        let Publisher {
+            ctx,
+            mut imu,
+            mut truth,
+            ..
+        } = self;
+        ctx.finish(&mut [&mut imu, &mut truth])?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nan_sample_clears_its_bit_and_flags_the_frame() {
+        let mut f = ImuFrame {
+            valid_mask: ALL_VALID,
+            ..Default::default()
+        };
+        for q in &mut f.orientation_wxyz {
+            *q = [1.0, 0.0, 0.0, 0.0];
+        }
+        mark_invalid_sensors(&mut f);
+        assert_eq!(f.valid_mask, ALL_VALID);
+        assert_eq!(f.header.flags, 0);
+        f.angular_rate_radps[3][1] = f32::NAN;
+        mark_invalid_sensors(&mut f);
+        assert_eq!(f.valid_mask, ALL_VALID & !(1 << 3));
+        assert!(f.header.has(flags::INVALID));
+    }
+}

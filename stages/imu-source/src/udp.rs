@@ -1,0 +1,325 @@
+//! Mode `udp`: live sensors sending one datagram per sample of all six IMUs.
+//!
+//! # Packet format (version 1), little-endian, 288 bytes
+//!
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 4 | magic `b"IMUF"` |
+//! | 4 | 2 | version, u16 = 1 |
+//! | 6 | 2 | number of sensors, u16 = 6 |
+//! | 8 | 8 | seq, u64: the sender's sample counter (increasing by 1 per sample) |
+//! | 16 | 8 | timestamp_ns, u64: capture time, ns since the Unix epoch (0: use the arrival time) |
+//! | 24 | 6 × 44 | per sensor, in IMU order (left forearm, right forearm, left lower leg, right lower leg, head, pelvis): |
+//! | +0 | 16 | orientation R_IS as quaternion [w, x, y, z], 4 × f32 |
+//! | +16 | 12 | specific force in the sensor frame, m/s², 3 × f32 |
+//! | +28 | 12 | angular rate in the sensor frame, rad/s, 3 × f32 |
+//! | +40 | 4 | valid, u32: 1 when the sensor delivered this sample, 0 when it did not |
+//!
+//! A sensor whose valid word is 0 or whose values are not all finite gets its `valid_mask` bit
+//! cleared and the frame is flagged INVALID. Frames are numbered from the first packet received:
+//! `seq` = packet seq − first packet seq, so lost packets show as gaps (counted as drops
+//! downstream); packets older than the last one are discarded. Malformed packets (wrong size,
+//! magic, version or sensor count) are counted and skipped. The stream ends after `timeout_ms`
+//! without a packet, after `frames` packets (when > 0), or on stop.
+
+use std::net::UdpSocket;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use imuflow_graph::StageContext;
+use imuflow_graph::frames::{FrameHeader, ImuFrame, NUM_IMUS};
+use imuflow_graph::transport::now_ns;
+
+use crate::{ALL_VALID, Publisher, mark_invalid_sensors};
+
+/// First four bytes of every packet.
+pub const MAGIC: [u8; 4] = *b"IMUF";
+/// Packet format version.
+pub const VERSION: u16 = 1;
+/// Bytes before the sensors.
+pub const HEADER_SIZE: usize = 24;
+/// Bytes per sensor.
+pub const SENSOR_SIZE: usize = 44;
+/// Bytes per packet.
+pub const PACKET_SIZE: usize = HEADER_SIZE + NUM_IMUS * SENSOR_SIZE;
+
+/// One sensor's sample in a packet.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SensorSample {
+    pub orientation_wxyz: [f32; 4],
+    pub specific_force_mps2: [f32; 3],
+    pub angular_rate_radps: [f32; 3],
+    pub valid: bool,
+}
+
+/// One decoded packet.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Packet {
+    pub seq: u64,
+    pub timestamp_ns: u64,
+    pub sensors: [SensorSample; NUM_IMUS],
+}
+
+/// Why a datagram is not a packet.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PacketError {
+    #[error("{0} bytes, expected {PACKET_SIZE}")]
+    Size(usize),
+    #[error("bad magic (expected \"IMUF\")")]
+    Magic,
+    #[error("version {0}, expected {VERSION}")]
+    Version(u16),
+    #[error("{0} sensors, expected {NUM_IMUS}")]
+    Sensors(u16),
+}
+
+impl Packet {
+    /// The packet's bytes.
+    pub fn encode(&self) -> [u8; PACKET_SIZE] {
+        let mut b = [0u8; PACKET_SIZE];
+        b[0..4].copy_from_slice(&MAGIC);
+        b[4..6].copy_from_slice(&VERSION.to_le_bytes());
+        b[6..8].copy_from_slice(&(NUM_IMUS as u16).to_le_bytes());
+        b[8..16].copy_from_slice(&self.seq.to_le_bytes());
+        b[16..24].copy_from_slice(&self.timestamp_ns.to_le_bytes());
+        for (i, s) in self.sensors.iter().enumerate() {
+            let at = HEADER_SIZE + i * SENSOR_SIZE;
+            let values = s
+                .orientation_wxyz
+                .iter()
+                .chain(&s.specific_force_mps2)
+                .chain(&s.angular_rate_radps);
+            for (k, v) in values.enumerate() {
+                b[at + 4 * k..at + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
+            }
+            b[at + 40..at + 44].copy_from_slice(&u32::from(s.valid).to_le_bytes());
+        }
+        b
+    }
+
+    /// Decodes a datagram.
+    pub fn decode(b: &[u8]) -> Result<Packet, PacketError> {
+        if b.len() != PACKET_SIZE {
+            return Err(PacketError::Size(b.len()));
+        }
+        let u16_at = |at: usize| u16::from_le_bytes([b[at], b[at + 1]]);
+        let u32_at = |at: usize| u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]);
+        let u64_at = |at: usize| u64::from(u32_at(at)) | (u64::from(u32_at(at + 4)) << 32);
+        let f32_at = |at: usize| f32::from_bits(u32_at(at));
+        if b[0..4] != MAGIC {
+            return Err(PacketError::Magic);
+        }
+        if u16_at(4) != VERSION {
+            return Err(PacketError::Version(u16_at(4)));
+        }
+        if usize::from(u16_at(6)) != NUM_IMUS {
+            return Err(PacketError::Sensors(u16_at(6)));
+        }
+        let mut p = Packet {
+            seq: u64_at(8),
+            timestamp_ns: u64_at(16),
+            ..Packet::default()
+        };
+        for (i, s) in p.sensors.iter_mut().enumerate() {
+            let at = HEADER_SIZE + i * SENSOR_SIZE;
+            s.orientation_wxyz = std::array::from_fn(|k| f32_at(at + 4 * k));
+            s.specific_force_mps2 = std::array::from_fn(|k| f32_at(at + 16 + 4 * k));
+            s.angular_rate_radps = std::array::from_fn(|k| f32_at(at + 28 + 4 * k));
+            s.valid = u32_at(at + 40) != 0;
+        }
+        Ok(p)
+    }
+
+    /// The frame's payload and valid mask (INVALID flagged in its header when a sensor is not
+    /// valid); the header's seq and capture time are left to the caller.
+    pub fn to_frame(&self) -> ImuFrame {
+        let mut f = ImuFrame::default();
+        for (i, s) in self.sensors.iter().enumerate() {
+            f.orientation_wxyz[i] = s.orientation_wxyz;
+            f.specific_force_mps2[i] = s.specific_force_mps2;
+            f.angular_rate_radps[i] = s.angular_rate_radps;
+            if s.valid {
+                f.valid_mask |= 1 << i;
+            }
+        }
+        mark_invalid_sensors(&mut f);
+        debug_assert!(f.valid_mask & !ALL_VALID == 0);
+        f
+    }
+}
+
+/// Settings of the udp mode.
+#[derive(Debug, Clone)]
+pub struct Options {
+    pub bind: String,
+    pub timeout: Duration,
+    /// End after this many packets (0: no limit).
+    pub frames: u64,
+}
+
+/// How often a blocked receive re-checks the stop flag.
+const POLL: Duration = Duration::from_millis(20);
+
+/// Receives packets and publishes them until timeout, `frames` packets or stop.
+pub fn run(ctx: StageContext, options: &Options) -> anyhow::Result<()> {
+    let socket = UdpSocket::bind(&options.bind)
+        .with_context(|| format!("cannot bind UDP socket to '{}'", options.bind))?;
+    socket.set_read_timeout(Some(POLL))?;
+    let total = options.frames;
+    let Some(mut out) = Publisher::start(ctx, total)? else {
+        return Ok(());
+    };
+    let mut buf = [0u8; 2048];
+    let mut last_packet = Instant::now();
+    let mut first_seq: Option<u64> = None;
+    let mut last_seq: Option<u64> = None;
+    let (mut received, mut malformed, mut stale) = (0u64, 0u64, 0u64);
+    while !out.ctx.should_stop() && (total == 0 || received < total) {
+        let len = match socket.recv(&mut buf) {
+            Ok(len) => len,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                if last_packet.elapsed() >= options.timeout {
+                    tracing::info!("no packet for {:?}: end of stream", options.timeout);
+                    break;
+                }
+                continue;
+            }
+            Err(e) => return Err(e).context("receiving a UDP packet"),
+        };
+        let t0 = Instant::now();
+        last_packet = t0;
+        let packet = match Packet::decode(buf.get(..len).unwrap_or(&[])) {
+            Ok(p) => p,
+            Err(e) => {
+                malformed += 1;
+                if malformed.is_power_of_two() {
+                    tracing::warn!("skipping malformed packet ({e}); {malformed} so far");
+                }
+                continue;
+            }
+        };
+        if last_seq.is_some_and(|l| packet.seq <= l) {
+            stale += 1;
+            if stale.is_power_of_two() {
+                tracing::warn!(
+                    "skipping packet {} (not newer than the last); {stale} so far",
+                    packet.seq
+                );
+            }
+            continue;
+        }
+        let first = *first_seq.get_or_insert(packet.seq);
+        last_seq = Some(packet.seq);
+        received += 1;
+        let mut frame = packet.to_frame();
+        frame.header = FrameHeader {
+            seq: packet.seq - first,
+            capture_ns: if packet.timestamp_ns == 0 {
+                now_ns()
+            } else {
+                packet.timestamp_ns
+            },
+            flags: frame.header.flags,
+            ..Default::default()
+        };
+        out.publish_imu(&frame, t0)?;
+    }
+    if malformed + stale > 0 {
+        tracing::warn!("skipped {malformed} malformed and {stale} out-of-order packet(s)");
+    }
+    out.finish()
+}
+
+/// Sends `frames` packets of a slowly turning, resting body to `to` at `rate_hz` (the sender of
+/// `tools/udp-send`). Every `nan_every`-th packet (when > 0) carries a NaN for sensor 0 and every
+/// `missing_every`-th marks sensor 1 not valid.
+pub fn send_synthetic(
+    to: &str,
+    frames: u64,
+    rate_hz: f64,
+    nan_every: u64,
+    missing_every: u64,
+) -> anyhow::Result<()> {
+    let socket = UdpSocket::bind("127.0.0.1:0")
+        .or_else(|_| UdpSocket::bind("0.0.0.0:0"))
+        .context("cannot open a UDP socket")?;
+    socket
+        .connect(to)
+        .with_context(|| format!("cannot send to '{to}'"))?;
+    let start = Instant::now();
+    let period = Duration::from_secs_f64(1.0 / rate_hz.max(1e-3));
+    for seq in 0..frames {
+        imuflow_graph::wait::sleep_until(start + period.mul_f64(seq as f64));
+        let packet = synthetic_packet(seq, rate_hz, nan_every, missing_every);
+        // A receiver that is not (yet) listening makes loopback sends fail; keep going.
+        if let Err(e) = socket.send(&packet.encode()) {
+            tracing::debug!("send {seq}: {e}");
+        }
+    }
+    Ok(())
+}
+
+/// Packet `seq` of [`send_synthetic`]: sensor i turns about the vertical at 0.5·(i+1) rad/s and
+/// feels gravity's reaction (+9.81 m/s² up).
+pub fn synthetic_packet(seq: u64, rate_hz: f64, nan_every: u64, missing_every: u64) -> Packet {
+    let t = seq as f64 / rate_hz;
+    let mut p = Packet {
+        seq,
+        timestamp_ns: now_ns(),
+        ..Packet::default()
+    };
+    for (i, s) in p.sensors.iter_mut().enumerate() {
+        let rate = 0.5 * (i + 1) as f64;
+        let half = 0.5 * rate * t;
+        *s = SensorSample {
+            orientation_wxyz: [half.cos() as f32, 0.0, half.sin() as f32, 0.0],
+            specific_force_mps2: [0.0, 9.81, 0.0],
+            angular_rate_radps: [0.0, rate as f32, 0.0],
+            valid: true,
+        };
+    }
+    if nan_every > 0 && seq % nan_every == nan_every - 1 {
+        p.sensors[0].specific_force_mps2[0] = f32::NAN;
+    }
+    if missing_every > 0 && seq % missing_every == missing_every - 1 {
+        p.sensors[1].valid = false;
+    }
+    p
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use imuflow_graph::frames::flags;
+
+    #[test]
+    fn packets_round_trip_and_bad_ones_are_rejected() {
+        let p = synthetic_packet(41, 60.0, 0, 0);
+        let bytes = p.encode();
+        assert_eq!(bytes.len(), 288);
+        assert_eq!(Packet::decode(&bytes), Ok(p));
+        assert_eq!(Packet::decode(&bytes[..100]), Err(PacketError::Size(100)));
+        let mut bad = bytes;
+        bad[0] = b'X';
+        assert_eq!(Packet::decode(&bad), Err(PacketError::Magic));
+        let mut bad = bytes;
+        bad[4] = 9;
+        assert_eq!(Packet::decode(&bad), Err(PacketError::Version(9)));
+        let f = p.to_frame();
+        assert_eq!(f.valid_mask, ALL_VALID);
+        assert_eq!(f.header.flags, 0);
+    }
+
+    #[test]
+    fn missing_and_nan_samples_are_invalid() {
+        let p = synthetic_packet(5, 60.0, 3, 2);
+        let f = Packet::decode(&p.encode()).expect("decodes").to_frame();
+        assert_eq!(f.valid_mask, ALL_VALID & !0b11);
+        assert!(f.header.has(flags::INVALID));
+    }
+}

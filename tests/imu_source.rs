@@ -1,0 +1,312 @@
+//! The imu-source stage in real multi-process graphs: synthesize from a BVH, replay a recording,
+//! receive UDP packets, and named errors, with no shared-memory leftovers after any of them.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{Sandbox, mcap_messages, text};
+use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, flags, frame_from_bytes};
+use imuflow_imu_source::udp;
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("stages/body/tests/fixtures/bandai-walk-normal-trimmed.bvh")
+}
+
+fn assert_clean(sandbox: &Sandbox) {
+    let left = sandbox.leftovers();
+    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
+    let stray = sandbox.stray_processes();
+    assert!(stray.is_empty(), "stray stage processes: {stray:?}");
+}
+
+/// Frames at 60 Hz over the fixture's duration, from its header (independent of the body crate):
+/// every output time k/60 within [0, (frames − 1)·frame_time], allowing for the rounded frame time.
+fn expected_frames_at_60_hz(bvh: &Path) -> usize {
+    let text = std::fs::read_to_string(bvh).expect("fixture");
+    let value = |key: &str| -> f64 {
+        text.lines()
+            .find_map(|l| l.trim().strip_prefix(key))
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or_else(|| panic!("fixture has '{key}'"))
+    };
+    let (frames, frame_time) = (value("Frames:"), value("Frame Time:"));
+    let duration = (frames - 1.0) * frame_time;
+    let mut n = 0;
+    while (n as f64) / 60.0 <= duration + 1e-3 / 60.0 {
+        n += 1;
+    }
+    n
+}
+
+fn synth_graph(sb: &Sandbox, out: &str) -> PathBuf {
+    sb.graph(
+        "synth.toml",
+        &format!(
+            r#"
+name = "synth-test"
+[stages.source]
+kind = "imu-source"
+params = {{ mode = "synthesize", path = "{}" }}
+[stages.record]
+kind = "recorder"
+inputs = {{ imu = "source.imu", truth = "source.truth" }}
+params = {{ path = "{{dir}}/{out}" }}
+"#,
+            fixture().display()
+        ),
+    )
+}
+
+fn run_ok(sb: &Sandbox, graph: &Path) {
+    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
+}
+
+fn frames_of(messages: &[(String, u32, Vec<u8>)], topic: &str) -> Vec<Vec<u8>> {
+    messages
+        .iter()
+        .filter(|m| m.0 == topic)
+        .map(|m| m.2.clone())
+        .collect()
+}
+
+#[test]
+fn synthesize_publishes_the_resampled_motion_and_its_truth() {
+    let sb = Sandbox::new("synth");
+    let graph = synth_graph(&sb, "a.mcap");
+    run_ok(&sb, &graph);
+    let messages = mcap_messages(&sb.path("a.mcap"));
+    let imu = frames_of(&messages, "source.imu");
+    let truth = frames_of(&messages, "source.truth");
+    let expected = expected_frames_at_60_hz(&fixture());
+    assert_eq!(expected, 95, "48 frames at 30 Hz span 1.567 s");
+    assert_eq!(imu.len(), expected);
+    assert_eq!(truth.len(), expected);
+    for (i, (raw, raw_truth)) in imu.iter().zip(&truth).enumerate() {
+        let f: ImuFrame = frame_from_bytes(raw).expect("one ImuFrame");
+        let t: MotionFrame = frame_from_bytes(raw_truth).expect("one MotionFrame");
+        assert_eq!(f.header.seq, i as u64);
+        assert_eq!(t.header.seq, f.header.seq);
+        assert_eq!(t.header.capture_ns, f.header.capture_ns);
+        assert_eq!(f.header.capture_ns, (i as f64 * 1e9 / 60.0) as u64);
+        assert_eq!(f.valid_mask, 0b11_1111, "frame {i}");
+        assert!(!f.header.has(flags::INVALID), "frame {i}");
+        for s in 0..6 {
+            let q = f.orientation_wxyz[s];
+            let norm = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+            assert!(
+                (norm - 1.0).abs() < 1e-4,
+                "frame {i} sensor {s}: |q| = {norm}"
+            );
+            // Walking: gravity's reaction plus at most a few g of body acceleration.
+            let a = f.specific_force_mps2[s];
+            let mag = a.iter().map(|v| v * v).sum::<f32>().sqrt();
+            assert!(
+                (2.0..60.0).contains(&mag),
+                "frame {i} sensor {s}: |f| = {mag} m/s²"
+            );
+            assert!(f.angular_rate_radps[s].iter().all(|w| w.abs() < 30.0));
+        }
+        for q in t.local_pose_wxyz {
+            let norm = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+            assert!((norm - 1.0).abs() < 1e-4, "truth frame {i}: |q| = {norm}");
+        }
+        // A walking pelvis is around a metre above the floor.
+        assert!(
+            (0.5..1.5).contains(&t.root_position_m[1]),
+            "{:?}",
+            t.root_position_m
+        );
+        assert!(t.tau.iter().all(|&v| v == 0.0), "physics fields stay zero");
+    }
+    // Mean specific force over the clip is close to gravity.
+    let mean: f32 = imu
+        .iter()
+        .map(|raw| {
+            let f: ImuFrame = frame_from_bytes(raw).expect("one ImuFrame");
+            let a = f.specific_force_mps2[5];
+            a.iter().map(|v| v * v).sum::<f32>().sqrt()
+        })
+        .sum::<f32>()
+        / imu.len() as f32;
+    assert!((8.0..12.0).contains(&mean), "pelvis mean |f| = {mean}");
+    assert_clean(&sb);
+}
+
+#[test]
+fn replay_republishes_a_recording_byte_for_byte() {
+    let sb = Sandbox::new("replay");
+    let graph = synth_graph(&sb, "a.mcap");
+    run_ok(&sb, &graph);
+    let replay = sb.graph(
+        "replay.toml",
+        r#"
+name = "replay-test"
+[stages.player]
+kind = "imu-source"
+params = { mode = "replay", path = "{dir}/a.mcap" }
+[stages.record]
+kind = "recorder"
+inputs = { imu = "player.imu", truth = "player.truth" }
+params = { path = "{dir}/b.mcap" }
+"#,
+    );
+    run_ok(&sb, &replay);
+    let a = mcap_messages(&sb.path("a.mcap"));
+    let b = mcap_messages(&sb.path("b.mcap"));
+    let strip = |frames: Vec<Vec<u8>>| -> Vec<Vec<u8>> {
+        frames
+            .into_iter()
+            .map(|mut bytes| {
+                // publish_ns is stamped anew; every other byte must match.
+                let at = std::mem::offset_of!(FrameHeader, publish_ns);
+                bytes[at..at + 8].fill(0);
+                bytes
+            })
+            .collect()
+    };
+    let (imu_a, imu_b) = (
+        strip(frames_of(&a, "source.imu")),
+        strip(frames_of(&b, "player.imu")),
+    );
+    assert_eq!(imu_a.len(), 95);
+    assert!(
+        imu_a == imu_b,
+        "replayed ImuFrames differ from the recording"
+    );
+    let (truth_a, truth_b) = (
+        strip(frames_of(&a, "source.truth")),
+        strip(frames_of(&b, "player.truth")),
+    );
+    assert_eq!(truth_a.len(), 95);
+    assert!(
+        truth_a == truth_b,
+        "replayed truth differs from the recording"
+    );
+    assert_clean(&sb);
+}
+
+#[test]
+fn missing_bvh_fails_naming_the_stage_and_the_path() {
+    let sb = Sandbox::new("synth-missing");
+    let graph = sb.graph(
+        "missing.toml",
+        r#"
+name = "missing-bvh"
+[stages.motion]
+kind = "imu-source"
+params = { mode = "synthesize", path = "{dir}/no-such-walk.bvh" }
+[stages.record]
+kind = "recorder"
+inputs = { imu = "motion.imu" }
+params = { path = "{dir}/out.mcap" }
+"#,
+    );
+    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "stderr:\n{stderr}");
+    assert!(stderr.contains("motion"), "names the stage:\n{stderr}");
+    assert!(
+        stderr.contains("no-such-walk.bvh"),
+        "names the path:\n{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_clean(&sb);
+}
+
+#[test]
+fn replay_of_a_non_mcap_file_fails_with_a_named_error() {
+    let sb = Sandbox::new("replay-bad");
+    std::fs::copy(fixture(), sb.path("walk.mcap")).expect("copy");
+    let graph = sb.graph(
+        "bad.toml",
+        r#"
+name = "replay-bad"
+[stages.player]
+kind = "imu-source"
+params = { mode = "replay", path = "{dir}/walk.mcap" }
+[stages.record]
+kind = "recorder"
+inputs = { imu = "player.imu" }
+params = { path = "{dir}/out.mcap" }
+"#,
+    );
+    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "stderr:\n{stderr}");
+    assert!(stderr.contains("player"), "names the stage:\n{stderr}");
+    assert!(stderr.contains("walk.mcap"), "names the path:\n{stderr}");
+    assert!(stderr.contains("not an mcap file"), "says why:\n{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_clean(&sb);
+}
+
+#[test]
+fn udp_packets_become_frames_with_invalid_sensors_marked() {
+    let sb = Sandbox::new("udp");
+    // A free loopback port: bind, note it, release it for the stage.
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .expect("free port")
+        .port();
+    let graph = sb.graph(
+        "udp.toml",
+        &format!(
+            r#"
+name = "udp-test"
+[stages.sensors]
+kind = "imu-source"
+params = {{ mode = "udp", bind = "127.0.0.1:{port}", timeout_ms = 1500, frames = 60 }}
+[stages.record]
+kind = "recorder"
+inputs = {{ imu = "sensors.imu" }}
+params = {{ path = "{{dir}}/udp.mcap" }}
+"#
+        ),
+    );
+    let child = sb
+        .command(&["run", graph.to_str().expect("utf8"), "--no-progress"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("start imuflow");
+    // Send at 200 Hz until the run is over (the stage may start listening after the first ones).
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let sender = {
+        let done = done.clone();
+        std::thread::spawn(move || {
+            let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("sender socket");
+            let mut seq = 0;
+            while !done.load(std::sync::atomic::Ordering::Relaxed) && seq < 12_000 {
+                let packet = udp::synthetic_packet(seq, 200.0, 10, 7);
+                let _ = socket.send_to(&packet.encode(), ("127.0.0.1", port));
+                seq += 1;
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
+        })
+    };
+    let out = child.wait_with_output().expect("imuflow finishes");
+    done.store(true, std::sync::atomic::Ordering::Relaxed);
+    sender.join().expect("sender thread");
+    assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
+    let messages = mcap_messages(&sb.path("udp.mcap"));
+    let frames: Vec<ImuFrame> = frames_of(&messages, "sensors.imu")
+        .iter()
+        .map(|raw| frame_from_bytes(raw).expect("one ImuFrame"))
+        .collect();
+    assert_eq!(frames.len(), 60);
+    let mut invalid = 0;
+    for f in &frames {
+        let bad = f.valid_mask != 0b11_1111;
+        assert_eq!(f.header.has(flags::INVALID), bad);
+        invalid += usize::from(bad);
+        assert!(f.header.capture_ns > 0);
+    }
+    assert!(
+        invalid > 0,
+        "every 10th packet has a NaN, every 7th a missing sensor"
+    );
+    assert_clean(&sb);
+}

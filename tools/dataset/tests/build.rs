@@ -1,0 +1,296 @@
+//! The dataset builder on copies of the committed Bandai Namco walking fixture (no external data).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use imuflow_body::bvh::Bvh;
+use imuflow_body::retarget::{RetargetOptions, SourceSkeleton, resample, retarget_bvh};
+use imuflow_body::{BodyModel, BodyParams};
+use imuflow_dataset::{
+    BuildOptions, DatasetError, FRAME_TENSORS, LICENCE, METADATA_KEY, OFFSETS_TENSOR,
+    ShardMetadata, Split, build, split_of,
+};
+use safetensors::{Dtype, SafeTensors};
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../stages/body/tests/fixtures/bandai-walk-normal-trimmed.bvh")
+}
+
+/// Frames of the fixture after retargeting and resampling to 60 Hz, computed with the body crate.
+fn fixture_frames_at_60hz() -> usize {
+    let bvh = Bvh::read(&fixture()).unwrap();
+    let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+    let clip = retarget_bvh(
+        &bvh,
+        &SourceSkeleton::bandai_namco().unwrap(),
+        &body,
+        &RetargetOptions::default(),
+    )
+    .unwrap();
+    resample(&clip, 60.0).unwrap().poses.len()
+}
+
+/// Chosen so that every split gets clips (hash mod 100: 57, 80, 2, 16, 28, 17, 98).
+const GOOD: [&str; 7] = [
+    "set-a/walk_01.bvh",
+    "set-a/walk_02.bvh",
+    "set-b/walk_03.bvh",
+    "set-b/deep/walk_04.bvh",
+    "walk_05.bvh",
+    "walk_06.BVH",
+    "set-b/walk_07.bvh",
+];
+
+fn input_dir(names: &[&str]) -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    for name in names {
+        let p = dir.path().join(name);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::copy(fixture(), &p).unwrap();
+    }
+    // Not a clip: ignored.
+    std::fs::create_dir_all(dir.path().join("set-a")).unwrap();
+    std::fs::write(dir.path().join("set-a/walk_01.json"), "{}").unwrap();
+    // A malformed clip: reported and skipped.
+    std::fs::write(
+        dir.path().join("broken.bvh"),
+        "HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0\n",
+    )
+    .unwrap();
+    dir
+}
+
+fn options(input: &Path, out: &Path) -> BuildOptions {
+    let mut o = BuildOptions::new(input, out);
+    o.progress = false;
+    o.seed = 7;
+    o.max_shard_frames = 250; // a few sequences per shard: forces several shards
+    o
+}
+
+fn split_json(out: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("split.json")).unwrap()).unwrap()
+}
+
+fn clips_by_split(v: &serde_json::Value) -> BTreeMap<String, String> {
+    let mut m = BTreeMap::new();
+    for s in Split::ALL {
+        for c in v[s.name()].as_array().unwrap() {
+            m.insert(c.as_str().unwrap().to_string(), s.name().to_string());
+        }
+    }
+    m
+}
+
+fn shard_files(out: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "safetensors"))
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn builds_loadable_deterministic_shards_and_skips_bad_clips() {
+    let frames = fixture_frames_at_60hz();
+    assert!(frames > 48, "resampled to 60 Hz: {frames}");
+    let input = input_dir(&GOOD);
+    let out = tempfile::tempdir().unwrap();
+    let summary = build(&options(input.path(), out.path())).unwrap();
+
+    // Summary numbers add up.
+    assert_eq!(summary.found, GOOD.len() + 1);
+    assert_eq!(summary.skipped.len(), 1);
+    assert_eq!(summary.skipped[0].clip, "broken.bvh");
+    assert!(
+        summary.skipped[0].error.contains("broken.bvh"),
+        "{}",
+        summary.skipped[0].error
+    );
+    assert!(summary.splits.iter().all(|s| s.clips > 0), "{summary:?}");
+    let clips: usize = summary.splits.iter().map(|s| s.clips).sum();
+    assert_eq!(clips, GOOD.len());
+    for s in &summary.splits {
+        assert_eq!(s.sequences, 2 * s.clips);
+        assert_eq!(s.frames, s.sequences * frames);
+        assert_eq!(s.motion_frames, s.clips * frames);
+    }
+    let shard_bytes: u64 = summary.shards.iter().map(|f| f.bytes).sum();
+    let split_len = std::fs::metadata(out.path().join("split.json"))
+        .unwrap()
+        .len();
+    assert_eq!(summary.output_bytes, shard_bytes + split_len);
+    assert_eq!(
+        summary.shards.len(),
+        summary.splits.iter().map(|s| s.shards).sum::<usize>()
+    );
+    let table = summary.table();
+    assert!(
+        table.contains("total") && table.contains("skipped broken.bvh"),
+        "{table}"
+    );
+
+    // The split file lists every written clip once, in the split of its hash.
+    let v = split_json(out.path());
+    let by_split = clips_by_split(&v);
+    assert_eq!(by_split.len(), GOOD.len());
+    for name in GOOD {
+        assert_eq!(by_split[name], split_of(name).name(), "{name}");
+    }
+    assert_eq!(v["skipped"][0]["clip"], "broken.bvh");
+
+    // Shards load back with the documented shapes and metadata.
+    let files = shard_files(out.path());
+    assert_eq!(files.len(), summary.shards.len());
+    let mut total_frames = 0;
+    let mut total_sequences = 0;
+    for path in &files {
+        let bytes = std::fs::read(path).unwrap();
+        let st = SafeTensors::deserialize(&bytes).unwrap();
+        let offsets = st.tensor(OFFSETS_TENSOR).unwrap();
+        assert_eq!(offsets.dtype(), Dtype::I64);
+        let offsets: Vec<i64> = offsets
+            .data()
+            .chunks_exact(8)
+            .map(|b| i64::from_le_bytes(b.try_into().unwrap()))
+            .collect();
+        let f = *offsets.last().unwrap() as usize;
+        assert_eq!(offsets[0], 0);
+        for w in offsets.windows(2) {
+            assert_eq!((w[1] - w[0]) as usize, frames, "{}", path.display());
+        }
+        for (name, dims) in FRAME_TENSORS {
+            let t = st.tensor(name).unwrap();
+            assert_eq!(t.dtype(), Dtype::F32, "{name}");
+            let mut shape = vec![f];
+            shape.extend_from_slice(dims);
+            assert_eq!(t.shape(), shape.as_slice(), "{name}");
+        }
+        let (_, header) = SafeTensors::read_metadata(&bytes).unwrap();
+        let meta = header.metadata().as_ref().unwrap();
+        let m: ShardMetadata = serde_json::from_str(&meta[METADATA_KEY]).unwrap();
+        assert_eq!(m.fps, 60.0);
+        assert_eq!(m.licence, LICENCE);
+        assert_eq!(m.body_model.stature_m, 1.75);
+        assert!(
+            path.file_name()
+                .unwrap()
+                .to_str()
+                .unwrap()
+                .starts_with(&m.split)
+        );
+        assert_eq!(m.sequences.len() + 1, offsets.len());
+        for s in &m.sequences {
+            assert_eq!(s.frames, frames);
+            assert_eq!(s.augmented, s.copy > 0);
+            assert_eq!(s.seed.is_some(), s.augmented);
+            assert_eq!(split_of(&s.clip).name(), m.split);
+        }
+        total_frames += f;
+        total_sequences += m.sequences.len();
+
+        // A clip's copies stay together: ideal, then augmented.
+        for pair in m.sequences.chunks(2) {
+            assert_eq!(pair.len(), 2);
+            assert_eq!(pair[0].clip, pair[1].clip);
+            assert_eq!((pair[0].copy, pair[1].copy), (0, 1));
+        }
+        // An ideal copy and its augmented copy share the motion, not the IMU signals.
+        let floats = |name: &str| -> Vec<f32> {
+            st.tensor(name)
+                .unwrap()
+                .data()
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+                .collect()
+        };
+        let (pose, ori) = (floats("pose_local"), floats("imu_orientation"));
+        let (root, joints) = (floats("root_position"), floats("joint_position"));
+        let (p, o) = (frames * 24 * 9, frames * 6 * 9);
+        assert_eq!(pose[..p], pose[p..2 * p]);
+        assert_ne!(ori[..o], ori[o..2 * o]);
+        for k in 0..frames {
+            // Ideal pelvis IMU (index 5) orientation = the root's global rotation (pose_local[0]).
+            for e in 0..9 {
+                assert!((ori[k * 54 + 5 * 9 + e] - pose[k * 216 + e]).abs() < 1e-6);
+            }
+            // root_position = joint_position of the root joint.
+            for a in 0..3 {
+                assert_eq!(root[k * 3 + a], joints[k * 72 + a]);
+            }
+        }
+    }
+    assert_eq!(
+        total_frames,
+        summary.splits.iter().map(|s| s.frames).sum::<usize>()
+    );
+    assert_eq!(
+        total_sequences,
+        summary.splits.iter().map(|s| s.sequences).sum::<usize>()
+    );
+
+    // Same input, same output (split and bytes).
+    let out2 = tempfile::tempdir().unwrap();
+    build(&options(input.path(), out2.path())).unwrap();
+    assert_eq!(split_json(out.path()), split_json(out2.path()));
+    let files2 = shard_files(out2.path());
+    assert_eq!(files.len(), files2.len());
+    for (a, b) in files.iter().zip(&files2) {
+        let same = std::fs::read(a).unwrap() == std::fs::read(b).unwrap();
+        assert!(same, "{} differs between runs", a.display());
+    }
+
+    // Adding clips moves no existing clip; rebuilding into the same directory replaces old shards.
+    let more = ["set-c/run_01.bvh", "set-c/run_02.bvh", "z.bvh"];
+    for name in more {
+        let p = input.path().join(name);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::copy(fixture(), &p).unwrap();
+    }
+    let summary3 = build(&options(input.path(), out2.path())).unwrap();
+    let grown = clips_by_split(&split_json(out2.path()));
+    assert_eq!(grown.len(), GOOD.len() + more.len());
+    for (clip, split) in &by_split {
+        assert_eq!(&grown[clip], split, "{clip} moved");
+    }
+    assert_eq!(shard_files(out2.path()).len(), summary3.shards.len());
+}
+
+#[test]
+fn limit_takes_the_first_clips_in_sorted_order() {
+    let input = input_dir(&GOOD);
+    let out = tempfile::tempdir().unwrap();
+    let mut o = options(input.path(), out.path());
+    o.limit = Some(2);
+    o.augment_copies = 0;
+    let summary = build(&o).unwrap();
+    assert_eq!(summary.found, 2);
+    // Sorted keys: "broken.bvh" < "set-a/walk_01.bvh".
+    assert_eq!(summary.skipped.len(), 1);
+    let by_split = clips_by_split(&split_json(out.path()));
+    assert_eq!(by_split.keys().collect::<Vec<_>>(), ["set-a/walk_01.bvh"]);
+    for s in &summary.splits {
+        assert_eq!(s.sequences, s.clips);
+    }
+}
+
+#[test]
+fn missing_input_and_all_failing_clips_are_errors() {
+    let out = tempfile::tempdir().unwrap();
+    let missing = out.path().join("no-such-dir");
+    let e = build(&options(&missing, out.path())).unwrap_err();
+    assert!(matches!(e, DatasetError::MissingInput { .. }));
+    assert!(e.to_string().contains("no-such-dir"), "{e}");
+
+    let empty = tempfile::tempdir().unwrap();
+    let e = build(&options(empty.path(), out.path())).unwrap_err();
+    assert!(matches!(e, DatasetError::NoClips { .. }), "{e}");
+
+    let bad = input_dir(&[]);
+    let e = build(&options(bad.path(), out.path())).unwrap_err();
+    assert!(matches!(e, DatasetError::AllFailed { count: 1, .. }), "{e}");
+    assert!(e.to_string().contains("broken.bvh"), "{e}");
+}
