@@ -109,9 +109,14 @@ enum GraphCommand {
     },
 }
 
+/// The graph `imuflow run` runs when given none: the bundled sample.
+const DEFAULT_GRAPH: &str = "configs/examples/sample.toml";
+
 #[derive(Args)]
 struct GraphArgs {
-    /// The graph file (e.g. configs/examples/smoke.toml).
+    /// The graph file. Default: the bundled sample (configs/examples/sample.toml, run from the
+    /// repository root).
+    #[arg(default_value = DEFAULT_GRAPH)]
     file: PathBuf,
     /// Override any graph key, e.g. --set stages.kin.params.net=globalpose (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]

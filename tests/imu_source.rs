@@ -310,3 +310,39 @@ params = {{ path = "{{dir}}/udp.mcap" }}
     );
     assert_clean(&sb);
 }
+
+#[test]
+fn imuflow_run_without_a_graph_replays_the_bundled_sample() {
+    let sb = Sandbox::new("bundled-sample");
+    let rec = sb.path("sample.mcap");
+    let rrd = sb.path("sample.rrd");
+    let out = sb
+        .command(&[
+            "run",
+            "--no-progress",
+            "--set",
+            &format!("stages.record.params.path={}", rec.display()),
+            "--set",
+            &format!("stages.viz.params.path={}", rrd.display()),
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("run imuflow");
+    assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
+    assert!(
+        text(&out.stdout).contains("graph 'sample' finished"),
+        "{}",
+        text(&out.stdout)
+    );
+    let messages = mcap_messages(&rec);
+    let imu: Vec<_> = messages.iter().filter(|m| m.0 == "source.imu").collect();
+    let truth = messages.iter().filter(|m| m.0 == "source.truth").count();
+    // models/sample/README.md: 779 frames (13.0 s at 60 Hz) with the true pose beside each.
+    assert_eq!(imu.len(), 779);
+    assert_eq!(truth, 779);
+    let last: ImuFrame = frame_from_bytes(&imu[778].2).expect("ImuFrame");
+    assert_eq!(last.header.seq, 778);
+    assert_eq!(last.header.capture_ns, (778.0_f64 * 1e9 / 60.0) as u64);
+    assert!(std::fs::metadata(&rrd).map(|m| m.len()).unwrap_or(0) > 10_000);
+    assert_clean(&sb);
+}

@@ -87,13 +87,26 @@ pub fn joint_position_error_m(predicted: &FkData, truth: &FkData) -> f64 {
 /// ‖x(t+3) − 3x(t+2) + 3x(t+1) − x(t)‖·f³, divided by 1000 (PIP/PNP units; reference §6 uses f = 60).
 /// `positions[t]` holds the joint positions (m) of frame t. Returns 0 for fewer than 4 frames.
 pub fn jitter_km_per_s3(positions: &[[Vector3<f64>; NUM_JOINTS]], rate_hz: f64) -> f64 {
-    if positions.len() < 4 {
+    mean_jerk_km_per_s3(positions, rate_hz)
+}
+
+/// Root jitter (km/s³): the jerk of the root translation alone (GlobalPose test.py, reference §6),
+/// with the same finite difference and units as [`jitter_km_per_s3`]. `root_positions[t]` is the
+/// root position (m) of frame t. Returns 0 for fewer than 4 frames.
+pub fn root_jitter_km_per_s3(root_positions: &[Vector3<f64>], rate_hz: f64) -> f64 {
+    let as_points: Vec<[Vector3<f64>; 1]> = root_positions.iter().map(|p| [*p]).collect();
+    mean_jerk_km_per_s3(&as_points, rate_hz)
+}
+
+/// Mean over frames and points of ‖x(t+3) − 3x(t+2) + 3x(t+1) − x(t)‖·f³ / 1000.
+fn mean_jerk_km_per_s3<const N: usize>(frames: &[[Vector3<f64>; N]], rate_hz: f64) -> f64 {
+    if frames.len() < 4 || N == 0 {
         return 0.0;
     }
     let f3 = rate_hz.powi(3);
     let mut sum = 0.0;
     let mut count = 0usize;
-    for w in positions.windows(4) {
+    for w in frames.windows(4) {
         // `windows(4)` yields exactly four frames.
         for (((x0, x1), x2), x3) in w[0].iter().zip(&w[1]).zip(&w[2]).zip(&w[3]) {
             let jerk = x3 - 3.0 * x2 + 3.0 * x1 - x0;
@@ -102,6 +115,60 @@ pub fn jitter_km_per_s3(positions: &[[Vector3<f64>; NUM_JOINTS]], rate_hz: f64) 
         }
     }
     sum / count as f64 / 1000.0
+}
+
+/// Cumulative translation error for travelled distance `window_m` (reference §6, the TotalCapture
+/// protocol of TransPose/PIP/GlobalPose): with s(t) the ground truth's cumulative path length, scan
+/// frame pairs (start, end) whose path s(end) − s(start) first reaches `window_m` (start advancing one
+/// frame at a time, a pair skipped when its end repeats the previous pair's), and average
+/// ‖Δp_pred − Δp_truth‖ / (s(end) − s(start)) · `window_m` over the pairs. `None` when the ground
+/// truth never travels `window_m` or the inputs differ in length. Metres.
+pub fn cumulative_translation_error_m(
+    predicted_root: &[Vector3<f64>],
+    truth_root: &[Vector3<f64>],
+    window_m: f64,
+) -> Option<f64> {
+    let n = truth_root.len();
+    if predicted_root.len() != n || n < 2 || !(window_m.is_finite() && window_m > 0.0) {
+        return None;
+    }
+    let mut path = Vec::with_capacity(n);
+    let mut travelled = 0.0;
+    path.push(0.0);
+    for w in truth_root.windows(2) {
+        travelled += (w[1] - w[0]).norm();
+        path.push(travelled);
+    }
+    let (mut start, mut end) = (0usize, 1usize);
+    let mut last_end: Option<usize> = None;
+    let (mut sum, mut pairs) = (0.0, 0usize);
+    while end < n {
+        if path[end] - path[start] < window_m {
+            end += 1;
+            continue;
+        }
+        if last_end != Some(end) {
+            let along = path[end] - path[start];
+            let predicted = predicted_root[end] - predicted_root[start];
+            let truth = truth_root[end] - truth_root[start];
+            sum += (predicted - truth).norm() / along * window_m;
+            pairs += 1;
+            last_end = Some(end);
+        }
+        start += 1;
+    }
+    (pairs > 0).then(|| sum / pairs as f64)
+}
+
+/// Translation drift in percent: the cumulative error at 7 m of travel / 7 m × 100 (the figure
+/// GlobalPose prints, reference §6). `None` when the ground truth travels less than 7 m.
+pub fn translation_drift_percent(
+    predicted_root: &[Vector3<f64>],
+    truth_root: &[Vector3<f64>],
+) -> Option<f64> {
+    const DRIFT_WINDOW_M: f64 = 7.0;
+    cumulative_translation_error_m(predicted_root, truth_root, DRIFT_WINDOW_M)
+        .map(|e| e / DRIFT_WINDOW_M * 100.0)
 }
 
 /// Foot joints used by the contact metrics.
@@ -157,6 +224,49 @@ mod tests {
     use crate::kinematics::forward_kinematics;
     use crate::rotation::Axis;
     use approx::assert_relative_eq;
+
+    #[test]
+    fn root_jitter_of_a_cubic_is_its_third_derivative() {
+        // x(t) = c·t³ along x: the third finite difference is exact, jerk = 6c m/s³.
+        let (c, rate) = (2.0, 60.0);
+        let roots: Vec<Vector3<f64>> = (0..120)
+            .map(|k| Vector3::new(c * (f64::from(k) / rate).powi(3), 0.9, 0.0))
+            .collect();
+        assert_relative_eq!(
+            root_jitter_km_per_s3(&roots, rate),
+            6.0 * c / 1000.0,
+            max_relative = 1e-6
+        );
+        assert_eq!(root_jitter_km_per_s3(&roots[..3], rate), 0.0);
+    }
+
+    #[test]
+    fn drift_of_a_prediction_that_overestimates_distance_by_ten_percent() {
+        // Ground truth walks a straight line at 1.2 m/s for 20 s; the prediction covers 1.1× the
+        // distance. Every window's error is 0.1·|Δp| = 0.1·W, so drift = 10 % at any window.
+        let rate = 60.0;
+        let truth: Vec<Vector3<f64>> = (0..1200)
+            .map(|k| Vector3::new(0.0, 0.9, 1.2 * f64::from(k) / rate))
+            .collect();
+        let predicted: Vec<Vector3<f64>> = truth
+            .iter()
+            .map(|p| Vector3::new(0.0, 0.9, 1.1 * p.z))
+            .collect();
+        assert_relative_eq!(
+            cumulative_translation_error_m(&predicted, &truth, 3.0).unwrap(),
+            0.3,
+            max_relative = 1e-2
+        );
+        assert_relative_eq!(
+            translation_drift_percent(&predicted, &truth).unwrap(),
+            10.0,
+            max_relative = 1e-2
+        );
+        assert_relative_eq!(translation_drift_percent(&truth, &truth).unwrap(), 0.0);
+        // 20 s at 1.2 m/s = 24 m: a 30 m window never fits; mismatched lengths are refused.
+        assert!(cumulative_translation_error_m(&predicted, &truth, 30.0).is_none());
+        assert!(cumulative_translation_error_m(&predicted[..10], &truth, 1.0).is_none());
+    }
 
     fn body() -> BodyModel {
         BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap()
