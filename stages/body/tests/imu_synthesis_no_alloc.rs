@@ -1,8 +1,9 @@
 //! Re-running IMU synthesis into a sized output must not allocate (counted with a wrapping global
 //! allocator; this file holds a single test so no other test thread allocates while counting).
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
+mod common;
+
+use common::{Counting, allocations};
 
 use imuflow_body::imu_synthesis::{
     AccelStencil, Augmentation, AugmentationConfig, SynthesisOptions, SyntheticImus,
@@ -13,22 +14,6 @@ use imuflow_body::retarget::MotionClip;
 use imuflow_body::rotation::Axis;
 use imuflow_body::{BodyModel, BodyParams, JointId};
 use nalgebra::Vector3;
-
-struct Counting;
-
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
-        // SAFETY: forwarding the caller's layout to the system allocator.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: `ptr` came from `System.alloc` with this layout.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
@@ -61,9 +46,9 @@ fn synthesis_into_a_sized_output_does_not_allocate() {
                 augmentation,
             };
             synthesize_imus_into(&clip, &body, &options, &mut out).unwrap();
-            let before = ALLOCATIONS.load(Ordering::SeqCst);
+            let before = allocations();
             synthesize_imus_into(&clip, &body, &options, &mut out).unwrap();
-            let after = ALLOCATIONS.load(Ordering::SeqCst);
+            let after = allocations();
             assert_eq!(
                 after - before,
                 0,

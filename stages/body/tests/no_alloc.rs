@@ -1,8 +1,9 @@
 //! Per-frame kinematics must not allocate (Model/Data split): counted with a wrapping global allocator.
 //! This file holds a single test so no other test thread allocates while counting.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
+mod common;
+
+use common::{Counting, allocations};
 
 use imuflow_body::kinematics::{
     FkData, Pose, forward_kinematics, global_to_local_rotations, imu_positions_in_world,
@@ -10,22 +11,6 @@ use imuflow_body::kinematics::{
 use imuflow_body::rotation::{Axis, rotation_from_r6d};
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_IMUS, NUM_JOINTS};
 use nalgebra::{Rotation3, Vector3};
-
-struct Counting;
-
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
-        // SAFETY: forwarding the caller's layout to the system allocator.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: `ptr` came from `System.alloc` with this layout.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
@@ -37,7 +22,7 @@ fn per_frame_kinematics_allocates_nothing() {
     let mut local = [Rotation3::identity(); NUM_JOINTS];
     let mut imus = [Vector3::zeros(); NUM_IMUS];
     let mut pose = Pose::t_pose(Vector3::new(0.0, 1.0, 0.0));
-    let before = ALLOCATIONS.load(Ordering::SeqCst);
+    let before = allocations();
     let mut checksum = 0.0;
     for frame in 0..100 {
         let a = frame as f64 * 0.01;
@@ -49,7 +34,7 @@ fn per_frame_kinematics_allocates_nothing() {
         imu_positions_in_world(&body, &fk, &mut imus);
         checksum += imus[0].x + fk.position(JointId::LEFT_ANKLE).z;
     }
-    let after = ALLOCATIONS.load(Ordering::SeqCst);
+    let after = allocations();
     assert!(checksum.is_finite());
     assert_eq!(
         after - before,
