@@ -22,7 +22,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, NUM_IMUS, flags};
+use imuflow_graph::frames::{ImuFrame, MotionFrame, NUM_IMUS, flags};
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
 use imuflow_graph::stage::{Params, Step};
 use imuflow_graph::transport::Output;
@@ -285,12 +285,8 @@ impl Publisher {
 
     /// Publishes one IMU frame: `frame`'s payload with its header's seq, capture time and flags.
     pub fn publish_imu(&mut self, frame: &ImuFrame, started: Instant) -> anyhow::Result<()> {
-        let header = FrameHeader {
-            seq: frame.header.seq,
-            capture_ns: frame.header.capture_ns,
-            flags: frame.header.flags,
-            ..Default::default()
-        };
+        // `publish` keeps seq, capture time and flags and stamps publish_ns anew.
+        let header = frame.header;
         self.imu
             .publish(header, |f| *f = *frame)
             .with_context(|| format!("publishing imu frame {}", header.seq))?;
@@ -311,15 +307,9 @@ impl Publisher {
 
     /// Publishes one truth frame (its header's seq, capture time and flags).
     pub fn publish_truth(&mut self, frame: &MotionFrame) -> anyhow::Result<()> {
-        let header = FrameHeader {
-            seq: frame.header.seq,
-            capture_ns: frame.header.capture_ns,
-            flags: frame.header.flags,
-            ..Default::default()
-        };
         self.truth
-            .publish(header, |f| *f = *frame)
-            .with_context(|| format!("publishing truth frame {}", header.seq))?;
+            .publish(frame.header, |f| *f = *frame)
+            .with_context(|| format!("publishing truth frame {}", frame.header.seq))?;
         Ok(())
     }
 
