@@ -470,11 +470,11 @@ impl StageContext {
                     continue;
                 };
                 let header = *frame.header();
+                self.stats.dropped += missed_before(slot.last_seq, &header);
                 if header.is_end() {
                     slot.ended = true;
                     continue;
                 }
-                self.stats.dropped += missed_before(slot.last_seq, &header);
                 slot.last_seq = Some(header.seq);
                 slot.current = Some(frame);
                 self.stats
@@ -644,11 +644,9 @@ impl StageContext {
 }
 
 /// Frames of an input that never arrived before `header`, given the last `seq` received (counting
-/// from frame 0 when none was).
+/// from frame 0 when none was). END_OF_STREAM carries the `seq` after its producer's last frame,
+/// so frames lost just before the end count too.
 fn missed_before(last_seq: Option<u64>, header: &FrameHeader) -> u64 {
-    if header.is_end() {
-        return 0;
-    }
     match last_seq {
         Some(last) => header.seq.saturating_sub(last + 1),
         None => header.seq,
@@ -762,5 +760,29 @@ impl Params<'_> {
             Some(toml::Value::Integer(i)) => *i as f64,
             _ => default,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn header(seq: u64, flags: u32) -> FrameHeader {
+        FrameHeader {
+            seq,
+            flags,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn missed_frames_are_the_gaps_in_seq_including_before_the_end() {
+        assert_eq!(missed_before(Some(4), &header(5, 0)), 0);
+        assert_eq!(missed_before(Some(4), &header(7, 0)), 2); // 5 and 6
+        assert_eq!(missed_before(None, &header(3, 0)), 3); // 0, 1, 2 before the first received
+        assert_eq!(missed_before(None, &header(0, 0)), 0);
+        // END_OF_STREAM's seq is one past the producer's last frame.
+        assert_eq!(missed_before(Some(9), &header(10, flags::END_OF_STREAM)), 0);
+        assert_eq!(missed_before(Some(9), &header(12, flags::END_OF_STREAM)), 2); // 10 and 11
     }
 }
