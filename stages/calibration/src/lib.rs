@@ -1,0 +1,1 @@
+//! The calibration stage (work in progress).

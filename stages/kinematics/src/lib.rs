@@ -1,0 +1,1 @@
+//! The kinematics stage (work in progress).
