@@ -1,0 +1,456 @@
+//! The calibration session, one frame at a time (no IO): detects the calibration phases from the
+//! data, calibrates, then turns every frame into a calibrated `BodyImuFrame`.
+//!
+//! - Before the calibration is accepted, every output frame is flagged CALIBRATING | INVALID with an
+//!   empty payload (identity orientations, zeros, `valid_mask` 0).
+//! - `tpose`: the first hold (still for `hold_s`) is the held pose; the last `average_s` of it are
+//!   averaged.
+//! - `walking`: a hold, a motion of at most `max_step_s`, and another hold form one attempt. A
+//!   rejected attempt is reported with its reason; the stand after it is the stand before the next
+//!   attempt, so the subject simply steps again.
+//! - After a walking calibration, with `drift_update`, every later stand–step–stand that passes the
+//!   same checks re-estimates the per-sensor heading corrections (the sensors' relative heading
+//!   drift, e.g. from magnetic disturbance). `R_MI` and `R_SB` are kept: the pelvis's own heading
+//!   drift is not observable this way (the subject may face anywhere by then).
+
+use std::collections::VecDeque;
+use std::ops::Range;
+
+use imuflow_graph::frames::{BodyImuFrame, FrameHeader, ImuFrame, flags};
+
+use crate::calibration::{Calibration, Method};
+use crate::convention::{InertialFrame, ReferencePose};
+use crate::error::{NotCalibrated, Rejection};
+use crate::sample::Sample;
+use crate::segments::{Hold, Segmenter};
+use crate::stillness::{StillnessConfig, StillnessDetector};
+use crate::tpose::{TposeConfig, calibrate_tpose};
+use crate::walking::{StepWindows, WalkingConfig, calibrate_walking, measure_step};
+use crate::{NUM_IMUS, sensor_name};
+
+/// Everything a session needs; [`CalibratorConfig::default`] holds the stage's defaults.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CalibratorConfig {
+    pub method: Method,
+    /// Inertial-frame convention of the sensors.
+    pub frame: InertialFrame,
+    /// `tpose`: the subject's heading in I (rad, see [`InertialFrame::model_from_inertial`]).
+    pub heading_rad: f64,
+    /// The pose held (`tpose`) or stood in (`walking`).
+    pub pose: ReferencePose,
+    pub accel_offset: bool,
+    /// `walking`: re-estimate heading corrections at later stand–step–stands.
+    pub drift_update: bool,
+    /// Converts the durations below to frames.
+    pub nominal_rate_hz: f64,
+    /// A still run counts as a hold / stand after this long (s).
+    pub hold_s: f64,
+    /// The end of a hold averaged for orientations and offsets (s).
+    pub average_s: f64,
+    /// Trailing window of the stillness test (s).
+    pub still_window_s: f64,
+    pub still_gyro_radps: f64,
+    pub still_accel_std_mps2: f64,
+    /// Longest motion between two stands that counts as one step (s).
+    pub max_step_s: f64,
+    pub max_gravity_deg: f64,
+    pub max_pose_change_deg: f64,
+    pub max_vertical_m: f64,
+    pub min_step_m: f64,
+    pub max_step_m: f64,
+    pub max_step_mismatch_m: f64,
+}
+
+impl Default for CalibratorConfig {
+    fn default() -> CalibratorConfig {
+        CalibratorConfig {
+            method: Method::Tpose,
+            frame: InertialFrame::Model,
+            heading_rad: 0.0,
+            pose: ReferencePose::T,
+            accel_offset: true,
+            drift_update: true,
+            nominal_rate_hz: 60.0,
+            hold_s: 1.5,
+            average_s: 1.0,
+            still_window_s: 0.25,
+            // A standing person sways at a few 0.01 rad/s and ~0.1 m/s²; a step turns the shanks at
+            // several rad/s.
+            still_gyro_radps: 0.3,
+            still_accel_std_mps2: 0.4,
+            max_step_s: 3.0,
+            // Reference §4: GlobalPose's gravity sanity check (8°), walking_6dof's thresholds (20°,
+            // 0.1 m).
+            max_gravity_deg: 8.0,
+            max_pose_change_deg: 20.0,
+            max_vertical_m: 0.1,
+            min_step_m: 0.2,
+            max_step_m: 1.5,
+            max_step_mismatch_m: 0.15,
+        }
+    }
+}
+
+impl CalibratorConfig {
+    fn frames(&self, secs: f64) -> u64 {
+        (secs * self.nominal_rate_hz).round().max(1.0) as u64
+    }
+
+    /// Frames integrated before the first and after the last detected still frame of a step: the
+    /// stillness test lags by its window, and a slow start of the step must not be missed.
+    fn margin_frames(&self) -> u64 {
+        self.frames((2.0 * self.still_window_s).max(0.5))
+    }
+
+    fn tpose(&self) -> TposeConfig {
+        TposeConfig {
+            frame: self.frame,
+            heading_rad: self.heading_rad,
+            pose: self.pose,
+            accel_offset: self.accel_offset,
+            max_gravity_deg: self.max_gravity_deg,
+        }
+    }
+
+    fn walking(&self) -> WalkingConfig {
+        WalkingConfig {
+            frame: self.frame,
+            pose: self.pose,
+            accel_offset: self.accel_offset,
+            max_gravity_deg: self.max_gravity_deg,
+            max_pose_change_deg: self.max_pose_change_deg,
+            max_vertical_m: self.max_vertical_m,
+            min_step_m: self.min_step_m,
+            max_step_m: self.max_step_m,
+            max_step_mismatch_m: self.max_step_mismatch_m,
+        }
+    }
+}
+
+/// Something that happened at a frame, for the log.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Event {
+    /// A hold was seen (`tpose`: being calibrated now; `walking`: waiting for the step).
+    Stand { seq: u64 },
+    /// A calibration was accepted.
+    Calibrated {
+        seq: u64,
+        calibration: Box<Calibration>,
+    },
+    /// An attempt must be redone.
+    Rejected { seq: u64, reason: Rejection },
+    /// A later stand–step–stand re-estimated the heading corrections (rad, IMU order).
+    HeadingUpdated {
+        seq: u64,
+        previous_rad: [f64; NUM_IMUS],
+        corrections_rad: [f64; NUM_IMUS],
+    },
+    /// A later stand–motion–stand did not qualify for a heading update.
+    HeadingUpdateSkipped { seq: u64, reason: Rejection },
+}
+
+/// Maps capture timestamps to seconds, falling back to the nominal period when a timestamp does
+/// not move forward plausibly (a replay glitch must not produce a zero or negative dt).
+#[derive(Debug)]
+struct Clock {
+    nominal_dt_s: f64,
+    last: Option<(u64, f64)>,
+}
+
+impl Clock {
+    /// Longest gap between frames taken at face value (s).
+    const MAX_GAP_S: f64 = 0.5;
+
+    fn time_s(&mut self, capture_ns: u64) -> f64 {
+        let t = match self.last {
+            None => 0.0,
+            Some((ns, t)) => {
+                let dt = capture_ns.saturating_sub(ns) as f64 * 1e-9;
+                t + if dt > 0.0 && dt <= Self::MAX_GAP_S {
+                    dt
+                } else {
+                    self.nominal_dt_s
+                }
+            }
+        };
+        self.last = Some((capture_ns, t));
+        t
+    }
+}
+
+/// One calibration session.
+#[derive(Debug)]
+pub struct Calibrator {
+    config: CalibratorConfig,
+    calibration: Option<Calibration>,
+    detector: StillnessDetector,
+    segmenter: Segmenter,
+    clock: Clock,
+    /// The recent samples; `buffer[0]` is frame `frames - buffer.len()`.
+    buffer: VecDeque<Sample>,
+    capacity: usize,
+    frames: u64,
+    holds: u64,
+    invalid_frames: [u64; NUM_IMUS],
+    last_rejection: Option<Rejection>,
+}
+
+impl Calibrator {
+    /// A session that calibrates from the data (`method = none`: calibrated from the start).
+    pub fn new(config: CalibratorConfig) -> Calibrator {
+        let calibration = (config.method == Method::None).then(Calibration::identity);
+        let capacity = (config.margin_frames()
+            + config.frames(config.average_s)
+            + config.frames(config.max_step_s)
+            + config.frames(config.hold_s)
+            + config.frames(config.still_window_s)
+            + 2) as usize;
+        Calibrator {
+            config,
+            calibration,
+            detector: StillnessDetector::new(StillnessConfig {
+                window_frames: config.frames(config.still_window_s) as usize,
+                max_gyro_radps: config.still_gyro_radps,
+                max_accel_std_mps2: config.still_accel_std_mps2,
+            }),
+            segmenter: Segmenter::new(config.frames(config.hold_s)),
+            clock: Clock {
+                nominal_dt_s: 1.0 / config.nominal_rate_hz,
+                last: None,
+            },
+            buffer: VecDeque::with_capacity(capacity),
+            capacity,
+            frames: 0,
+            holds: 0,
+            invalid_frames: [0; NUM_IMUS],
+            last_rejection: None,
+        }
+    }
+
+    /// A session that starts calibrated (a calibration loaded from a file).
+    pub fn with_calibration(config: CalibratorConfig, calibration: Calibration) -> Calibrator {
+        let mut c = Calibrator::new(config);
+        c.calibration = Some(calibration);
+        c
+    }
+
+    /// The accepted calibration, if any (with the latest heading corrections).
+    pub fn calibration(&self) -> Option<&Calibration> {
+        self.calibration.as_ref()
+    }
+
+    /// Takes one input frame, writes its output frame into `out` (header included) and says what
+    /// happened, if anything.
+    pub fn push(&mut self, frame: &ImuFrame, out: &mut BodyImuFrame) -> Option<Event> {
+        let time_s = self.clock.time_s(frame.header.capture_ns);
+        let sample = Sample::from_frame(frame, time_s);
+        self.count_invalid(&sample);
+        let still = self.detector.push(&sample);
+        let index = self.frames;
+        self.frames += 1;
+        if self.buffer.len() == self.capacity {
+            self.buffer.pop_front();
+        }
+        self.buffer.push_back(sample);
+        let event = self
+            .segmenter
+            .push(index, still)
+            .and_then(|hold| self.on_hold(&hold, sample.seq));
+        self.write_output(frame, &sample, out);
+        event
+    }
+
+    /// Ends the session: the calibration, or why there is none.
+    pub fn finish(&self) -> Result<&Calibration, NotCalibrated> {
+        self.calibration.as_ref().ok_or_else(|| NotCalibrated {
+            method: self.config.method.name(),
+            frames: self.frames,
+            reason: self.reason(),
+        })
+    }
+
+    fn count_invalid(&mut self, sample: &Sample) {
+        for (k, n) in self.invalid_frames.iter_mut().enumerate() {
+            if sample.valid_mask & (1 << k) == 0 {
+                *n += 1;
+            }
+        }
+    }
+
+    fn write_output(&self, frame: &ImuFrame, sample: &Sample, out: &mut BodyImuFrame) {
+        *out = BodyImuFrame {
+            header: FrameHeader {
+                flags: frame.header.flags & (flags::INVALID | flags::CALIBRATING),
+                ..frame.header
+            },
+            ..Default::default()
+        };
+        match &self.calibration {
+            Some(c) => c.apply(sample, out),
+            None => {
+                out.header.flags |= flags::CALIBRATING | flags::INVALID;
+                out.bone_orientation_wxyz = [[1.0, 0.0, 0.0, 0.0]; NUM_IMUS];
+            }
+        }
+    }
+
+    fn on_hold(&mut self, hold: &Hold, seq: u64) -> Option<Event> {
+        self.holds += 1;
+        // Holds are rare (seconds apart): one O(buffer) move makes every window a plain slice.
+        self.buffer.make_contiguous();
+        match (self.config.method, self.calibration.is_some()) {
+            (Method::Tpose, false) => Some(self.try_tpose(hold, seq)),
+            (Method::Walking, false) => Some(self.try_walking(hold, seq)),
+            (Method::Walking, true) if self.config.drift_update => {
+                self.try_heading_update(hold, seq)
+            }
+            _ => None,
+        }
+    }
+
+    fn try_tpose(&mut self, hold: &Hold, seq: u64) -> Event {
+        let window = self.average_window(&hold.hold, 0);
+        let result = calibrate_tpose(self.slice(window), &self.config.tpose());
+        self.accept(result, seq)
+    }
+
+    fn try_walking(&mut self, hold: &Hold, seq: u64) -> Event {
+        let result = match self.step_windows(hold) {
+            None => return Event::Stand { seq },
+            Some(Err(reason)) => Err(reason),
+            Some(Ok(w)) => {
+                calibrate_walking(&self.windows(&w), &self.config.walking()).map(|e| e.calibration)
+            }
+        };
+        self.accept(result, seq)
+    }
+
+    fn try_heading_update(&mut self, hold: &Hold, seq: u64) -> Option<Event> {
+        let result = match self.step_windows(hold)? {
+            Err(reason) => Err(reason),
+            Ok(w) => measure_step(&self.windows(&w), &self.config.walking()),
+        };
+        let calibration = self.calibration.as_mut()?;
+        Some(match result {
+            Err(reason) => Event::HeadingUpdateSkipped { seq, reason },
+            Ok(geometry) => {
+                let previous_rad = calibration.heading_corrections_rad();
+                for (s, psi) in calibration
+                    .sensors
+                    .iter_mut()
+                    .zip(geometry.heading_to_pelvis_rad)
+                {
+                    s.heading_correction_rad = psi;
+                }
+                Event::HeadingUpdated {
+                    seq,
+                    previous_rad,
+                    corrections_rad: geometry.heading_to_pelvis_rad,
+                }
+            }
+        })
+    }
+
+    fn accept(&mut self, result: Result<Calibration, Rejection>, seq: u64) -> Event {
+        match result {
+            Ok(calibration) => {
+                self.calibration = Some(calibration.clone());
+                Event::Calibrated {
+                    seq,
+                    calibration: Box::new(calibration),
+                }
+            }
+            Err(reason) => {
+                self.last_rejection = Some(reason.clone());
+                Event::Rejected { seq, reason }
+            }
+        }
+    }
+
+    /// The three windows of a stand–motion–stand (`None` for a first stand).
+    fn step_windows(&self, hold: &Hold) -> Option<Result<[Range<u64>; 3], Rejection>> {
+        let previous = hold.previous.as_ref()?;
+        let motion_frames = hold.motion_frames()?;
+        if motion_frames > self.config.frames(self.config.max_step_s) {
+            return Some(Err(Rejection::MotionTooLong {
+                secs: motion_frames as f64 / self.config.nominal_rate_hz,
+                max_s: self.config.max_step_s,
+            }));
+        }
+        let margin = self.config.margin_frames();
+        let motion = previous.end.saturating_sub(margin).max(previous.start)
+            ..(hold.hold.start + margin).min(hold.hold.end);
+        Some(Ok([
+            self.average_window(previous, margin),
+            motion,
+            self.average_window(&hold.hold, 0),
+        ]))
+    }
+
+    fn windows(&self, w: &[Range<u64>; 3]) -> StepWindows<'_> {
+        StepWindows {
+            before: self.slice(w[0].clone()),
+            motion: self.slice(w[1].clone()),
+            after: self.slice(w[2].clone()),
+        }
+    }
+
+    /// The last `average_s` of `hold`, ending `skip_end` frames before its end (kept inside it).
+    fn average_window(&self, hold: &Range<u64>, skip_end: u64) -> Range<u64> {
+        let end = hold.end.saturating_sub(skip_end).max(hold.start + 1);
+        end.saturating_sub(self.config.frames(self.config.average_s))
+            .max(hold.start)..end
+    }
+
+    /// The buffered samples of frames `range`, clipped to what the buffer still holds. Call
+    /// `make_contiguous` on the buffer first (`on_hold` does).
+    fn slice(&self, range: Range<u64>) -> &[Sample] {
+        let first = self.frames - self.buffer.len() as u64;
+        let (held, _) = self.buffer.as_slices();
+        let start = (range.start.max(first) - first) as usize;
+        let end = (range.end.saturating_sub(first) as usize).min(held.len());
+        held.get(start..end).unwrap_or_default()
+    }
+
+    fn reason(&self) -> String {
+        let config = &self.config;
+        if self.frames == 0 {
+            return "no frames arrived".into();
+        }
+        let invalid: Vec<String> = self
+            .invalid_frames
+            .iter()
+            .enumerate()
+            .filter(|(_, n)| **n > 0)
+            .map(|(k, n)| format!("{} in {n}", sensor_name(k)))
+            .collect();
+        let attempt = self
+            .last_rejection
+            .as_ref()
+            .map(|r| format!("last attempt rejected: {r}"));
+        let stands = match config.method {
+            Method::Walking if self.holds > 0 => format!(
+                "saw {} still stand(s) but no accepted stand, one step forward, stand (each stand at least {} s, the step at most {} s)",
+                self.holds, config.hold_s, config.max_step_s
+            ),
+            _ => format!(
+                "no still period of {} s in {:.1} s of data (stillness: mean gyro < {} rad/s, accelerometer std < {} m/s² over {} s)",
+                config.hold_s,
+                self.frames as f64 / config.nominal_rate_hz,
+                config.still_gyro_radps,
+                config.still_accel_std_mps2,
+                config.still_window_s
+            ),
+        };
+        let mut parts = Vec::new();
+        if !invalid.is_empty() {
+            parts.push(format!(
+                "unusable samples (NaN, infinite, zero quaternion or valid bit cleared) of {} out of {} frames",
+                invalid.join(", "),
+                self.frames
+            ));
+        }
+        parts.push(attempt.unwrap_or(stands));
+        parts.join("; ")
+    }
+}

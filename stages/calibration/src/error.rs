@@ -1,0 +1,92 @@
+//! Why a calibration attempt was rejected, and the stage's hard failures.
+
+use std::path::PathBuf;
+
+/// Why an attempt must be redone. The message says what was measured and what to do.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Rejection {
+    #[error("no sample of all six sensors in the {phase} window")]
+    NoSamples { phase: &'static str },
+    #[error(
+        "sensor {sensor}: gravity is {angle_deg:.0}° away from the up axis of `frame = \"{frame}\"` \
+         (at most {max_deg}°): is the inertial-frame convention right?"
+    )]
+    GravityMismatch {
+        sensor: &'static str,
+        angle_deg: f64,
+        max_deg: f64,
+        frame: &'static str,
+    },
+    #[error(
+        "sensor {sensor} turned {angle_deg:.1}° between the stand before and the stand after the \
+         motion (at most {max_deg}°): stand in the same pose before and after the step"
+    )]
+    PoseChanged {
+        sensor: &'static str,
+        angle_deg: f64,
+        max_deg: f64,
+    },
+    #[error(
+        "sensor {sensor} moved {vertical_m:.2} m vertically during the step (at most {max_m} m): \
+         step on flat ground"
+    )]
+    NotLevel {
+        sensor: &'static str,
+        vertical_m: f64,
+        max_m: f64,
+    },
+    #[error(
+        "the pelvis moved {length_m:.2} m between the stands ({min_m}..{max_m} m expected): take \
+         one step forward"
+    )]
+    StepLength {
+        length_m: f64,
+        min_m: f64,
+        max_m: f64,
+    },
+    #[error(
+        "sensor {sensor} moved {length_m:.2} m but the pelvis {pelvis_m:.2} m (they may differ by \
+         at most {max_m} m): stand in the same pose before and after the step"
+    )]
+    StepMismatch {
+        sensor: &'static str,
+        length_m: f64,
+        pelvis_m: f64,
+        max_m: f64,
+    },
+    #[error(
+        "the motion between the two stands lasted {secs:.1} s (at most {max_s} s): take a single \
+         step"
+    )]
+    MotionTooLong { secs: f64, max_s: f64 },
+}
+
+/// Reading or writing a calibration file.
+#[derive(Debug, thiserror::Error)]
+pub enum FileError {
+    #[error("calibration file {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("calibration file {path}: not a calibration ({message})")]
+    Parse { path: PathBuf, message: String },
+    #[error("calibration file {path}: field `{field}` {problem}")]
+    Field {
+        path: PathBuf,
+        field: String,
+        problem: String,
+    },
+}
+
+/// The stream ended before any calibration was accepted.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error(
+    "the stream ended after {frames} frames without a completed {method} calibration; last reason: \
+     {reason}"
+)]
+pub struct NotCalibrated {
+    pub method: &'static str,
+    pub frames: u64,
+    pub reason: String,
+}

@@ -1,0 +1,266 @@
+//! Walking calibration (GlobalPose §3.4, Eq. 17–24; reference §4 `walking_6dof`).
+//!
+//! The subject stands (N-pose), takes one step forward and stands again in the same pose. Every
+//! point of the body then moved by the same horizontal vector. Each sensor integrates its own free
+//! acceleration in its own inertial frame I_k during the step (Eq. 17–18), removes the velocity
+//! drift with the zero-velocity update (Eq. 19–20) and the vertical component (Eq. 21). The sensors'
+//! inertial frames share the up axis but not the heading, so their displacement vectors differ by
+//! a rotation about up: aligning each to the pelvis's gives the relative heading errors (Eq. 22).
+//! The pelvis's displacement is "forward", which fixes `R_MI` (Eq. 23), and the known standing
+//! pose gives `R_SB` (Eq. 24), averaged over the stands before and after the step (reference §4).
+//!
+//! The checks follow the paper ("verify whether R_IS^(2) is close to R_IS^(1)") and the reference
+//! (|vertical| < 0.1 m per sensor, R_SB disagreement < 20°), plus two of imuflow's own: the step
+//! length must be plausible and every sensor must have moved as far as the pelvis (a rigid
+//! translation moves all points equally; a different length means the pose changed or the
+//! integration failed).
+
+use nalgebra::{Rotation3, Unit, Vector3};
+
+use crate::calibration::{Calibration, Method, SensorCalibration};
+use crate::convention::{InertialFrame, ReferencePose};
+use crate::error::Rejection;
+use crate::math::{horizontal, mean_rotation, signed_angle_about};
+use crate::sample::Sample;
+use crate::tpose::check_gravity;
+use crate::{NUM_IMUS, PELVIS, sensor_name};
+
+/// What a walking calibration needs to know and accept.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WalkingConfig {
+    /// Only the up axis of the convention is used: the step gives the heading.
+    pub frame: InertialFrame,
+    /// The standing pose (GlobalPose: N-pose).
+    pub pose: ReferencePose,
+    pub accel_offset: bool,
+    /// Largest angle between measured gravity and the convention's down axis (deg).
+    pub max_gravity_deg: f64,
+    /// Largest change of any sensor's orientation between the two stands (deg).
+    pub max_pose_change_deg: f64,
+    /// Largest vertical displacement of any sensor (m).
+    pub max_vertical_m: f64,
+    /// Plausible pelvis step length (m).
+    pub min_step_m: f64,
+    pub max_step_m: f64,
+    /// Largest difference between a sensor's step length and the pelvis's (m).
+    pub max_step_mismatch_m: f64,
+}
+
+/// The samples of one stand–step–stand.
+#[derive(Clone, Copy, Debug)]
+pub struct StepWindows<'a> {
+    /// Still samples at the end of the stand before the step (averaged).
+    pub before: &'a [Sample],
+    /// The samples integrated: from the stand before (still) to the stand after (still).
+    pub motion: &'a [Sample],
+    /// Still samples of the stand after the step (averaged).
+    pub after: &'a [Sample],
+}
+
+/// What the step measured, per sensor in its own inertial frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepGeometry {
+    /// R̄_IS averaged over the stand before (R_IS^(1)) and after (R_IS^(2)).
+    pub stand_before: [Rotation3<f64>; NUM_IMUS],
+    pub stand_after: [Rotation3<f64>; NUM_IMUS],
+    /// Horizontal displacement p̄ (Eq. 21), m.
+    pub displacement_m: [Vector3<f64>; NUM_IMUS],
+    /// Vertical displacement removed by Eq. 21, m.
+    pub vertical_m: [f64; NUM_IMUS],
+    /// Mean free acceleration in I over both stands (the accelerometer offset), m/s².
+    pub offset_in_inertial_mps2: [Vector3<f64>; NUM_IMUS],
+    /// Relative heading to the pelvis ψ_k, Eq. 22, rad (pelvis: 0).
+    pub heading_to_pelvis_rad: [f64; NUM_IMUS],
+}
+
+/// A walking calibration with what it measured.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WalkingEstimate {
+    pub calibration: Calibration,
+    pub geometry: StepGeometry,
+}
+
+/// Calibrates from one stand–step–stand, or says why it must be redone.
+pub fn calibrate_walking(
+    windows: &StepWindows<'_>,
+    config: &WalkingConfig,
+) -> Result<WalkingEstimate, Rejection> {
+    let geometry = measure_step(windows, config)?;
+    let up = config.frame.up_in_inertial();
+    let model_from_inertial = model_from_inertial(&up, &geometry.displacement_m[PELVIS]);
+    let reference = config.pose.bone_orientations();
+    let mut sensors = [SensorCalibration::IDENTITY; NUM_IMUS];
+    for (k, cal) in sensors.iter_mut().enumerate() {
+        cal.heading_correction_rad = geometry.heading_to_pelvis_rad[k];
+        let sensor_model_from_inertial = imuflow_body::rotation::Axis::Y
+            .rotation(cal.heading_correction_rad)
+            * model_from_inertial;
+        // Eq. 24 for each stand, then their rotation average (reference §4 step 5).
+        let estimate = |stand: &Rotation3<f64>| {
+            (sensor_model_from_inertial * stand).transpose() * reference[k]
+        };
+        let before = estimate(&geometry.stand_before[k]);
+        let after = estimate(&geometry.stand_after[k]);
+        cal.sensor_from_bone =
+            mean_rotation([&before, &after]).ok_or(Rejection::NoSamples { phase: "stand" })?;
+        if config.accel_offset {
+            cal.accel_offset_in_model_mps2 =
+                sensor_model_from_inertial * geometry.offset_in_inertial_mps2[k];
+        }
+    }
+    Ok(WalkingEstimate {
+        calibration: Calibration {
+            method: Method::Walking,
+            model_from_inertial,
+            sensors,
+        },
+        geometry,
+    })
+}
+
+/// Eq. 23: forward (M's z) is the pelvis's step direction, up is against gravity; `R_MI`'s rows are
+/// M's axes written in I.
+pub fn model_from_inertial(up: &Unit<Vector3<f64>>, pelvis_step: &Vector3<f64>) -> Rotation3<f64> {
+    let forward = horizontal(pelvis_step, up).normalize();
+    let left = up.cross(&forward);
+    Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_rows(&[
+        left.transpose(),
+        up.transpose(),
+        forward.transpose(),
+    ]))
+}
+
+/// Everything of the step that does not depend on an existing calibration, with the checks.
+pub fn measure_step(
+    windows: &StepWindows<'_>,
+    config: &WalkingConfig,
+) -> Result<StepGeometry, Rejection> {
+    let before = valid(windows.before, "stand before the step")?;
+    let after = valid(windows.after, "stand after the step")?;
+    let motion = valid(windows.motion, "step")?;
+    check_gravity(before, config.frame, config.max_gravity_deg)?;
+    check_gravity(after, config.frame, config.max_gravity_deg)?;
+    let up = config.frame.up_in_inertial();
+    let gravity = -up.into_inner() * imuflow_body::GRAVITY_IN_MODEL_MPS2.norm();
+
+    let mut g = StepGeometry {
+        stand_before: [Rotation3::identity(); NUM_IMUS],
+        stand_after: [Rotation3::identity(); NUM_IMUS],
+        displacement_m: [Vector3::zeros(); NUM_IMUS],
+        vertical_m: [0.0; NUM_IMUS],
+        offset_in_inertial_mps2: [Vector3::zeros(); NUM_IMUS],
+        heading_to_pelvis_rad: [0.0; NUM_IMUS],
+    };
+    for k in 0..NUM_IMUS {
+        g.stand_before[k] = stand_orientation(before, k)?;
+        g.stand_after[k] = stand_orientation(after, k)?;
+        let angle_deg =
+            imuflow_body::rotation::angle_between(&g.stand_before[k], &g.stand_after[k])
+                .to_degrees();
+        if angle_deg > config.max_pose_change_deg {
+            return Err(Rejection::PoseChanged {
+                sensor: sensor_name(k),
+                angle_deg,
+                max_deg: config.max_pose_change_deg,
+            });
+        }
+    }
+    for k in 0..NUM_IMUS {
+        let offset = if config.accel_offset {
+            mean_free_acceleration(before.iter().chain(after), k, &gravity)
+        } else {
+            Vector3::zeros()
+        };
+        g.offset_in_inertial_mps2[k] = offset;
+        let p = integrate_with_zupt(motion, k, &(gravity - offset));
+        g.vertical_m[k] = p.dot(&up);
+        g.displacement_m[k] = horizontal(&p, &up);
+        if g.vertical_m[k].abs() > config.max_vertical_m {
+            return Err(Rejection::NotLevel {
+                sensor: sensor_name(k),
+                vertical_m: g.vertical_m[k],
+                max_m: config.max_vertical_m,
+            });
+        }
+    }
+    check_lengths(&g.displacement_m, config)?;
+    let pelvis = g.displacement_m[PELVIS];
+    for k in 0..NUM_IMUS {
+        g.heading_to_pelvis_rad[k] = signed_angle_about(&up, &g.displacement_m[k], &pelvis);
+    }
+    Ok(g)
+}
+
+fn valid<'a>(samples: &'a [Sample], phase: &'static str) -> Result<&'a [Sample], Rejection> {
+    if samples.is_empty() || !samples.iter().all(Sample::all_valid) {
+        return Err(Rejection::NoSamples { phase });
+    }
+    Ok(samples)
+}
+
+fn stand_orientation(window: &[Sample], k: usize) -> Result<Rotation3<f64>, Rejection> {
+    mean_rotation(window.iter().map(|s| &s.sensors[k].inertial_from_sensor))
+        .ok_or(Rejection::NoSamples { phase: "stand" })
+}
+
+fn mean_free_acceleration<'a>(
+    samples: impl Iterator<Item = &'a Sample>,
+    k: usize,
+    gravity: &Vector3<f64>,
+) -> Vector3<f64> {
+    let (sum, n) = samples.fold((Vector3::zeros(), 0usize), |(sum, n), s| {
+        (
+            sum + s.sensors[k].free_acceleration_in_inertial(gravity),
+            n + 1,
+        )
+    });
+    if n == 0 { sum } else { sum / n as f64 }
+}
+
+/// Double integration of sensor `k`'s free acceleration from rest (Eq. 17–18), then the zero-velocity
+/// update (Eq. 19–20): the final velocity should be 0, and the position error correlates with the
+/// velocity error through σ_pv/σ_vv (for a constant acceleration bias this removes its effect
+/// exactly: σ_pv/σ_vv = T/2). `gravity` is g_I minus the accelerometer offset. Time steps come from
+/// the samples' own timestamps.
+pub fn integrate_with_zupt(samples: &[Sample], k: usize, gravity: &Vector3<f64>) -> Vector3<f64> {
+    let (mut p, mut v) = (Vector3::zeros(), Vector3::zeros());
+    let (mut sigma_pv, mut sigma_vv) = (0.0, 0.0);
+    for pair in samples.windows(2) {
+        let dt = pair[1].time_s - pair[0].time_s;
+        let a = pair[0].sensors[k].free_acceleration_in_inertial(gravity);
+        p += v * dt + a * (0.5 * dt * dt);
+        v += a * dt;
+        sigma_pv += sigma_vv * dt;
+        sigma_vv += 1.0;
+    }
+    if sigma_vv > 0.0 {
+        p -= v * (sigma_pv / sigma_vv);
+    }
+    p
+}
+
+fn check_lengths(
+    displacement: &[Vector3<f64>; NUM_IMUS],
+    config: &WalkingConfig,
+) -> Result<(), Rejection> {
+    let pelvis_m = displacement[PELVIS].norm();
+    if !(config.min_step_m..=config.max_step_m).contains(&pelvis_m) {
+        return Err(Rejection::StepLength {
+            length_m: pelvis_m,
+            min_m: config.min_step_m,
+            max_m: config.max_step_m,
+        });
+    }
+    for (k, d) in displacement.iter().enumerate() {
+        let length_m = d.norm();
+        if (length_m - pelvis_m).abs() > config.max_step_mismatch_m {
+            return Err(Rejection::StepMismatch {
+                sensor: sensor_name(k),
+                length_m,
+                pelvis_m,
+                max_m: config.max_step_mismatch_m,
+            });
+        }
+    }
+    Ok(())
+}
