@@ -21,6 +21,7 @@
 
 pub mod body_model;
 pub mod bvh;
+pub mod dynamics;
 pub mod imu_synthesis;
 pub mod kinematics;
 pub mod metrics;
