@@ -29,6 +29,7 @@ pub mod npz;
 pub mod retarget;
 pub mod rotation;
 pub mod skeleton;
+pub mod urdf;
 
 pub use body_model::{BodyModel, BodyParams, GRAVITY_IN_MODEL_MPS2};
 pub use kinematics::{FkData, Pose, forward_kinematics};
