@@ -4,9 +4,12 @@
 //!
 //! Modes (param `mode`):
 //! - `synthesize`: BVH -> 24-joint clip (joint mapping, default the built-in Bandai Namco one) ->
-//!   resampled to the graph's rate -> synthetic IMUs ([`imuflow_body::imu_synthesis`]). Orientation
-//!   is `R_MS` (the sensor's inertial frame is the model frame M); specific force and angular rate
-//!   are in the sensor frame. `truth` carries the clip's pose of the same `seq`.
+//!   resampled to the graph's rate -> synthetic IMUs ([`imuflow_body::imu_synthesis`]). By default
+//!   the orientation is `R_MS` (the sensor's inertial frame is the model frame M, the sensor frame
+//!   the bone frame); specific force and angular rate are in the sensor frame. For calibration
+//!   tests: a calibration prelude ([`prelude`]), random mountings and inertial-frame conventions
+//!   with per-sensor heading offsets ([`synth::SensorSetup`]). `truth` carries the pose of the
+//!   same `seq`, prelude included.
 //! - `replay`: re-publishes the `ImuFrame`s (and `MotionFrame`s, if any) of a recorder's mcap file
 //!   in file order, keeping their `seq`, `capture_ns` and flags.
 //! - `udp`: receives the packets described in [`udp`] from live sensors.
@@ -14,6 +17,7 @@
 //! A sample that is not finite clears its sensor's bit of `valid_mask` and flags the frame
 //! INVALID; it never stops the stage.
 
+pub mod prelude;
 pub mod replay;
 pub mod synth;
 pub mod udp;
@@ -117,6 +121,64 @@ pub const SPEC: StageSpec = StageSpec {
             doc: "synthesize: acceleration stencil (TransPose/PIP smoothed, or central differences)",
         },
         ParamSpec {
+            name: "prelude",
+            ty: ParamType::Choice(&prelude::PreludeKind::NAMES),
+            required: false,
+            default: "none",
+            doc: "synthesize: calibration poses before the clip: tpose (hold), walk (stand, one step forward, stand), tpose+walk",
+        },
+        ParamSpec {
+            name: "prelude_stand_s",
+            ty: ParamType::Float {
+                min: 0.5,
+                max: 60.0,
+            },
+            required: false,
+            default: "3",
+            doc: "synthesize: length of each prelude hold / stand, s",
+        },
+        ParamSpec {
+            name: "step_m",
+            ty: ParamType::Float { min: 0.1, max: 1.5 },
+            required: false,
+            default: "0.6",
+            doc: "synthesize: length of the prelude's step forward, m",
+        },
+        ParamSpec {
+            name: "mounting",
+            ty: ParamType::Choice(&["bone", "random"]),
+            required: false,
+            default: "bone",
+            doc: "synthesize: sensor frame = bone frame, or each sensor mounted in a random orientation (seeded by `seed`)",
+        },
+        ParamSpec {
+            name: "frame",
+            ty: ParamType::Choice(&synth::InertialFrame::NAMES),
+            required: false,
+            default: "model",
+            doc: "synthesize: inertial frame the orientations are reported in: model (I = M), z-up (x forward, z up), z-down (x forward, z down)",
+        },
+        ParamSpec {
+            name: "frame_heading_deg",
+            ty: ParamType::Float {
+                min: -360.0,
+                max: 360.0,
+            },
+            required: false,
+            default: "0",
+            doc: "synthesize: direction the subject (facing +z in M) faces in I, right-handed about up from the frame's forward axis",
+        },
+        ParamSpec {
+            name: "heading_offset_deg",
+            ty: ParamType::Float {
+                min: 0.0,
+                max: 180.0,
+            },
+            required: false,
+            default: "0",
+            doc: "synthesize: each sensor's inertial frame turned by a further heading offset uniform in ±this (seeded by `seed`)",
+        },
+        ParamSpec {
             name: "realtime",
             ty: ParamType::Bool,
             required: false,
@@ -190,6 +252,8 @@ pub fn run() -> anyhow::Result<()> {
                 augment: params.bool("augment", false),
                 seed: params.int("seed", 0).max(0) as u64,
                 central_stencil: params.str("stencil") == Some("central"),
+                prelude: prelude_options(&params, &stage)?,
+                sensors: sensor_setup(&params, &stage)?,
             };
             let rate_hz = ctx.graph().rate_hz;
             let motion = synth::Motion::load(&path, &options, rate_hz).with_context(|| {
@@ -221,6 +285,39 @@ pub fn run() -> anyhow::Result<()> {
         }
         other => bail!("stage '{stage}': unknown mode '{other}' (synthesize, replay or udp)"),
     }
+}
+
+fn prelude_options(params: &Params<'_>, stage: &str) -> anyhow::Result<prelude::PreludeOptions> {
+    let d = prelude::PreludeOptions::default();
+    let name = params.str("prelude").unwrap_or("none");
+    let Some(kind) = prelude::PreludeKind::parse(name) else {
+        bail!(
+            "stage '{stage}': unknown prelude '{name}' ({})",
+            prelude::PreludeKind::NAMES.join(", ")
+        );
+    };
+    Ok(prelude::PreludeOptions {
+        kind,
+        stand_s: params.float("prelude_stand_s", d.stand_s),
+        step_m: params.float("step_m", d.step_m),
+        ..d
+    })
+}
+
+fn sensor_setup(params: &Params<'_>, stage: &str) -> anyhow::Result<synth::SensorSetup> {
+    let name = params.str("frame").unwrap_or("model");
+    let Some(frame) = synth::InertialFrame::parse(name) else {
+        bail!(
+            "stage '{stage}': unknown frame '{name}' ({})",
+            synth::InertialFrame::NAMES.join(", ")
+        );
+    };
+    Ok(synth::SensorSetup {
+        random_mounting: params.str("mounting") == Some("random"),
+        frame,
+        frame_heading_deg: params.float("frame_heading_deg", 0.0),
+        heading_offset_deg: params.float("heading_offset_deg", 0.0),
+    })
 }
 
 fn required_path(params: &Params<'_>, stage: &str, mode: &str) -> anyhow::Result<PathBuf> {

@@ -9,11 +9,16 @@ use imuflow_body::imu_synthesis::{
     AccelStencil, Augmentation, AugmentationConfig, ImuSample, SynthesisOptions, synthesize_imus,
 };
 use imuflow_body::retarget::{MotionClip, RetargetOptions, SourceSkeleton, resample, retarget_bvh};
-use imuflow_body::rotation::quat_wxyz_from_rotation;
+use imuflow_body::rotation::{Axis, quat_wxyz_from_rotation};
 use imuflow_body::{BodyModel, BodyParams, Pose};
 use imuflow_graph::StageContext;
 use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, NUM_IMUS, NUM_JOINTS};
+use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use rand_distr::StandardNormal;
 
+use crate::prelude::{PreludeOptions, with_prelude};
 use crate::{ALL_VALID, Publisher, mark_invalid_sensors};
 
 /// How to turn a BVH into IMU signals.
@@ -30,6 +35,105 @@ pub struct Options {
     pub seed: u64,
     /// Central-difference acceleration instead of the TransPose/PIP smoothed stencil.
     pub central_stencil: bool,
+    /// Calibration prelude put in front of the clip (default: none).
+    pub prelude: PreludeOptions,
+    /// How the sensors are worn and which inertial frame they report in (default: sensor = bone,
+    /// I = M, as without calibration).
+    pub sensors: SensorSetup,
+}
+
+/// The sensors' inertial-frame convention (as the calibration stage's `frame` parameter): the
+/// rotation `R_MI` at heading 0, whose rows are M's axes (left, up, forward) written in I.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum InertialFrame {
+    /// I is M.
+    #[default]
+    Model,
+    /// x forward, y left, z up (Xsens-like).
+    ZUp,
+    /// x forward, y right, z down (Noitom-like, NED).
+    ZDown,
+}
+
+impl InertialFrame {
+    pub const NAMES: [&'static str; 3] = ["model", "z-up", "z-down"];
+
+    pub fn parse(name: &str) -> Option<InertialFrame> {
+        match name {
+            "model" => Some(InertialFrame::Model),
+            "z-up" => Some(InertialFrame::ZUp),
+            "z-down" => Some(InertialFrame::ZDown),
+            _ => None,
+        }
+    }
+
+    /// `R_MI` at heading 0.
+    pub fn model_from_inertial(self) -> Rotation3<f64> {
+        Rotation3::from_matrix_unchecked(match self {
+            InertialFrame::Model => Matrix3::identity(),
+            InertialFrame::ZUp => Matrix3::new(0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0),
+            InertialFrame::ZDown => Matrix3::new(0.0, -1.0, 0.0, 0.0, 0.0, -1.0, 1.0, 0.0, 0.0),
+        })
+    }
+}
+
+/// How the simulated sensors are worn and what they report their orientation in.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct SensorSetup {
+    /// Each sensor mounted in a uniformly random orientation on its bone (seeded).
+    pub random_mounting: bool,
+    /// The inertial-frame convention.
+    pub frame: InertialFrame,
+    /// Heading of the inertial frames (deg): the subject, facing +z in M, faces this direction in I
+    /// (right-handed about up from the convention's forward axis).
+    pub frame_heading_deg: f64,
+    /// Each sensor's inertial frame is turned further by a heading offset uniform in ±this (deg,
+    /// seeded): what a walking calibration's heading correction undoes.
+    pub heading_offset_deg: f64,
+}
+
+/// The sensor frames a [`SensorSetup`] drew.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SensorFrames {
+    /// `R_S'S` per sensor: from the mounted sensor frame S to the synthesized sensor frame S' (the
+    /// bone frame, with the augmentation's small mounting error when augmenting). The true
+    /// `R_SB` is `R_S'Sᵀ·R_S'B`.
+    pub ideal_from_sensor: [Rotation3<f64>; NUM_IMUS],
+    /// `R_IM` per sensor: model frame to the sensor's inertial frame.
+    pub inertial_from_model: [Rotation3<f64>; NUM_IMUS],
+    /// The total heading of each sensor's inertial frame (rad): `frame_heading_deg` plus its offset.
+    /// A walking calibration's heading correction of sensor k is `heading[pelvis] − heading[k]`.
+    pub heading_rad: [f64; NUM_IMUS],
+}
+
+impl SensorSetup {
+    /// Draws the mountings and offsets from `seed` (independent of the augmentation's draws).
+    pub fn draw(&self, seed: u64) -> SensorFrames {
+        // A distinct stream: "calibrat" in ASCII.
+        let mut rng = StdRng::seed_from_u64(seed ^ 0x6361_6c69_6272_6174);
+        let mut frames = SensorFrames {
+            ideal_from_sensor: [Rotation3::identity(); NUM_IMUS],
+            inertial_from_model: [Rotation3::identity(); NUM_IMUS],
+            heading_rad: [0.0; NUM_IMUS],
+        };
+        for k in 0..NUM_IMUS {
+            // Uniform on SO(3): a normalized 4-D Gaussian quaternion. Drawn even when unused so the
+            // offsets do not depend on `random_mounting`.
+            let q: [f64; 4] = std::array::from_fn(|_| rng.sample(StandardNormal));
+            let offset = (rng.random::<f64>() * 2.0 - 1.0) * self.heading_offset_deg;
+            if self.random_mounting {
+                frames.ideal_from_sensor[k] =
+                    UnitQuaternion::new_normalize(Quaternion::new(q[0], q[1], q[2], q[3]))
+                        .to_rotation_matrix();
+            }
+            let heading = (self.frame_heading_deg + offset).to_radians();
+            frames.heading_rad[k] = heading;
+            // R_MI,k = R_y(−heading)·R_MI(0), so R_IM,k = R_MI(0)ᵀ·R_y(heading).
+            frames.inertial_from_model[k] =
+                self.frame.model_from_inertial().transpose() * Axis::Y.rotation(heading);
+        }
+        frames
+    }
 }
 
 /// A motion resampled to the graph's rate with its synthetic IMUs, ready to publish.
@@ -41,6 +145,8 @@ pub struct Motion {
     pub imus: Vec<[ImuSample; NUM_IMUS]>,
     /// The graph's rate (Hz).
     pub rate_hz: f64,
+    /// How the sensors are worn and what they report in.
+    pub sensors: SensorFrames,
 }
 
 impl Motion {
@@ -51,20 +157,26 @@ impl Motion {
             Some(m) => SourceSkeleton::load(m).map_err(flat)?,
             None => SourceSkeleton::bandai_namco().map_err(flat)?,
         };
-        let params = BodyParams::builtin().map_err(flat)?;
-        let body = BodyModel::new(
-            &params,
-            options
-                .stature_m
-                .unwrap_or_else(|| params.reference_stature_m()),
-            options
-                .mass_kg
-                .unwrap_or_else(|| params.reference_mass_kg()),
-        )
-        .map_err(flat)?;
+        let body = body_model(options)?;
         let bvh = Bvh::read(path).map_err(flat)?;
         let clip = retarget_bvh(&bvh, &source, &body, &RetargetOptions::default()).map_err(flat)?;
         let clip = resample(&clip, rate_hz).with_context(|| path.display().to_string())?;
+        let mut motion = Motion::from_clip(clip, &body, options)
+            .with_context(|| format!("{} (resampled to {rate_hz} Hz)", path.display()))?;
+        // The graph's rate exactly, for the capture times (not 1 / frame time).
+        motion.rate_hz = rate_hz;
+        Ok(motion)
+    }
+
+    /// Synthesizes the IMUs of `clip` (already at the graph's rate) on `body`, with the options'
+    /// prelude, augmentation and sensor setup.
+    pub fn from_clip(
+        clip: MotionClip,
+        body: &BodyModel,
+        options: &Options,
+    ) -> anyhow::Result<Motion> {
+        let clip = with_prelude(&clip, body, &options.prelude);
+        let rate_hz = clip.rate_hz();
         let synthesis = SynthesisOptions {
             stencil: if options.central_stencil {
                 AccelStencil::Central
@@ -76,15 +188,32 @@ impl Motion {
                 seed: options.seed,
             }),
         };
-        let imus = synthesize_imus(&clip, &body, &synthesis)
-            .with_context(|| format!("{} (resampled to {rate_hz} Hz)", path.display()))?;
+        let imus = synthesize_imus(&clip, body, &synthesis)?;
         Ok(Motion {
             clip,
             imus: imus.frames,
             rate_hz,
+            sensors: options.sensors.draw(options.seed),
         })
     }
+}
 
+/// The body model of the options' subject.
+pub fn body_model(options: &Options) -> anyhow::Result<BodyModel> {
+    let params = BodyParams::builtin().map_err(flat)?;
+    BodyModel::new(
+        &params,
+        options
+            .stature_m
+            .unwrap_or_else(|| params.reference_stature_m()),
+        options
+            .mass_kg
+            .unwrap_or_else(|| params.reference_mass_kg()),
+    )
+    .map_err(flat)
+}
+
+impl Motion {
     /// Number of frames.
     pub fn len(&self) -> usize {
         self.imus.len().min(self.clip.poses.len())
@@ -112,7 +241,7 @@ impl Motion {
             valid_mask: ALL_VALID,
             ..Default::default()
         };
-        fill_imu(&mut f, samples);
+        fill_imu(&mut f, samples, &self.sensors);
         mark_invalid_sensors(&mut f);
         Some(f)
     }
@@ -139,13 +268,17 @@ fn flat(e: impl std::fmt::Display) -> anyhow::Error {
     anyhow::anyhow!("{e}")
 }
 
-/// Writes the six samples into `frame` (orientation `R_MS`, specific force and angular rate in S).
-pub fn fill_imu(frame: &mut ImuFrame, samples: &[ImuSample; NUM_IMUS]) {
+/// Writes the six samples into `frame` as the mounted sensors of `sensors` report them: orientation
+/// `R_IS = R_IM·R_MS'·R_S'S`, specific force and angular rate in S (`R_S'Sᵀ` times the synthesized
+/// ones). With the default setup (identities) this is the synthesized `R_MS` and S-frame signals.
+pub fn fill_imu(frame: &mut ImuFrame, samples: &[ImuSample; NUM_IMUS], sensors: &SensorFrames) {
     for (i, s) in samples.iter().enumerate() {
-        frame.orientation_wxyz[i] = quat_wxyz_from_rotation(&s.model_from_sensor).map(|v| v as f32);
-        let f = &s.specific_force_in_sensor_mps2;
+        let mount = &sensors.ideal_from_sensor[i];
+        let orientation = sensors.inertial_from_model[i] * s.model_from_sensor * mount;
+        frame.orientation_wxyz[i] = quat_wxyz_from_rotation(&orientation).map(|v| v as f32);
+        let f = mount.transpose() * s.specific_force_in_sensor_mps2;
         frame.specific_force_mps2[i] = [f.x as f32, f.y as f32, f.z as f32];
-        let w = &s.angular_velocity_in_sensor_radps;
+        let w = mount.transpose() * s.angular_velocity_in_sensor_radps;
         frame.angular_rate_radps[i] = [w.x as f32, w.y as f32, w.z as f32];
     }
 }
@@ -258,6 +391,84 @@ mod tests {
             motion.imu_frame(6).expect("frame").valid_mask,
             ALL_VALID,
             "only the bad frame"
+        );
+    }
+
+    #[test]
+    fn default_sensor_setup_reports_the_synthesized_signals_unchanged() {
+        let motion = Motion::load(&fixture(), &Options::default(), 60.0).expect("loads");
+        let f = motion.imu_frame(20).expect("frame");
+        for (k, s) in motion.imus[20].iter().enumerate() {
+            let q = quat_wxyz_from_rotation(&s.model_from_sensor).map(|v| v as f32);
+            assert_eq!(f.orientation_wxyz[k], q);
+            let a = s.specific_force_in_sensor_mps2;
+            assert_eq!(
+                f.specific_force_mps2[k],
+                [a.x as f32, a.y as f32, a.z as f32]
+            );
+        }
+    }
+
+    #[test]
+    fn mounted_sensors_report_gravity_along_their_frame_convention() {
+        use crate::prelude::{PreludeKind, PreludeOptions};
+        use imuflow_body::rotation::rotation_from_quat_wxyz;
+        use nalgebra::Vector3;
+        let options = |seed| Options {
+            prelude: PreludeOptions {
+                kind: PreludeKind::Walk,
+                ..PreludeOptions::default()
+            },
+            sensors: SensorSetup {
+                random_mounting: true,
+                frame: InertialFrame::ZDown,
+                frame_heading_deg: 30.0,
+                heading_offset_deg: 20.0,
+            },
+            seed,
+            ..Options::default()
+        };
+        let motion = Motion::load(&fixture(), &options(3), 60.0).expect("loads");
+        // 3 s stand + step + 3 s stand + blend + the clip's 94 further frames.
+        assert_eq!(motion.len(), 1 + 180 + 72 + 180 + 60 + 94);
+        assert_eq!(
+            motion
+                .truth_frame(motion.len() - 1)
+                .expect("truth")
+                .header
+                .seq,
+            motion.len() as u64 - 1
+        );
+        let frame = motion.imu_frame(60).expect("standing");
+        for k in 0..NUM_IMUS {
+            let q = frame.orientation_wxyz[k].map(f64::from);
+            let r_is = rotation_from_quat_wxyz(&q).expect("unit");
+            let f = Vector3::from(frame.specific_force_mps2[k].map(f64::from));
+            // At rest the specific force points up: −z in a z-down frame.
+            let up_in_i = r_is * f;
+            assert!(
+                (up_in_i - Vector3::new(0.0, 0.0, -9.81)).norm() < 1e-3,
+                "sensor {k}: {up_in_i:?}"
+            );
+            let heading = motion.sensors.heading_rad[k].to_degrees();
+            assert!(
+                (10.0..=50.0).contains(&heading),
+                "sensor {k}: heading {heading}"
+            );
+            assert!(
+                imuflow_body::rotation::angle_between(
+                    &motion.sensors.ideal_from_sensor[k],
+                    &Rotation3::identity()
+                ) > 1e-3
+            );
+        }
+        let other = Motion::load(&fixture(), &options(4), 60.0).expect("loads");
+        assert_ne!(other.sensors, motion.sensors, "seeded");
+        assert_eq!(
+            Motion::load(&fixture(), &options(3), 60.0)
+                .expect("loads")
+                .sensors,
+            motion.sensors
         );
     }
 }
