@@ -75,10 +75,10 @@ def parse_urdf(path):
 def spherical_model(urdf, dump):
     """Free-flyer + spherical joints from the URDF.
 
-    Joints are added depth-first: Pinocchio's CRBA assumes every subtree's DoFs are contiguous (the order
-    its URDF parser produces) and returns a wrong M for SMPL's breadth-first index order (seen with
-    pin 4.1.0: crba disagreed with rnea and computeKineticEnergy by up to 270). `perm[our_dof]` is the
-    matching Pinocchio velocity index.
+    Joints are added depth-first: Pinocchio requires it (its CRBA assumes every subtree's DoFs are
+    contiguous, as its URDF parser produces; stack-of-tasks/pinocchio#1897) and silently returns a wrong M
+    for SMPL's breadth-first index order (seen with pin 4.1.0: crba disagreed with rnea and
+    computeKineticEnergy by up to 270). `perm[our_dof]` is the matching Pinocchio velocity index.
     """
     links, joints = parse_urdf(urdf)
     model = pin.Model()
