@@ -5,7 +5,10 @@ use std::path::PathBuf;
 /// Why an attempt must be redone. The message says what was measured and what to do.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum Rejection {
-    #[error("no sample of all six sensors in the {phase} window")]
+    #[error(
+        "a sensor's sample was unusable (NaN, infinite, zero quaternion or valid bit cleared) \
+         during the {phase}: do it again"
+    )]
     NoSamples { phase: &'static str },
     #[error(
         "sensor {sensor}: gravity is {angle_deg:.0}° away from the up axis of `frame = \"{frame}\"` \

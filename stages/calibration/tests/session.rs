@@ -3,9 +3,9 @@
 mod common;
 
 use common::*;
+use imuflow_calibration::NUM_IMUS;
 use imuflow_imu_source::prelude::PreludeKind;
 use imuflow_imu_source::synth::{InertialFrame as SynthFrame, Motion};
-use imuflow_calibration::NUM_IMUS;
 
 /// Bone orientation errors (deg) of every sensor on every frame after the calibration.
 fn errors_after_calibration(session: &Session, motion: &Motion) -> Vec<f64> {
@@ -30,7 +30,13 @@ fn stats(mut e: Vec<f64>) -> (f64, f64, f64) {
 fn thirty_seconds(seed: u64, offset_deg: f64, augment: bool) -> Motion {
     let frame = FRAMES[seed as usize % 3];
     let clip = ping_pong(&short_clip(), 30.0);
-    synthesize(clip, prelude(PreludeKind::TposeWalk), setup(frame, 25.0, offset_deg), augment, seed)
+    synthesize(
+        clip,
+        prelude(PreludeKind::TposeWalk),
+        setup(frame, 25.0, offset_deg),
+        augment,
+        seed,
+    )
 }
 
 const FRAMES: [SynthFrame; 3] = [SynthFrame::Model, SynthFrame::ZUp, SynthFrame::ZDown];
@@ -40,9 +46,16 @@ fn without_noise_thirty_seconds_reproduce_the_true_bone_orientations() {
     for seed in 0..2 {
         let motion = thirty_seconds(seed, 0.0, false);
         let frame = frame_of(FRAMES[seed as usize % 3]);
-        for session in [run(walking(frame), &motion), run(tpose(frame, 25.0), &motion)] {
+        for session in [
+            run(walking(frame), &motion),
+            run(tpose(frame, 25.0), &motion),
+        ] {
             let errors = errors_after_calibration(&session, &motion);
-            assert!(errors.len() >= 30 * 60 * NUM_IMUS, "{} samples", errors.len());
+            assert!(
+                errors.len() >= 30 * 60 * NUM_IMUS,
+                "{} samples",
+                errors.len()
+            );
             let (mean, _, max) = stats(errors);
             // f32 quaternions on the wire: ~1e-5 rad.
             assert!(max < 0.01, "seed {seed}: mean {mean}°, max {max}°");
@@ -60,10 +73,22 @@ fn with_reference_noise_thirty_seconds_stay_within_tolerance() {
     for seed in 0..3 {
         let motion = thirty_seconds(seed, 0.0, true);
         let frame = frame_of(FRAMES[seed as usize % 3]);
-        let (mean, p95, max) = stats(errors_after_calibration(&run(walking(frame), &motion), &motion));
-        assert!(mean < 3.0 && p95 < 6.5 && max < 9.0, "walking seed {seed}: {mean} {p95} {max}");
-        let (mean, p95, max) = stats(errors_after_calibration(&run(tpose(frame, 25.0), &motion), &motion));
-        assert!(mean < 3.5 && p95 < 7.0 && max < 10.0, "tpose seed {seed}: {mean} {p95} {max}");
+        let (mean, p95, max) = stats(errors_after_calibration(
+            &run(walking(frame), &motion),
+            &motion,
+        ));
+        assert!(
+            mean < 3.0 && p95 < 6.5 && max < 9.0,
+            "walking seed {seed}: {mean} {p95} {max}"
+        );
+        let (mean, p95, max) = stats(errors_after_calibration(
+            &run(tpose(frame, 25.0), &motion),
+            &motion,
+        ));
+        assert!(
+            mean < 3.5 && p95 < 7.0 && max < 10.0,
+            "tpose seed {seed}: {mean} {p95} {max}"
+        );
     }
 }
 
@@ -75,9 +100,18 @@ fn per_sensor_heading_offsets_defeat_a_tpose_but_not_walking() {
     for seed in 3..5 {
         let motion = thirty_seconds(seed, 40.0, true);
         let frame = frame_of(FRAMES[seed as usize % 3]);
-        let (walking_mean, _, walking_max) = stats(errors_after_calibration(&run(walking(frame), &motion), &motion));
-        assert!(walking_mean < 3.0 && walking_max < 9.0, "seed {seed}: {walking_mean} {walking_max}");
-        let (tpose_mean, _, _) = stats(errors_after_calibration(&run(tpose(frame, 25.0), &motion), &motion));
+        let (walking_mean, _, walking_max) = stats(errors_after_calibration(
+            &run(walking(frame), &motion),
+            &motion,
+        ));
+        assert!(
+            walking_mean < 3.0 && walking_max < 9.0,
+            "seed {seed}: {walking_mean} {walking_max}"
+        );
+        let (tpose_mean, _, _) = stats(errors_after_calibration(
+            &run(tpose(frame, 25.0), &motion),
+            &motion,
+        ));
         tpose_means.push(tpose_mean);
     }
     assert!(tpose_means.iter().all(|m| *m > 4.0), "{tpose_means:?}");

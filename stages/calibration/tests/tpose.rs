@@ -16,9 +16,14 @@ fn sb_errors(seed: u64, augment: bool) -> [f64; NUM_IMUS] {
     let heading = -150.0 + 37.0 * seed as f64;
     let motion = synthesize(short_clip(), p, setup(frame, heading, 0.0), augment, seed);
     let session = run(tpose(frame_of(frame), heading), &motion);
-    let at = session.calibrated_at().unwrap_or_else(|| panic!("seed {seed}: {:?}", session.events));
+    let at = session
+        .calibrated_at()
+        .unwrap_or_else(|| panic!("seed {seed}: {:?}", session.events));
     // Still once the 0.25 s stillness window has filled (frame 14), then held for 1.5 s (90 frames).
-    assert!((14 + 89..14 + 89 + 6).contains(&at), "calibrated at frame {at}");
+    assert!(
+        (14 + 89..14 + 89 + 6).contains(&at),
+        "calibrated at frame {at}"
+    );
     sensor_from_bone_errors_deg(&session, &motion, first_stand_mid(&p))
 }
 
@@ -58,20 +63,51 @@ fn an_n_pose_hold_works_with_pose_n() {
 
 #[test]
 fn a_wrong_frame_convention_is_rejected_by_the_gravity_check() {
-    let motion = synthesize(short_clip(), prelude(PreludeKind::Tpose), setup(SynthFrame::ZUp, 0.0, 0.0), false, 1);
+    let motion = synthesize(
+        short_clip(),
+        prelude(PreludeKind::Tpose),
+        setup(SynthFrame::ZUp, 0.0, 0.0),
+        false,
+        1,
+    );
     let session = run(tpose(frame_of(SynthFrame::ZDown), 0.0), &motion);
     assert!(session.calibrated_at().is_none());
-    let Some((_, Event::Rejected { reason: Rejection::GravityMismatch { angle_deg, frame, .. }, .. })) = session.events.first() else {
+    let Some((
+        _,
+        Event::Rejected {
+            reason: Rejection::GravityMismatch {
+                angle_deg, frame, ..
+            },
+            ..
+        },
+    )) = session.events.first()
+    else {
         panic!("{:?}", session.events);
     };
-    assert!(*angle_deg > 170.0 && *frame == "z-down", "{angle_deg} {frame}");
-    let msg = session.calibrator.finish().expect_err("not calibrated").to_string();
-    assert!(msg.contains("is the inertial-frame convention right?"), "{msg}");
+    assert!(
+        *angle_deg > 170.0 && *frame == "z-down",
+        "{angle_deg} {frame}"
+    );
+    let msg = session
+        .calibrator
+        .finish()
+        .expect_err("not calibrated")
+        .to_string();
+    assert!(
+        msg.contains("is the inertial-frame convention right?"),
+        "{msg}"
+    );
 }
 
 #[test]
 fn an_accelerometer_offset_is_estimated_while_still_and_removed() {
-    let motion = synthesize(short_clip(), prelude(PreludeKind::Tpose), setup(SynthFrame::ZDown, 0.0, 0.0), false, 2);
+    let motion = synthesize(
+        short_clip(),
+        prelude(PreludeKind::Tpose),
+        setup(SynthFrame::ZDown, 0.0, 0.0),
+        false,
+        2,
+    );
     let bias = [0.3f32, -0.2, 0.25];
     let frames = (0..motion.len()).map(|i| {
         let mut f = motion.imu_frame(i).expect("frame");
@@ -83,7 +119,12 @@ fn an_accelerometer_offset_is_estimated_while_still_and_removed() {
     let session = run_frames(tpose(frame_of(SynthFrame::ZDown), 0.0), frames);
     let at = session.calibrated_at().expect("calibrated");
     let cal = session.calibrator.calibration().expect("calibrated");
-    assert!((cal.sensors[3].accel_offset_in_model_mps2.norm() - Vector3::from(bias.map(f64::from)).norm()).abs() < 1e-4);
+    assert!(
+        (cal.sensors[3].accel_offset_in_model_mps2.norm()
+            - Vector3::from(bias.map(f64::from)).norm())
+        .abs()
+            < 1e-4
+    );
     assert!(cal.sensors[2].accel_offset_in_model_mps2.norm() < 1e-4);
     // Still in the T-pose after calibrating: free acceleration ≈ 0 on the biased sensor too.
     let still = &session.outputs[at + 30];
@@ -99,5 +140,8 @@ fn an_accelerometer_offset_is_estimated_while_still_and_removed() {
     });
     let plain = run_frames(config, frames);
     let a = plain.outputs[at + 30].free_acceleration_mps2[3];
-    assert!((a.iter().map(|v| v * v).sum::<f32>().sqrt() - 0.3).abs() < 1e-3, "{a:?}");
-    }
+    assert!(
+        (a.iter().map(|v| v * v).sum::<f32>().sqrt() - 0.3).abs() < 1e-3,
+        "{a:?}"
+    );
+}

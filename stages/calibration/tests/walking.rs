@@ -20,7 +20,11 @@ fn errors(seed: u64, augment: bool) -> ([f64; NUM_IMUS], [f64; NUM_IMUS]) {
     let frame = FRAMES[seed as usize % 3];
     let motion = synthesize(short_clip(), p, setup(frame, 70.0, 45.0), augment, seed);
     let session = run(walking(frame_of(frame)), &motion);
-    assert!(session.calibrated_at().is_some(), "seed {seed}: {:?}", session.rejections());
+    assert!(
+        session.calibrated_at().is_some(),
+        "seed {seed}: {:?}",
+        session.rejections()
+    );
     (
         sensor_from_bone_errors_deg(&session, &motion, first_stand_mid(&p)),
         heading_errors_deg(&session, &motion),
@@ -33,7 +37,10 @@ fn without_noise_mountings_and_heading_offsets_are_recovered_exactly() {
         let (sb, heading) = errors(seed, false);
         // Only the finite-difference synthesis and f32 wire rounding separate these from the truth.
         assert!(max(sb) < 0.01, "seed {seed}: R_SB errors {sb:?}");
-        assert!(max(heading) < 0.01, "seed {seed}: heading errors {heading:?}");
+        assert!(
+            max(heading) < 0.01,
+            "seed {seed}: heading errors {heading:?}"
+        );
     }
 }
 
@@ -48,25 +55,41 @@ fn with_reference_noise_mountings_and_heading_offsets_are_within_tolerance() {
     for seed in 10..22 {
         let (sb, heading) = errors(seed, true);
         assert!(max(sb) < 4.5, "seed {seed}: R_SB errors {sb:?}");
-        assert!(max(heading) < 4.5, "seed {seed}: heading errors {heading:?}");
+        assert!(
+            max(heading) < 4.5,
+            "seed {seed}: heading errors {heading:?}"
+        );
         all_sb.extend(sb);
         all_heading.extend(heading);
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     assert!(mean(&all_sb) < 1.5, "mean R_SB error {}", mean(&all_sb));
-    assert!(mean(&all_heading) < 1.5, "mean heading error {}", mean(&all_heading));
+    assert!(
+        mean(&all_heading) < 1.5,
+        "mean heading error {}",
+        mean(&all_heading)
+    );
 }
 
 #[test]
 fn frames_are_flagged_calibrating_until_the_calibration_is_accepted() {
     let p = prelude(PreludeKind::Walk);
-    let motion = synthesize(short_clip(), p, setup(SynthFrame::ZUp, -30.0, 20.0), false, 5);
+    let motion = synthesize(
+        short_clip(),
+        p,
+        setup(SynthFrame::ZUp, -30.0, 20.0),
+        false,
+        5,
+    );
     let session = run(walking(frame_of(SynthFrame::ZUp)), &motion);
     let at = session.calibrated_at().expect("calibrated");
     // The second stand is detected `hold_s` (1.5 s) after it starts, so the prelude's 3 s stand
     // after the step is still going on.
     let stand_after_step = 1 + 180 + 72;
-    assert!((stand_after_step + 90..stand_after_step + 180).contains(&at), "at {at}");
+    assert!(
+        (stand_after_step + 90..stand_after_step + 180).contains(&at),
+        "at {at}"
+    );
     for (i, out) in session.outputs.iter().enumerate() {
         let calibrating = out.header.has(flags::CALIBRATING);
         assert_eq!(calibrating, i < at, "frame {i}");
@@ -87,7 +110,13 @@ fn frames_are_flagged_calibrating_until_the_calibration_is_accepted() {
 fn not_returning_to_the_start_pose_asks_for_a_redo() {
     let mut p = prelude(PreludeKind::Walk);
     p.turn_deg = 35.0;
-    let motion = synthesize(short_clip(), p, setup(SynthFrame::Model, 0.0, 10.0), true, 8);
+    let motion = synthesize(
+        short_clip(),
+        p,
+        setup(SynthFrame::Model, 0.0, 10.0),
+        true,
+        8,
+    );
     let session = run(walking(frame_of(SynthFrame::Model)), &motion);
     assert!(session.calibrated_at().is_none());
     let rejected: Vec<&Rejection> = session
@@ -105,8 +134,16 @@ fn not_returning_to_the_start_pose_asks_for_a_redo() {
     assert!((30.0..40.0).contains(angle_deg), "{angle_deg}");
     let err = session.calibrator.finish().expect_err("never calibrated");
     let msg = err.to_string();
-    assert!(msg.contains("walking") && msg.contains("turned") && msg.contains("same pose"), "{msg}");
-    assert!(session.outputs.iter().all(|o| o.header.has(flags::CALIBRATING)));
+    assert!(
+        msg.contains("walking") && msg.contains("turned") && msg.contains("same pose"),
+        "{msg}"
+    );
+    assert!(
+        session
+            .outputs
+            .iter()
+            .all(|o| o.header.has(flags::CALIBRATING))
+    );
 }
 
 #[test]
@@ -124,10 +161,20 @@ fn a_rejected_attempt_is_followed_by_a_good_one() {
         frame_time_s: 1.0 / RATE_HZ,
         poses: track.into_poses(),
     };
-    let motion = synthesize(clip, prelude(PreludeKind::None), setup(SynthFrame::ZDown, 120.0, 45.0), true, 9);
+    let motion = synthesize(
+        clip,
+        prelude(PreludeKind::None),
+        setup(SynthFrame::ZDown, 120.0, 45.0),
+        true,
+        9,
+    );
     let session = run(walking(frame_of(SynthFrame::ZDown)), &motion);
     assert_eq!(session.rejections().len(), 1, "{:?}", session.events);
-    assert!(session.rejections()[0].contains("turned"), "{:?}", session.rejections());
+    assert!(
+        session.rejections()[0].contains("turned"),
+        "{:?}",
+        session.rejections()
+    );
     let at = session.calibrated_at().expect("second attempt accepted");
     assert!(at > 1 + 180 + 72 + 180 + 72, "at {at}");
     // The relative headings and the mountings do not depend on which way the subject faced.
@@ -154,7 +201,13 @@ fn a_later_step_re_estimates_a_heading_that_drifted() {
         poses: track.into_poses(),
     };
     let frame = SynthFrame::ZUp;
-    let motion = synthesize(clip, prelude(PreludeKind::None), setup(frame, 10.0, 30.0), true, 11);
+    let motion = synthesize(
+        clip,
+        prelude(PreludeKind::None),
+        setup(frame, 10.0, 30.0),
+        true,
+        11,
+    );
     let drift_from = 1 + 180 + 72 + 120;
     let drift = 15f64.to_radians();
     let up_in_i = frame_of(frame).up_in_inertial();
@@ -167,7 +220,8 @@ fn a_later_step_re_estimates_a_heading_that_drifted() {
                 let q = f.orientation_wxyz[2].map(f64::from);
                 let r = imuflow_body::rotation::rotation_from_quat_wxyz(&q).expect("unit");
                 let turned = nalgebra::Rotation3::from_axis_angle(&up_in_i, drift) * r;
-                f.orientation_wxyz[2] = imuflow_body::rotation::quat_wxyz_from_rotation(&turned).map(|v| v as f32);
+                f.orientation_wxyz[2] =
+                    imuflow_body::rotation::quat_wxyz_from_rotation(&turned).map(|v| v as f32);
             }
             f
         });
@@ -179,7 +233,9 @@ fn a_later_step_re_estimates_a_heading_that_drifted() {
         .events
         .iter()
         .find_map(|(_, e)| match e {
-            Event::HeadingUpdated { corrections_rad, .. } => Some(*corrections_rad),
+            Event::HeadingUpdated {
+                corrections_rad, ..
+            } => Some(*corrections_rad),
             _ => None,
         })
         .unwrap_or_else(|| panic!("no heading update: {:?}", session.events));
@@ -199,5 +255,10 @@ fn a_later_step_re_estimates_a_heading_that_drifted() {
     assert!(with_update < 5.0, "{with_update}");
     assert!(without > 10.0, "{without}");
     // Sanity: the yaw about M's y used for ψ matches the drift's axis.
-    assert!((frame_of(frame).model_from_inertial(0.0) * up_in_i.into_inner() - Axis::Y.unit().into_inner()).norm() < 1e-12);
+    assert!(
+        (frame_of(frame).model_from_inertial(0.0) * up_in_i.into_inner()
+            - Axis::Y.unit().into_inner())
+        .norm()
+            < 1e-12
+    );
 }

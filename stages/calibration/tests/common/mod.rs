@@ -10,7 +10,9 @@ use imuflow_body::kinematics::{FkData, forward_kinematics};
 use imuflow_body::retarget::{MotionClip, RetargetOptions, SourceSkeleton, resample, retarget_bvh};
 use imuflow_body::rotation::{angle_between, rotation_from_quat_wxyz};
 use imuflow_body::{BodyModel, Imu, Pose};
-use imuflow_calibration::{Calibrator, CalibratorConfig, Event, InertialFrame, Method, NUM_IMUS, PELVIS};
+use imuflow_calibration::{
+    Calibrator, CalibratorConfig, Event, InertialFrame, Method, NUM_IMUS, PELVIS,
+};
 use imuflow_graph::frames::{BodyImuFrame, ImuFrame};
 use imuflow_imu_source::prelude::{PreludeKind, PreludeOptions};
 use imuflow_imu_source::synth::{self, Motion, Options, SensorSetup};
@@ -24,7 +26,8 @@ pub fn body() -> BodyModel {
 
 /// The committed walking fixture (1.6 s) at 60 Hz.
 pub fn fixture_clip(body: &BodyModel) -> MotionClip {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../body/tests/fixtures/bandai-walk-normal-trimmed.bvh");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../body/tests/fixtures/bandai-walk-normal-trimmed.bvh");
     let bvh = Bvh::read(&path).expect("fixture");
     let source = SourceSkeleton::bandai_namco().expect("mapping");
     let clip = retarget_bvh(&bvh, &source, body, &RetargetOptions::default()).expect("retarget");
@@ -37,7 +40,12 @@ pub fn ping_pong(clip: &MotionClip, secs: f64) -> MotionClip {
     let n = clip.poses.len();
     let want = (secs * RATE_HZ) as usize;
     let cycle: Vec<usize> = (0..n).chain((1..n - 1).rev()).collect();
-    let poses = cycle.iter().cycle().take(want).map(|&i| clip.poses[i].clone()).collect();
+    let poses = cycle
+        .iter()
+        .cycle()
+        .take(want)
+        .map(|&i| clip.poses[i].clone())
+        .collect();
     MotionClip {
         frame_time_s: clip.frame_time_s,
         poses,
@@ -62,7 +70,13 @@ pub fn setup(frame: synth::InertialFrame, heading_deg: f64, offset_deg: f64) -> 
 }
 
 /// Synthesizes `clip` (with a prelude) on the reference body.
-pub fn synthesize(clip: MotionClip, prelude: PreludeOptions, sensors: SensorSetup, augment: bool, seed: u64) -> Motion {
+pub fn synthesize(
+    clip: MotionClip,
+    prelude: PreludeOptions,
+    sensors: SensorSetup,
+    augment: bool,
+    seed: u64,
+) -> Motion {
     let options = Options {
         prelude,
         sensors,
@@ -110,7 +124,10 @@ pub struct Session {
 impl Session {
     /// Index of the frame at which the calibration was (first) accepted.
     pub fn calibrated_at(&self) -> Option<usize> {
-        self.events.iter().find(|(_, e)| matches!(e, Event::Calibrated { .. })).map(|(i, _)| *i)
+        self.events
+            .iter()
+            .find(|(_, e)| matches!(e, Event::Calibrated { .. }))
+            .map(|(i, _)| *i)
     }
 
     pub fn rejections(&self) -> Vec<String> {
@@ -143,7 +160,10 @@ pub fn run_frames(config: CalibratorConfig, frames: impl IntoIterator<Item = Imu
 }
 
 pub fn run(config: CalibratorConfig, motion: &Motion) -> Session {
-    run_frames(config, (0..motion.len()).map(|i| motion.imu_frame(i).expect("frame")))
+    run_frames(
+        config,
+        (0..motion.len()).map(|i| motion.imu_frame(i).expect("frame")),
+    )
 }
 
 /// True `R_MB` of every IMU's bone at frame `t`.
@@ -155,7 +175,11 @@ pub fn true_bones(body: &BodyModel, pose: &Pose) -> [Rotation3<f64>; NUM_IMUS] {
 
 /// The true `R_SB` at frame `t`: the random mounting composed with the synthesized sensor's own
 /// (the augmentation's mounting error, as the sensor reports it at `t`).
-pub fn true_sensor_from_bone(motion: &Motion, body: &BodyModel, t: usize) -> [Rotation3<f64>; NUM_IMUS] {
+pub fn true_sensor_from_bone(
+    motion: &Motion,
+    body: &BodyModel,
+    t: usize,
+) -> [Rotation3<f64>; NUM_IMUS] {
     let bones = true_bones(body, &motion.clip.poses[t]);
     std::array::from_fn(|k| {
         let ideal_from_bone = motion.imus[t][k].model_from_sensor.transpose() * bones[k];
@@ -182,7 +206,11 @@ pub fn bone_error_deg(out: &BodyImuFrame, truth: &[Rotation3<f64>; NUM_IMUS], k:
 }
 
 /// Per-sensor errors (deg) of the recovered `R_SB` against the truth at frame `t`.
-pub fn sensor_from_bone_errors_deg(session: &Session, motion: &Motion, t: usize) -> [f64; NUM_IMUS] {
+pub fn sensor_from_bone_errors_deg(
+    session: &Session,
+    motion: &Motion,
+    t: usize,
+) -> [f64; NUM_IMUS] {
     let truth = true_sensor_from_bone(motion, &body(), t);
     let cal = session.calibrator.calibration().expect("calibrated");
     std::array::from_fn(|k| angle_between(&cal.sensors[k].sensor_from_bone, &truth[k]).to_degrees())
@@ -192,7 +220,11 @@ pub fn sensor_from_bone_errors_deg(session: &Session, motion: &Motion, t: usize)
 pub fn heading_errors_deg(session: &Session, motion: &Motion) -> [f64; NUM_IMUS] {
     let truth = true_heading_corrections(motion);
     let cal = session.calibrator.calibration().expect("calibrated");
-    std::array::from_fn(|k| wrap(cal.sensors[k].heading_correction_rad - truth[k]).abs().to_degrees())
+    std::array::from_fn(|k| {
+        wrap(cal.sensors[k].heading_correction_rad - truth[k])
+            .abs()
+            .to_degrees()
+    })
 }
 
 pub fn max(values: impl IntoIterator<Item = f64>) -> f64 {
