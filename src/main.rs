@@ -2,6 +2,7 @@
 
 mod bench;
 mod registry;
+mod kinematics_cmd;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -63,6 +64,12 @@ enum Command {
     /// Training data: motion files to synthetic-IMU shards.
     #[command(subcommand)]
     Dataset(DatasetCommand),
+    /// Train a method's kinematics networks on the dataset shards (CPU, resumable).
+    Train(kinematics_cmd::TrainArgs),
+    /// Score the kinematics nets on the dataset's test split (SIP, angle, joint position error, jitter).
+    Eval(kinematics_cmd::EvalArgs),
+    /// Convert the authors' PyTorch checkpoint (PIP or GlobalPose) to an imuflow weight file.
+    ImportCheckpoint(kinematics_cmd::ImportArgs),
 }
 
 #[derive(Subcommand)]
@@ -175,6 +182,27 @@ fn main() -> ExitCode {
         }
         Command::Clean => clean(),
         Command::Dataset(cmd) => dataset(cmd),
+        Command::ImportCheckpoint(args) => match kinematics_cmd::import(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
+        Command::Eval(args) => match kinematics_cmd::eval(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
+        Command::Train(args) => match kinematics_cmd::run(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
         Command::Bench(cmd) => match bench::run(cmd) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {

@@ -14,6 +14,7 @@ fn specs() -> Vec<StageSpec> {
         imuflow_recorder::SPEC,
         imuflow_rerun_logger::SPEC,
         imuflow_imu_source::SPEC,
+        imuflow_kinematics::SPEC,
         bench::SOURCE_SPEC,
         bench::RELAY_SPEC,
     ]
@@ -30,6 +31,7 @@ pub fn run_stage(kind: &str) -> anyhow::Result<()> {
         k if k == imuflow_imu_source::SPEC.kind => imuflow_imu_source::run(),
         k if k == imuflow_recorder::SPEC.kind => imuflow_recorder::run(),
         k if k == imuflow_rerun_logger::SPEC.kind => imuflow_rerun_logger::run(),
+        k if k == imuflow_kinematics::SPEC.kind => imuflow_kinematics::run(),
         k if k == bench::SOURCE_SPEC.kind => bench::run_source(),
         k if k == bench::RELAY_SPEC.kind => bench::run_relay(),
         other => bail!("unknown stage kind '{other}' (see `imuflow stage --list`)"),

@@ -1,1 +1,24 @@
-//! The kinematics stage (work in progress).
+//! imuflow-kinematics: the PIP (CVPR 2022) and GlobalPose (SIGGRAPH 2025) networks in candle, their
+//! trainer, checkpoint import, and the `kinematics` stage. See `README.md` in this crate.
+//!
+//! - [`net`]: the recurrent block (articulate `RNN`/`RNNWithInit`) with PyTorch's parameter names.
+//! - [`method`]: each method's line-up of nets and their sizes.
+//! - [`features`]: per-frame network inputs (the two methods normalize differently).
+//! - [`weights`]: weight files (safetensors + metadata), loading with shape checks.
+//! - [`data`], [`train`]: training data from the dataset shards, and `imuflow train`.
+
+pub mod data;
+pub mod error;
+pub mod eval;
+pub mod features;
+pub mod import;
+pub mod infer;
+pub mod method;
+pub mod net;
+pub mod stage;
+pub mod train;
+pub mod weights;
+
+pub use error::WeightsError;
+pub use method::Method;
+pub use stage::{SPEC, run};

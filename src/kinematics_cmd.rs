@@ -1,0 +1,171 @@
+//! `imuflow train` and `imuflow eval`: the kinematics nets' command lines (the work is in
+//! imuflow-kinematics).
+
+use std::path::PathBuf;
+
+use clap::Args;
+use imuflow_kinematics::Method;
+use imuflow_kinematics::eval::{Copies, evaluate, table};
+use imuflow_kinematics::train::{TrainOptions, train};
+
+/// Options of `imuflow train`.
+#[derive(Args)]
+pub struct TrainArgs {
+    /// Which networks: pip or globalpose.
+    #[arg(long, value_parser = parse_method)]
+    method: Method,
+    /// The dataset folder (`imuflow dataset build --out`).
+    #[arg(long, value_name = "DIR")]
+    data: PathBuf,
+    /// Where the best weights go (safetensors with metadata).
+    #[arg(long, short, value_name = "FILE")]
+    out: PathBuf,
+    /// Checkpoints and the loss log (loss.csv); a run resumes from here. Keep it outside the repository.
+    #[arg(long, value_name = "DIR")]
+    checkpoint_dir: PathBuf,
+    /// LSTM hidden size of every net (PIP's contact net uses a quarter). Papers: PIP 256, GlobalPose 512.
+    #[arg(long, default_value_t = 128)]
+    hidden: usize,
+    /// LSTM layers. Papers: PIP 2, GlobalPose 3.
+    #[arg(long, default_value_t = 2)]
+    layers: usize,
+    /// Epochs (passes over the training chunks).
+    #[arg(long, default_value_t = 20)]
+    epochs: usize,
+    /// Sequence chunks per batch.
+    #[arg(long, default_value_t = 32)]
+    batch: usize,
+    /// Frames per chunk (at least 27, the longest block of the cumulative velocity loss).
+    #[arg(long, default_value_t = 162)]
+    chunk: usize,
+    /// Adam learning rate.
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    /// Dropout after the input layer and between LSTM layers while training (articulate uses 0.4 at
+    /// the papers' sizes).
+    #[arg(long, default_value_t = 0.1)]
+    dropout: f32,
+    /// Clip the global gradient norm to this.
+    #[arg(long, default_value_t = 1.0)]
+    clip_norm: f64,
+    /// Use at most this many training frames (the first shards).
+    #[arg(long, default_value_t = usize::MAX)]
+    max_train_frames: usize,
+    /// Use at most this many validation frames.
+    #[arg(long, default_value_t = 200_000)]
+    max_val_frames: usize,
+    /// Stop (checkpointed, resumable) after this many minutes of training in total.
+    #[arg(long, default_value_t = f64::INFINITY)]
+    max_minutes: f64,
+    /// Seed of chunking and input noise.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Don't show progress bars.
+    #[arg(long)]
+    no_progress: bool,
+}
+
+fn parse_method(text: &str) -> Result<Method, String> {
+    Method::parse(text).ok_or_else(|| format!("unknown method '{text}' (pip or globalpose)"))
+}
+
+pub fn run(args: TrainArgs) -> anyhow::Result<()> {
+    let options = TrainOptions {
+        method: args.method,
+        data: args.data,
+        out: args.out,
+        checkpoint_dir: args.checkpoint_dir,
+        hidden: args.hidden,
+        layers: args.layers,
+        epochs: args.epochs,
+        batch: args.batch,
+        chunk: args.chunk,
+        lr: args.lr,
+        dropout: args.dropout,
+        clip_norm: args.clip_norm,
+        max_train_frames: args.max_train_frames,
+        max_val_frames: args.max_val_frames,
+        max_minutes: args.max_minutes,
+        seed: args.seed,
+        progress: !args.no_progress,
+    };
+    train(&options)?;
+    Ok(())
+}
+
+/// Options of `imuflow eval`.
+#[derive(Args)]
+pub struct EvalArgs {
+    /// The dataset folder (`imuflow dataset build --out`); its test shards are used.
+    #[arg(long, value_name = "DIR")]
+    data: PathBuf,
+    /// PIP weights ("none" to skip).
+    #[arg(long, value_name = "FILE", default_value = "models/pip.safetensors")]
+    pip: String,
+    /// GlobalPose weights ("none" to skip).
+    #[arg(long, value_name = "FILE", default_value = "models/globalpose.safetensors")]
+    globalpose: String,
+    /// Which copies of each test clip: ideal, augmented (sensor noise and mounting errors) or all.
+    #[arg(long, default_value = "augmented", value_parser = ["ideal", "augmented", "all"])]
+    copies: String,
+    /// Evaluate at most this many sequences per method.
+    #[arg(long, default_value_t = usize::MAX)]
+    limit: usize,
+    /// Don't show progress bars.
+    #[arg(long)]
+    no_progress: bool,
+}
+
+pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
+    let copies = match args.copies.as_str() {
+        "ideal" => Copies::Ideal,
+        "all" => Copies::All,
+        _ => Copies::Augmented,
+    };
+    let mut rows = Vec::new();
+    for (method, weights) in [(Method::Pip, &args.pip), (Method::GlobalPose, &args.globalpose)] {
+        if weights == "none" {
+            continue;
+        }
+        let scores = evaluate(
+            method,
+            std::path::Path::new(weights),
+            &args.data,
+            copies,
+            args.limit,
+            !args.no_progress,
+        )?;
+        rows.push((method, scores));
+    }
+    println!(
+        "test split of {} ({} copies; reduced protocol, reference §6)",
+        args.data.display(),
+        args.copies
+    );
+    print!("{}", table(&rows));
+    Ok(())
+}
+
+/// Options of `imuflow import-checkpoint`.
+#[derive(Args)]
+pub struct ImportArgs {
+    /// Which networks the checkpoint holds: pip or globalpose.
+    #[arg(long, value_parser = parse_method)]
+    method: Method,
+    /// The authors' PyTorch checkpoint (`torch.save(state_dict)`).
+    checkpoint: PathBuf,
+    /// The weight file to write.
+    #[arg(long, short, value_name = "FILE")]
+    out: PathBuf,
+}
+
+pub fn import(args: ImportArgs) -> anyhow::Result<()> {
+    imuflow_kinematics::import::import_checkpoint(args.method, &args.checkpoint, &args.out)?;
+    println!(
+        "wrote {} ({} networks from {})",
+        args.out.display(),
+        args.method.name(),
+        args.checkpoint.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,426 @@
+//! Training data: the dataset shards (`imuflow dataset build`, tools/dataset/README.md) turned into the
+//! per-frame arrays each method's nets read and predict.
+//!
+//! Every array is `[F, dim]` row-major f32 over all frames of all sequences of a split. Root-relative
+//! quantities use the **true** root orientation (the pose's joint 0) for targets, and the IMU's root
+//! orientation for network inputs, as at inference.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use imuflow_body::kinematics::{FkData, forward_kinematics, imu_positions_in_world};
+use imuflow_body::skeleton::{CONTACT_JOINTS, FULL_JOINTS, LEAF_JOINTS, REDUCED_JOINTS};
+use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
+use nalgebra::{Rotation3, Vector3};
+use safetensors::SafeTensors;
+
+use crate::features::{
+    GLOBALPOSE_INPUT, ImuInput, Mat3, PIP_INPUT, ROOT_IMU, globalpose_input, mul, pip_input,
+    rt_mul, rt_mul_vec,
+};
+use crate::method::Method;
+
+/// Frame rate of the shards and the networks (reference §0).
+pub const FPS: f32 = 60.0;
+/// A foot (or stationary joint) moving less than this between frames is in contact (TransPose paper
+/// §4.3: u = 0.008 m per 60 Hz frame).
+pub const CONTACT_THRESHOLD_M: f32 = 0.008;
+/// PIP's joint velocities are predicted divided by this (reference §2.2, `vel_scale = 3`).
+pub const PIP_VELOCITY_SCALE: f32 = 3.0;
+
+/// One derived quantity for every frame.
+#[derive(Clone, Debug, Default)]
+pub struct Array {
+    pub dim: usize,
+    pub data: Vec<f32>,
+}
+
+impl Array {
+    fn new(dim: usize) -> Array {
+        Array {
+            dim,
+            data: Vec::new(),
+        }
+    }
+
+    pub fn row(&self, frame: usize) -> &[f32] {
+        &self.data[frame * self.dim..(frame + 1) * self.dim]
+    }
+}
+
+/// A split's frames for one method.
+#[derive(Debug, Default)]
+pub struct TrainSet {
+    pub frames: usize,
+    /// `(first frame, length)` of each sequence.
+    pub sequences: Vec<(usize, usize)>,
+    pub arrays: BTreeMap<&'static str, Array>,
+    /// The shards' metadata (`imuflow` key), for the weights' provenance.
+    pub shard_metadata: Vec<serde_json::Value>,
+}
+
+impl TrainSet {
+    pub fn array(&self, name: &str) -> anyhow::Result<&Array> {
+        self.arrays
+            .get(name)
+            .with_context(|| format!("training data has no array '{name}'"))
+    }
+}
+
+/// The shard files of `split` in `dir`, in order.
+pub fn shard_files(dir: &Path, split: &str) -> anyhow::Result<Vec<PathBuf>> {
+    let entries =
+        std::fs::read_dir(dir).with_context(|| format!("reading dataset folder {}", dir.display()))?;
+    let mut files: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with(&format!("{split}-")) && n.ends_with(".safetensors"))
+        })
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        bail!(
+            "no {split}-NNNN.safetensors shards in {} (build them with `imuflow dataset build`)",
+            dir.display()
+        );
+    }
+    Ok(files)
+}
+
+/// Load `split` of the dataset in `dir` for `method`, stopping after about `max_frames` frames.
+pub fn load_split(
+    dir: &Path,
+    split: &str,
+    method: Method,
+    max_frames: usize,
+    mut progress: impl FnMut(usize, usize),
+) -> anyhow::Result<TrainSet> {
+    let files = shard_files(dir, split)?;
+    let mut set = TrainSet::default();
+    let mut builder = Builder::new(method)?;
+    for (i, file) in files.iter().enumerate() {
+        progress(i, files.len());
+        let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
+        let shard = Shard::parse(&bytes).with_context(|| format!("shard {}", file.display()))?;
+        if let Some(meta) = shard.metadata.clone() {
+            set.shard_metadata.push(meta);
+        }
+        for s in 0..shard.offsets.len() - 1 {
+            let (a, b) = (shard.offsets[s], shard.offsets[s + 1]);
+            if b - a < 2 {
+                continue;
+            }
+            set.sequences.push((set.frames, b - a));
+            builder.push_sequence(&shard, a, b)?;
+            set.frames += b - a;
+        }
+        if set.frames >= max_frames {
+            break;
+        }
+    }
+    progress(files.len(), files.len());
+    set.arrays = builder.arrays;
+    Ok(set)
+}
+
+pub(crate) struct Shard<'a> {
+    orientation: Vec<f32>,
+    accel: Vec<f32>,
+    gyro: Vec<f32>,
+    pose: Vec<f32>,
+    root: Vec<f32>,
+    joints: Vec<f32>,
+    pub(crate) offsets: Vec<usize>,
+    pub(crate) metadata: Option<serde_json::Value>,
+    _bytes: std::marker::PhantomData<&'a [u8]>,
+}
+
+impl<'a> Shard<'a> {
+    pub(crate) fn parse(bytes: &'a [u8]) -> anyhow::Result<Shard<'a>> {
+        let (_, header) = SafeTensors::read_metadata(bytes).context("safetensors header")?;
+        let metadata = header
+            .metadata()
+            .as_ref()
+            .and_then(|m| m.get("imuflow"))
+            .and_then(|s| serde_json::from_str(s).ok());
+        let st = SafeTensors::deserialize(bytes).context("safetensors")?;
+        let f32s = |name: &str, per_frame: usize| -> anyhow::Result<Vec<f32>> {
+            let t = st
+                .tensor(name)
+                .with_context(|| format!("tensor '{name}' missing"))?;
+            if t.dtype() != safetensors::Dtype::F32 {
+                bail!("tensor '{name}' is {:?}, expected F32", t.dtype());
+            }
+            let n: usize = t.shape()[1..].iter().product();
+            if n != per_frame {
+                bail!("tensor '{name}' has shape {:?}", t.shape());
+            }
+            Ok(t.data()
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect())
+        };
+        let offsets_t = st.tensor("clip_offsets").context("tensor 'clip_offsets'")?;
+        let offsets: Vec<usize> = offsets_t
+            .data()
+            .chunks_exact(8)
+            .map(|c| {
+                i64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]).max(0) as usize
+            })
+            .collect();
+        let shard = Shard {
+            orientation: f32s("imu_orientation", 54)?,
+            accel: f32s("imu_free_accel", 18)?,
+            gyro: f32s("imu_angular_velocity", 18)?,
+            pose: f32s("pose_local", 216)?,
+            root: f32s("root_position", 3)?,
+            joints: f32s("joint_position", 72)?,
+            offsets,
+            metadata,
+            _bytes: std::marker::PhantomData,
+        };
+        let frames = shard.root.len() / 3;
+        if shard.offsets.first() != Some(&0) || shard.offsets.last() != Some(&frames) {
+            bail!("clip_offsets do not span the shard's {frames} frames");
+        }
+        Ok(shard)
+    }
+
+    pub(crate) fn imu(&self, f: usize) -> ImuInput {
+        let mut imu = ImuInput::default();
+        for i in 0..6 {
+            let o = f * 54 + i * 9;
+            imu.orientation[i].copy_from_slice(&self.orientation[o..o + 9]);
+            let v = f * 18 + i * 3;
+            imu.acceleration[i].copy_from_slice(&self.accel[v..v + 3]);
+            imu.angular_velocity[i].copy_from_slice(&self.gyro[v..v + 3]);
+        }
+        imu
+    }
+
+    fn local(&self, f: usize, j: usize) -> Mat3 {
+        let o = f * 216 + j * 9;
+        let mut m = [0.0; 9];
+        m.copy_from_slice(&self.pose[o..o + 9]);
+        m
+    }
+
+    fn joint(&self, f: usize, j: usize) -> [f32; 3] {
+        let o = f * 72 + j * 3;
+        [self.joints[o], self.joints[o + 1], self.joints[o + 2]]
+    }
+
+    /// Global joint rotations (true pose).
+    fn globals(&self, f: usize) -> [Mat3; NUM_JOINTS] {
+        let mut g = [[0.0; 9]; NUM_JOINTS];
+        for joint in JointId::all() {
+            let j = joint.index();
+            g[j] = match joint.parent() {
+                None => self.local(f, j),
+                Some(p) => mul(&g[p.index()], &self.local(f, j)),
+            };
+        }
+        g
+    }
+}
+
+struct Builder {
+    method: Method,
+    body: BodyModel,
+    arrays: BTreeMap<&'static str, Array>,
+}
+
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// First two columns of a row-major rotation: [R00, R10, R20, R01, R11, R21] (reference §0).
+pub fn r6d(m: &Mat3) -> [f32; 6] {
+    [m[0], m[3], m[6], m[1], m[4], m[7]]
+}
+
+/// Rotation taking unit vector `a` onto unit vector `b` (row-major), the shortest arc.
+pub fn from_to(a: [f32; 3], b: [f32; 3]) -> Mat3 {
+    let ra = Vector3::new(a[0] as f64, a[1] as f64, a[2] as f64);
+    let rb = Vector3::new(b[0] as f64, b[1] as f64, b[2] as f64);
+    let r = Rotation3::rotation_between(&ra, &rb).unwrap_or_else(|| {
+        // Opposite vectors: half a turn about any perpendicular axis.
+        let axis = ra.cross(&Vector3::x()).try_normalize(1e-9).unwrap_or(Vector3::z());
+        Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), std::f64::consts::PI)
+    });
+    let m = r.matrix();
+    let mut out = [0.0; 9];
+    for rr in 0..3 {
+        for c in 0..3 {
+            out[rr * 3 + c] = m[(rr, c)] as f32;
+        }
+    }
+    out
+}
+
+impl Builder {
+    fn new(method: Method) -> anyhow::Result<Builder> {
+        let params = BodyParams::builtin().context("built-in body model")?;
+        // The dataset builder's subject (tools/dataset/README.md: 1.75 m, 70 kg).
+        let body = BodyModel::new(&params, 1.75, 70.0).context("body model")?;
+        let dims: &[(&'static str, usize)] = match method {
+            Method::Pip => &[
+                ("imu", PIP_INPUT),
+                ("leaf", 15),
+                ("full", 69),
+                ("r6d", 90),
+                ("vel", 72),
+                ("contact", 2),
+            ],
+            Method::GlobalPose => &[
+                ("gp_imu", GLOBALPOSE_INPUT),
+                ("pl", 18),
+                ("prb", 15),
+                ("grav", 3),
+                ("rrb_true", 45),
+                ("ik1", 72),
+                ("full", 69),
+                ("r6d", 90),
+                ("rrj", 135),
+                ("arb_true", 18),
+                ("wrb_true", 18),
+                ("vr", 9),
+            ],
+        };
+        let arrays = dims.iter().map(|&(n, d)| (n, Array::new(d))).collect();
+        Ok(Builder {
+            method,
+            body,
+            arrays,
+        })
+    }
+
+    fn put(&mut self, name: &'static str, values: &[f32]) {
+        let a = self.arrays.get_mut(name).expect("array declared in Builder::new");
+        debug_assert_eq!(values.len(), a.dim, "{name}");
+        a.data.extend_from_slice(values);
+    }
+
+    fn push_sequence(&mut self, shard: &Shard, start: usize, end: usize) -> anyhow::Result<()> {
+        let mut fk = FkData::new();
+        let mut imu_pos = [Vector3::zeros(); 6];
+        for f in start..end {
+            let g = shard.globals(f);
+            let root = g[0];
+            let p_root = shard.joint(f, 0);
+            let rel = |j: usize| rt_mul_vec(&root, &sub(shard.joint(f, j), p_root));
+            // Finite differences within the sequence: frame `start` uses the first step forward.
+            let (fa, fb) = if f == start { (f, f + 1) } else { (f - 1, f) };
+            let world_vel = |j: usize| {
+                let d = sub(shard.joint(fb, j), shard.joint(fa, j));
+                [d[0] * FPS, d[1] * FPS, d[2] * FPS]
+            };
+            let still = |j: usize| {
+                let d = sub(shard.joint(fb, j), shard.joint(fa, j));
+                let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                if n < CONTACT_THRESHOLD_M { 1.0 } else { 0.0 }
+            };
+            let imu = shard.imu(f);
+            let full: Vec<f32> = FULL_JOINTS.iter().flat_map(|j| rel(j.index())).collect();
+            let r6: Vec<f32> = REDUCED_JOINTS
+                .iter()
+                .flat_map(|j| r6d(&rt_mul(&root, &g[j.index()])))
+                .collect();
+            match self.method {
+                Method::Pip => {
+                    let mut x = [0.0; PIP_INPUT];
+                    pip_input(&imu, &mut x);
+                    self.put("imu", &x);
+                    let leaf: Vec<f32> = LEAF_JOINTS.iter().flat_map(|j| rel(j.index())).collect();
+                    self.put("leaf", &leaf);
+                    self.put("full", &full);
+                    self.put("r6d", &r6);
+                    let vel: Vec<f32> = (0..NUM_JOINTS)
+                        .flat_map(|j| {
+                            rt_mul_vec(&root, &world_vel(j)).map(|v| v / PIP_VELOCITY_SCALE)
+                        })
+                        .collect();
+                    self.put("vel", &vel);
+                    self.put(
+                        "contact",
+                        &[
+                            still(JointId::LEFT_FOOT.index()),
+                            still(JointId::RIGHT_FOOT.index()),
+                        ],
+                    );
+                }
+                Method::GlobalPose => {
+                    let mut x = [0.0; GLOBALPOSE_INPUT];
+                    globalpose_input(&imu, &mut x);
+                    self.put("gp_imu", &x);
+                    // True down-vector in the true root frame: the gravity target (reference §2.4).
+                    let g_true = [-root[3], -root[4], -root[5]];
+                    // IMU positions from the true pose on the dataset's body model.
+                    let pose = pose_of(shard, f);
+                    forward_kinematics(&self.body.skeleton, &pose, &mut fk);
+                    imu_positions_in_world(&self.body, &fk, &mut imu_pos);
+                    let p5 = imu_pos[ROOT_IMU];
+                    let prb: Vec<f32> = (0..5)
+                        .flat_map(|i| {
+                            let d = imu_pos[i] - p5;
+                            rt_mul_vec(&root, &[d.x as f32, d.y as f32, d.z as f32])
+                        })
+                        .collect();
+                    self.put("prb", &prb);
+                    let mut pl = prb.clone();
+                    pl.extend_from_slice(&g_true);
+                    self.put("pl", &pl);
+                    self.put("grav", &g_true);
+                    // IMU-relative orientations, tilt-corrected onto the true gravity as PL's refined
+                    // gravity would do (reference §2.4: RRB ← FromTo(gR0 → gR1)·RRB).
+                    let r_imu = imu.orientation[ROOT_IMU];
+                    let g0 = [-r_imu[3], -r_imu[4], -r_imu[5]];
+                    let tilt = from_to(g0, g_true);
+                    let rrb: Vec<f32> = (0..5)
+                        .flat_map(|i| mul(&tilt, &rt_mul(&r_imu, &imu.orientation[i])))
+                        .collect();
+                    self.put("rrb_true", &rrb);
+                    let mut ik1 = full.clone();
+                    ik1.extend_from_slice(&g_true);
+                    self.put("ik1", &ik1);
+                    self.put("full", &full);
+                    self.put("r6d", &r6);
+                    let rrj: Vec<f32> = REDUCED_JOINTS
+                        .iter()
+                        .flat_map(|j| rt_mul(&root, &g[j.index()]))
+                        .collect();
+                    self.put("rrj", &rrj);
+                    let arb: Vec<f32> =
+                        (0..6).flat_map(|i| rt_mul_vec(&root, &imu.acceleration[i])).collect();
+                    let wrb: Vec<f32> = (0..6)
+                        .flat_map(|i| rt_mul_vec(&root, &imu.angular_velocity[i]))
+                        .collect();
+                    self.put("arb_true", &arb);
+                    self.put("wrb_true", &wrb);
+                    // OV target (reference §2.4): world vertical root speed, horizontal root velocity
+                    // in the root frame, stationary labels of the contact joints.
+                    let v = world_vel(0);
+                    let vh = rt_mul_vec(&root, &[v[0], 0.0, v[2]]);
+                    let mut vr = vec![v[1], vh[0], vh[1], vh[2]];
+                    vr.extend(CONTACT_JOINTS.iter().map(|j| still(j.index())));
+                    self.put("vr", &vr);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+pub(crate) fn pose_of(shard: &Shard, f: usize) -> Pose {
+    let root = shard.root[f * 3..f * 3 + 3].iter().map(|&v| v as f64).collect::<Vec<_>>();
+    let mut pose = Pose::t_pose(Vector3::new(root[0], root[1], root[2]));
+    for j in 0..NUM_JOINTS {
+        let m = shard.local(f, j);
+        let mat = nalgebra::Matrix3::from_row_slice(&m.map(|v| v as f64));
+        pose.parent_from_joint[j] = Rotation3::from_matrix_unchecked(mat);
+    }
+    pose
+}

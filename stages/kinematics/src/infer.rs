@@ -1,0 +1,329 @@
+//! Streaming inference: one step per frame with persistent LSTM states, for both methods.
+//!
+//! PIP (reference §2.2): x → rnn1 (leaf positions) → rnn2 (all joint positions) → rnn3 (reduced
+//! rotations) / rnn4 (joint velocities) / rnn5 (foot contacts), all in the root IMU's frame.
+//! GlobalPose (reference §2.4, paper Eq. 1-3): plnet (IMU positions + gravity) → iknet.net1 (joint
+//! positions + gravity) → iknet.net2 (reduced rotations) → root-orientation correction from the
+//! refined gravity → vrnet (root velocity, stationary probabilities).
+
+use candle_core::{Device, Tensor};
+use imuflow_body::kinematics::{FkData, forward_kinematics, imu_positions_in_world};
+use imuflow_body::rotation::{from_to, rotation_from_r6d};
+use imuflow_body::skeleton::{CONTACT_JOINTS, FULL_JOINTS, LEAF_JOINTS, REDUCED_JOINTS};
+use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
+use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
+
+use crate::data::PIP_VELOCITY_SCALE;
+use crate::features::{
+    GLOBALPOSE_INPUT, ImuInput, PIP_INPUT, ROOT_IMU, globalpose_input, pip_input,
+};
+use crate::method::Method;
+use crate::net::{LstmState, Rnn};
+use crate::weights::Weights;
+
+/// Gravity magnitude used for `gravity_in_root` (m/s², the body model's).
+const G: f64 = 9.81;
+
+/// What the nets estimate for one frame (the KinematicsFrame payload, f64).
+#[derive(Clone, Debug)]
+pub struct Estimate {
+    /// Local pose; joint 0 is the root's orientation in M.
+    pub pose: [Rotation3<f64>; NUM_JOINTS],
+    /// Joint positions relative to the root, M axes (m).
+    pub joint_position: [Vector3<f64>; NUM_JOINTS],
+    /// Joint velocities in M (m/s); zero where the method does not estimate them.
+    pub joint_velocity: [Vector3<f64>; NUM_JOINTS],
+    /// [left, right] foot contact probability.
+    pub foot_contact: [f64; 2],
+    /// [pelvis, left foot, right foot, left hand, right hand] stationary probability.
+    pub stationary: [f64; 5],
+    /// Root velocity in M (m/s).
+    pub root_velocity: Vector3<f64>,
+    /// Gravity in the (corrected) root frame (m/s²).
+    pub gravity_in_root: Vector3<f64>,
+}
+
+/// The pose a session starts from (the calibration pose).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StartPose {
+    /// Every joint at identity, arms out.
+    TPose,
+    /// Arms down along the body (GlobalPose's N-pose: shoulders turned ∓90° about M's z).
+    NPose,
+}
+
+impl StartPose {
+    pub fn pose(self) -> Pose {
+        let mut pose = Pose::t_pose(Vector3::zeros());
+        if self == StartPose::NPose {
+            // The N-pose references of the reference file §4 (IMU0 = Rz(−90°), IMU1 = Rz(+90°)) put
+            // the forearms down; turning the shoulders does that for the whole arm.
+            let z = Vector3::z_axis();
+            pose.parent_from_joint[JointId::LEFT_SHOULDER.index()] =
+                Rotation3::from_axis_angle(&z, -std::f64::consts::FRAC_PI_2);
+            pose.parent_from_joint[JointId::RIGHT_SHOULDER.index()] =
+                Rotation3::from_axis_angle(&z, std::f64::consts::FRAC_PI_2);
+        }
+        pose
+    }
+}
+
+/// One method's nets with their streaming state.
+pub struct Streamer {
+    method: Method,
+    nets: Vec<Rnn>,
+    states: Vec<LstmState>,
+    body: BodyModel,
+    fk: FkData,
+    /// The pose at the first frame (its root orientation is replaced by the root IMU's).
+    start: Pose,
+    started: bool,
+}
+
+fn tensor(values: &[f32]) -> candle_core::Result<Tensor> {
+    Tensor::from_slice(values, (1, values.len()), &Device::Cpu)
+}
+
+fn values(t: &Tensor) -> candle_core::Result<Vec<f32>> {
+    t.flatten_all()?.to_vec1()
+}
+
+fn v3(v: &[f32]) -> Vector3<f64> {
+    Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64)
+}
+
+fn rot(m: &[f32; 9]) -> Rotation3<f64> {
+    Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(&m.map(|v| v as f64)))
+}
+
+fn row_major(r: &Rotation3<f64>) -> [f32; 9] {
+    let m = r.matrix();
+    let mut out = [0.0; 9];
+    for i in 0..3 {
+        for j in 0..3 {
+            out[i * 3 + j] = m[(i, j)] as f32;
+        }
+    }
+    out
+}
+
+fn sigmoid(v: f32) -> f64 {
+    1.0 / (1.0 + (-(v as f64)).exp())
+}
+
+fn unit(v: Vector3<f64>) -> Unit<Vector3<f64>> {
+    Unit::try_new(v, 1e-9).unwrap_or(-Vector3::y_axis())
+}
+
+impl Streamer {
+    pub fn new(weights: Weights, start: Pose) -> anyhow::Result<Streamer> {
+        let params = BodyParams::builtin()?;
+        // The subject the training data was synthesized on (tools/dataset/README.md).
+        let body = BodyModel::new(&params, 1.75, 70.0)?;
+        let states = Vec::new();
+        Ok(Streamer {
+            method: weights.metadata.method,
+            nets: weights.nets,
+            states,
+            body,
+            fk: FkData::new(),
+            start,
+            started: false,
+        })
+    }
+
+    pub fn method(&self) -> Method {
+        self.method
+    }
+
+    /// Forget the state: the next frame starts a new session from the start pose.
+    pub fn reset(&mut self) {
+        self.started = false;
+    }
+
+    /// Start the next session (after [`Streamer::reset`]) from `pose`.
+    pub fn set_start(&mut self, pose: Pose) {
+        self.start = pose;
+        self.started = false;
+    }
+
+    /// Learned initial states from the start pose (reference §2.2, §2.4: PIP rnn1 from the leaf
+    /// positions with the root at identity, rnn4 from zero velocity; GlobalPose plnet from the IMU
+    /// positions and gravity in the root frame, vrnet from zero velocity and "stationary").
+    fn initialize(&mut self, root_orientation: &Rotation3<f64>) -> anyhow::Result<()> {
+        let mut pose = self.start.clone();
+        pose.parent_from_joint[0] = Rotation3::identity();
+        pose.root_in_world_m = Vector3::zeros();
+        forward_kinematics(&self.body.skeleton, &pose, &mut self.fk);
+        let rel = |fk: &FkData, j: JointId| (fk.position(j) - fk.position(JointId::ROOT)).cast::<f32>();
+        let mut inits: Vec<Option<Vec<f32>>> = vec![None; self.nets.len()];
+        match self.method {
+            Method::Pip => {
+                inits[0] = Some(LEAF_JOINTS.iter().flat_map(|&j| rel(&self.fk, j).data.0[0]).collect());
+                inits[3] = Some(vec![0.0; 72]);
+            }
+            Method::GlobalPose => {
+                pose.parent_from_joint[0] = *root_orientation;
+                forward_kinematics(&self.body.skeleton, &pose, &mut self.fk);
+                let mut imu = [Vector3::zeros(); 6];
+                imu_positions_in_world(&self.body, &self.fk, &mut imu);
+                let root_t = root_orientation.transpose();
+                let mut pl: Vec<f32> = (0..5)
+                    .flat_map(|i| (root_t * (imu[i] - imu[ROOT_IMU])).cast::<f32>().data.0[0])
+                    .collect();
+                let g = root_t * Vector3::new(0.0, -1.0, 0.0);
+                pl.extend(g.cast::<f32>().iter());
+                inits[0] = Some(pl);
+                // Training initializes vrnet from the chunk's first true frame; a subject standing
+                // still has zero velocity and every contact joint stationary.
+                inits[3] = Some(vec![0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0]);
+            }
+        }
+        self.states = self
+            .nets
+            .iter()
+            .zip(&inits)
+            .map(|(net, init)| {
+                let t = init.as_deref().map(tensor).transpose()?;
+                net.initial_state(1, t.as_ref())
+            })
+            .collect::<candle_core::Result<_>>()?;
+        self.started = true;
+        Ok(())
+    }
+
+    /// One frame.
+    pub fn step(&mut self, imu: &ImuInput) -> anyhow::Result<Estimate> {
+        let root = rot(&imu.orientation[ROOT_IMU]);
+        if !self.started {
+            self.initialize(&root)?;
+        }
+        match self.method {
+            Method::Pip => self.step_pip(imu, &root),
+            Method::GlobalPose => self.step_globalpose(imu, &root),
+        }
+    }
+
+    fn run(&mut self, net: usize, input: &[f32]) -> anyhow::Result<Vec<f32>> {
+        let y = self.nets[net].step(&tensor(input)?, &mut self.states[net])?;
+        Ok(values(&y)?)
+    }
+
+    fn step_pip(&mut self, imu: &ImuInput, root: &Rotation3<f64>) -> anyhow::Result<Estimate> {
+        let mut x = [0.0; PIP_INPUT];
+        pip_input(imu, &mut x);
+        let leaf = self.run(0, &x)?;
+        let full = self.run(1, &[leaf.as_slice(), &x].concat())?;
+        let full_x = [full.as_slice(), &x].concat();
+        let r6d = self.run(2, &full_x)?;
+        let vel = self.run(3, &full_x)?;
+        let contact = self.run(4, &full_x)?;
+        let pose = pose_from_reduced_r6d(&r6d, root);
+        let mut joint_position = [Vector3::zeros(); NUM_JOINTS];
+        for (k, j) in FULL_JOINTS.iter().enumerate() {
+            joint_position[j.index()] = root * v3(&full[3 * k..3 * k + 3]);
+        }
+        let mut joint_velocity = [Vector3::zeros(); NUM_JOINTS];
+        for (j, v) in joint_velocity.iter_mut().enumerate() {
+            // Reference §2.2: v_j = 3·R_root·out_j (m/s).
+            *v = root * v3(&vel[3 * j..3 * j + 3]) * PIP_VELOCITY_SCALE as f64;
+        }
+        let foot_contact = [sigmoid(contact[0]), sigmoid(contact[1])];
+        Ok(Estimate {
+            pose,
+            joint_position,
+            root_velocity: joint_velocity[0],
+            joint_velocity,
+            foot_contact,
+            stationary: [0.0, foot_contact[0], foot_contact[1], 0.0, 0.0],
+            gravity_in_root: root.transpose() * Vector3::new(0.0, -G, 0.0),
+        })
+    }
+
+    fn step_globalpose(&mut self, imu: &ImuInput, root: &Rotation3<f64>) -> anyhow::Result<Estimate> {
+        let mut x = [0.0; GLOBALPOSE_INPUT];
+        globalpose_input(imu, &mut x);
+        let g0 = unit(v3(&x[81..84]));
+        let pl = self.run(0, &x)?;
+        let g1 = unit(v3(&pl[15..18]));
+        // Tilt-correct the relative orientations onto each refined gravity (reference §2.4).
+        let rrb = |tilt: &Rotation3<f64>| -> Vec<f32> {
+            (0..5)
+                .flat_map(|i| row_major(&(tilt * rot(&x[36 + 9 * i..45 + 9 * i].try_into().unwrap_or([0.0; 9])))))
+                .collect()
+        };
+        let rrb1 = rrb(&from_to(&g0, &g1));
+        let ik1_in = [rrb1.as_slice(), &[g1.x as f32, g1.y as f32, g1.z as f32], &pl[..15]].concat();
+        let ik1 = self.run(1, &ik1_in)?;
+        let g2 = unit(v3(&ik1[69..72]));
+        let rrb2 = rrb(&(from_to(&g1, &g2) * from_to(&g0, &g1)));
+        let g2f = [g2.x as f32, g2.y as f32, g2.z as f32];
+        let r6d = self.run(2, &[rrb2.as_slice(), &g2f, &ik1[..69]].concat())?;
+        // Paper Eq. 1-3: the corrected root orientation R_root' = R_root·FromTo(gR2 → gR0).
+        let root_c = root * from_to(&g2, &g0);
+        let pose = pose_from_reduced_r6d(&r6d, &root_c);
+        // pRJ recomputed by FK of the pose with the root at identity (reference §2.4).
+        let mut local = Pose::t_pose(Vector3::zeros());
+        local.parent_from_joint = pose;
+        local.parent_from_joint[0] = Rotation3::identity();
+        forward_kinematics(&self.body.skeleton, &local, &mut self.fk);
+        let prj: Vec<f32> = FULL_JOINTS
+            .iter()
+            .flat_map(|&j| self.fk.position(j).cast::<f32>().data.0[0])
+            .collect();
+        let rrj: Vec<f32> = REDUCED_JOINTS
+            .iter()
+            .flat_map(|&j| row_major(self.fk.world_from(j)))
+            .collect();
+        let root_ct = root_c.transpose();
+        let arb: Vec<f32> = (0..6)
+            .flat_map(|i| (root_ct * v3(&imu.acceleration[i])).cast::<f32>().data.0[0])
+            .collect();
+        let wrb: Vec<f32> = (0..6)
+            .flat_map(|i| (root_ct * v3(&imu.angular_velocity[i])).cast::<f32>().data.0[0])
+            .collect();
+        let vr = self.run(3, &[rrj.as_slice(), &prj, &arb, &wrb, &g2f].concat())?;
+        // v = R_root'·v_H with its vertical component replaced by v_V (reference §2.4).
+        let mut root_velocity = root_c * v3(&vr[1..4]);
+        root_velocity.y = vr[0] as f64;
+        let mut stationary = [0.0; 5];
+        for (s, v) in stationary.iter_mut().zip(&vr[4..9]) {
+            *s = sigmoid(*v);
+        }
+        let mut joint_position = [Vector3::zeros(); NUM_JOINTS];
+        for (k, j) in FULL_JOINTS.iter().enumerate() {
+            joint_position[j.index()] = root_c * v3(&prj[3 * k..3 * k + 3]);
+        }
+        let mut joint_velocity = [Vector3::zeros(); NUM_JOINTS];
+        joint_velocity[0] = root_velocity;
+        let _ = CONTACT_JOINTS;
+        Ok(Estimate {
+            pose,
+            joint_position,
+            joint_velocity,
+            foot_contact: [stationary[1], stationary[2]],
+            stationary,
+            root_velocity,
+            gravity_in_root: g2.into_inner() * G,
+        })
+    }
+}
+
+/// Local pose from the 15 reduced joints' rotations in the root frame (6D each): ignored joints get
+/// identity, the root gets `root` (reference §2.1 "Pose assembly").
+pub fn pose_from_reduced_r6d(r6d: &[f32], root: &Rotation3<f64>) -> [Rotation3<f64>; NUM_JOINTS] {
+    let mut global = [Rotation3::identity(); NUM_JOINTS];
+    for (k, j) in REDUCED_JOINTS.iter().enumerate() {
+        let v: [f64; 6] = std::array::from_fn(|i| r6d[6 * k + i] as f64);
+        let r = rotation_from_r6d(&v);
+        // A degenerate output decodes to zero columns; keep the joint at identity instead.
+        global[j.index()] = if r.matrix().determinant() > 0.5 { r } else { Rotation3::identity() };
+    }
+    let mut local = [Rotation3::identity(); NUM_JOINTS];
+    for j in REDUCED_JOINTS {
+        let parent = j.parent().map_or(0, |p| p.index());
+        local[j.index()] = global[parent].transpose() * global[j.index()];
+    }
+    local[0] = *root;
+    local
+}

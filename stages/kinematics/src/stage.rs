@@ -1,0 +1,181 @@
+//! The `kinematics` stage: calibrated IMU frames in, the nets' estimate out, one step per frame.
+//!
+//! - Frames flagged CALIBRATING pass through as the start pose (flagged CALIBRATING | INVALID); the nets
+//!   start (learned initialization from the start pose) at the first calibrated frame.
+//! - A sensor without a valid sample holds its last valid one, and the output is flagged INVALID; before
+//!   any valid sample of a sensor the frame is not fed to the nets at all (the start pose goes out).
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use imuflow_graph::frames::{BodyImuFrame, KinematicsFrame, NUM_IMUS, flags};
+use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
+use imuflow_graph::stage::Params;
+use imuflow_graph::{FrameType, StageContext};
+use nalgebra::{Quaternion, Rotation3, UnitQuaternion};
+
+use crate::features::ImuInput;
+use crate::infer::{Estimate, StartPose, Streamer};
+use crate::method::Method;
+use crate::weights::Weights;
+
+pub const SPEC: StageSpec = StageSpec {
+    kind: "kinematics",
+    role: Role::Transform,
+    summary: "PIP or GlobalPose networks: calibrated IMUs to pose, joint positions/velocities, contacts, root velocity",
+    inputs: InputsSpec::Fixed(&[PortSpec {
+        name: "imu",
+        frame: FrameType::BodyImu,
+        required: true,
+        doc: "calibrated IMU frames (calibration stage)",
+    }]),
+    outputs: &[PortSpec {
+        name: "kinematics",
+        frame: FrameType::Kinematics,
+        required: false,
+        doc: "the networks' estimate per frame",
+    }],
+    params: &[
+        ParamSpec {
+            name: "net",
+            ty: ParamType::Choice(&["pip", "globalpose"]),
+            required: false,
+            default: "pip",
+            doc: "which paper's networks",
+        },
+        ParamSpec {
+            name: "weights",
+            ty: ParamType::Path,
+            required: false,
+            default: "models/<net>.safetensors",
+            doc: "weight file (safetensors from `imuflow train` or `imuflow import-checkpoint`)",
+        },
+        ParamSpec {
+            name: "start_pose",
+            ty: ParamType::Choice(&["tpose", "npose"]),
+            required: false,
+            default: "tpose for pip, npose for globalpose",
+            doc: "the pose the subject holds when calibration ends (initializes the networks' state)",
+        },
+    ],
+};
+
+/// Runs the kinematics stage as the current process's stage.
+pub fn run() -> anyhow::Result<()> {
+    let mut ctx = StageContext::from_env()?;
+    let stage = ctx.id().to_owned();
+    let params = Params(ctx.params());
+    let method_name = params.str("net").unwrap_or("pip").to_owned();
+    let Some(method) = Method::parse(&method_name) else {
+        bail!("stage '{stage}': unknown net '{method_name}' (pip or globalpose)");
+    };
+    let weights_path = params
+        .str("weights")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(format!("models/{}.safetensors", method.name())));
+    let start = match params.str("start_pose") {
+        Some("tpose") => StartPose::TPose,
+        Some("npose") => StartPose::NPose,
+        Some(other) => bail!("stage '{stage}': unknown start_pose '{other}' (tpose or npose)"),
+        None if method == Method::Pip => StartPose::TPose,
+        None => StartPose::NPose,
+    };
+    let weights = Weights::load(&weights_path, method).with_context(|| {
+        format!("stage '{stage}': loading weights '{}'", weights_path.display())
+    })?;
+    let mut streamer = Streamer::new(weights, start.pose())?;
+    let input = ctx.input::<BodyImuFrame>("imu")?;
+    let mut output = ctx.output::<KinematicsFrame>("kinematics")?;
+    if !ctx.ready()? {
+        return Ok(());
+    }
+    let mut held = HeldSamples::default();
+    let start_estimate = start_estimate(start);
+    while let Some(step) = ctx.next()? {
+        let frame = ctx.get(&input);
+        let mut header = step.header();
+        let complete = held.update(frame);
+        let estimate = if step.flags & flags::CALIBRATING != 0 || !complete {
+            streamer.reset();
+            header.flags |= flags::INVALID;
+            start_estimate.clone()
+        } else {
+            if frame.valid_mask != (1 << NUM_IMUS) - 1 {
+                header.flags |= flags::INVALID;
+            }
+            streamer
+                .step(&held.input)
+                .with_context(|| format!("stage '{stage}': frame {}", step.seq))?
+        };
+        output.publish(header, |out| fill(out, &estimate))?;
+    }
+    ctx.finish(&mut [&mut output])?;
+    Ok(())
+}
+
+/// The last valid sample of each sensor.
+#[derive(Default)]
+struct HeldSamples {
+    input: ImuInput,
+    seen: u32,
+}
+
+impl HeldSamples {
+    /// Take the frame's valid, finite samples; true once every sensor has had one.
+    fn update(&mut self, frame: &BodyImuFrame) -> bool {
+        for i in 0..NUM_IMUS {
+            let q = frame.bone_orientation_wxyz[i];
+            let (a, w) = (
+                frame.free_acceleration_mps2[i],
+                frame.angular_velocity_radps[i],
+            );
+            let finite = q.iter().chain(&a).chain(&w).all(|v| v.is_finite());
+            let norm = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+            if frame.valid_mask & (1 << i) == 0 || !finite || !(0.5..1.5).contains(&norm) {
+                continue;
+            }
+            let r = UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3]))
+                .to_rotation_matrix();
+            let m = r.matrix();
+            for row in 0..3 {
+                for col in 0..3 {
+                    self.input.orientation[i][row * 3 + col] = m[(row, col)];
+                }
+            }
+            self.input.acceleration[i] = a;
+            self.input.angular_velocity[i] = w;
+            self.seen |= 1 << i;
+        }
+        self.seen == (1 << NUM_IMUS) - 1
+    }
+}
+
+fn start_estimate(start: StartPose) -> Estimate {
+    let pose = start.pose();
+    Estimate {
+        pose: pose.parent_from_joint,
+        joint_position: [nalgebra::Vector3::zeros(); 24],
+        joint_velocity: [nalgebra::Vector3::zeros(); 24],
+        foot_contact: [1.0, 1.0],
+        stationary: [1.0; 5],
+        root_velocity: nalgebra::Vector3::zeros(),
+        gravity_in_root: nalgebra::Vector3::new(0.0, -9.81, 0.0),
+    }
+}
+
+fn quat_wxyz(r: &Rotation3<f64>) -> [f32; 4] {
+    let q = UnitQuaternion::from_rotation_matrix(r);
+    [q.w as f32, q.i as f32, q.j as f32, q.k as f32]
+}
+
+fn fill(out: &mut KinematicsFrame, e: &Estimate) {
+    for j in 0..24 {
+        out.local_pose_wxyz[j] = quat_wxyz(&e.pose[j]);
+        out.joint_position_m[j] = e.joint_position[j].cast::<f32>().into();
+        out.joint_velocity_mps[j] = e.joint_velocity[j].cast::<f32>().into();
+    }
+    out.foot_contact_prob = e.foot_contact.map(|v| v as f32);
+    out.stationary_prob = e.stationary.map(|v| v as f32);
+    out.root_velocity_mps = e.root_velocity.cast::<f32>().into();
+    out.gravity_in_root_mps2 = e.gravity_in_root.cast::<f32>().into();
+}

@@ -1,0 +1,712 @@
+//! `imuflow train`: trains one method's nets on the dataset shards, on the CPU, with candle autograd.
+//!
+//! As in the TransPose/PIP papers, every net is trained on its own, fed ground-truth inputs from the
+//! previous stage with Gaussian noise (TransPose paper §4.2: σ = 0.04 on leaf positions, 0.025 on joint
+//! positions) so that it tolerates the errors of the net before it at run time. The nets are independent
+//! given their inputs, so one optimizer step trains them all on the same batch of sequence chunks
+//! (the sum of their losses has each net's own gradient).
+//!
+//! - Chunks of `chunk` frames cut at a random phase each epoch; nets with a learned initialization get
+//!   the chunk's first ground-truth frame as init input (reference §2.0 `RNNWithInit`).
+//! - Losses: L2 on positions and rotations; TransPose's cumulative velocity loss (n ∈ {1, 3, 9, 27}) on
+//!   velocities; binary cross-entropy on contacts and stationarity.
+//! - Adam (lr 1e-3 as the reference's `train()` helper), global gradient-norm clipping.
+//! - After every epoch: validation loss per net, a CSV row, a resumable checkpoint (parameters and
+//!   Adam moments) in the checkpoint folder, and the best-so-far weights exported to `--out`.
+//!
+//! Hand-written here rather than candle-nn's `AdamW`: its moments can't be saved, so a run could not
+//! resume where it stopped.
+
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use candle_core::{DType, Device, Tensor, Var};
+use indicatif::{ProgressBar, ProgressStyle};
+use rand::rngs::StdRng;
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, Normal};
+use serde::{Deserialize, Serialize};
+
+use crate::data::{TrainSet, load_split};
+use crate::method::Method;
+use crate::net::{Rnn, RnnSpec, init_parameters};
+use crate::weights::{self, WeightsMetadata};
+
+/// Options of one training run.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TrainOptions {
+    pub method: Method,
+    pub data: PathBuf,
+    pub out: PathBuf,
+    pub checkpoint_dir: PathBuf,
+    pub hidden: usize,
+    pub layers: usize,
+    pub epochs: usize,
+    pub batch: usize,
+    pub chunk: usize,
+    pub lr: f64,
+    pub dropout: f32,
+    pub clip_norm: f64,
+    pub max_train_frames: usize,
+    pub max_val_frames: usize,
+    pub max_minutes: f64,
+    pub seed: u64,
+    pub progress: bool,
+}
+
+/// How a net's loss is computed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Loss {
+    Mse,
+    /// TransPose's cumulative loss (paper Eq. 5, used there for the root velocity) plus plain L2.
+    CumulativeVelocity,
+    Bce,
+    /// GlobalPose OV: the first 4 outputs are velocities (cumulative loss), the last 5 stationary
+    /// logits (BCE).
+    VelocityAndStationary,
+}
+
+/// What one net reads and predicts during training.
+struct Task {
+    net: &'static str,
+    /// Arrays concatenated as input, each with its Gaussian input noise σ.
+    inputs: &'static [(&'static str, f32)],
+    target: &'static str,
+    init: Option<&'static str>,
+    loss: Loss,
+}
+
+fn tasks(method: Method) -> &'static [Task] {
+    match method {
+        Method::Pip => &[
+            Task {
+                net: "rnn1",
+                inputs: &[("imu", 0.0)],
+                target: "leaf",
+                init: Some("leaf"),
+                loss: Loss::Mse,
+            },
+            Task {
+                net: "rnn2",
+                inputs: &[("leaf", 0.04), ("imu", 0.0)],
+                target: "full",
+                init: None,
+                loss: Loss::Mse,
+            },
+            Task {
+                net: "rnn3",
+                inputs: &[("full", 0.025), ("imu", 0.0)],
+                target: "r6d",
+                init: None,
+                loss: Loss::Mse,
+            },
+            // PIP initializes rnn4 from zeros(72) (reference §2.2); chunks start mid-motion here, so the
+            // init input is the chunk's true first-frame velocity (zeros for a subject at rest, which is
+            // what the stage feeds).
+            Task {
+                net: "rnn4",
+                inputs: &[("full", 0.025), ("imu", 0.0)],
+                target: "vel",
+                init: Some("vel"),
+                loss: Loss::CumulativeVelocity,
+            },
+            Task {
+                net: "rnn5",
+                inputs: &[("full", 0.025), ("imu", 0.0)],
+                target: "contact",
+                init: None,
+                loss: Loss::Bce,
+            },
+        ],
+        Method::GlobalPose => &[
+            Task {
+                net: "plnet",
+                inputs: &[("gp_imu", 0.0)],
+                target: "pl",
+                init: Some("pl"),
+                loss: Loss::Mse,
+            },
+            Task {
+                net: "iknet.net1",
+                inputs: &[("rrb_true", 0.0), ("grav", 0.02), ("prb", 0.04)],
+                target: "ik1",
+                init: None,
+                loss: Loss::Mse,
+            },
+            Task {
+                net: "iknet.net2",
+                inputs: &[("rrb_true", 0.0), ("grav", 0.02), ("full", 0.025)],
+                target: "r6d",
+                init: None,
+                loss: Loss::Mse,
+            },
+            Task {
+                net: "vrnet",
+                inputs: &[
+                    ("rrj", 0.0),
+                    ("full", 0.025),
+                    ("arb_true", 0.0),
+                    ("wrb_true", 0.0),
+                    ("grav", 0.02),
+                ],
+                target: "vr",
+                init: Some("vr"),
+                loss: Loss::VelocityAndStationary,
+            },
+        ],
+    }
+}
+
+/// Parameters and Adam moments.
+struct Optimizer {
+    names: Vec<String>,
+    /// Index of the net each parameter belongs to (gradient clipping is per net).
+    group: Vec<usize>,
+    vars: Vec<Var>,
+    m: Vec<Tensor>,
+    v: Vec<Tensor>,
+    step: usize,
+}
+
+impl Optimizer {
+    const BETA1: f64 = 0.9;
+    const BETA2: f64 = 0.999;
+    const EPS: f64 = 1e-8;
+
+    fn new(params: Vec<(String, Var)>, specs: &[RnnSpec]) -> candle_core::Result<Optimizer> {
+        let (names, vars): (Vec<String>, Vec<_>) = params.into_iter().unzip();
+        let group = names
+            .iter()
+            .map(|n| {
+                specs
+                    .iter()
+                    .position(|s| n.starts_with(&format!("{}.", s.name)))
+                    .unwrap_or(0)
+            })
+            .collect();
+        let zeros = |v: &Var| v.as_tensor().zeros_like();
+        Ok(Optimizer {
+            group,
+            m: vars.iter().map(zeros).collect::<Result<_, _>>()?,
+            v: vars.iter().map(zeros).collect::<Result<_, _>>()?,
+            names,
+            vars,
+            step: 0,
+        })
+    }
+
+    fn tensors(&self) -> HashMap<String, Tensor> {
+        self.names
+            .iter()
+            .zip(&self.vars)
+            .map(|(n, v)| (n.clone(), v.as_tensor().clone()))
+            .collect()
+    }
+
+    /// One Adam step, each net's gradients clipped to a norm of `clip` on their own (the nets are
+    /// independent; one global norm would let the net with the largest loss, e.g. the cumulative
+    /// velocity loss, throttle the others). Returns the largest net's norm.
+    fn step(
+        &mut self,
+        grads: &candle_core::backprop::GradStore,
+        lr: f64,
+        clip: f64,
+    ) -> candle_core::Result<f64> {
+        let gs: Vec<Option<Tensor>> = self.vars.iter().map(|v| grads.get(v).cloned()).collect();
+        let groups = 1 + self.group.iter().copied().max().unwrap_or(0);
+        let mut sq = vec![0.0f64; groups];
+        for (i, g) in gs.iter().enumerate() {
+            if let Some(g) = g {
+                sq[self.group[i]] += g.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
+            }
+        }
+        self.step += 1;
+        let t = self.step as i32;
+        let bc1 = 1.0 - Self::BETA1.powi(t);
+        let bc2 = 1.0 - Self::BETA2.powi(t);
+        for (i, g) in gs.into_iter().enumerate() {
+            let Some(g) = g else { continue };
+            let norm = sq[self.group[i]].sqrt();
+            let scale = if norm > clip { clip / norm } else { 1.0 };
+            let g = (g * scale)?;
+            self.m[i] = ((&self.m[i] * Self::BETA1)? + (&g * (1.0 - Self::BETA1))?)?;
+            self.v[i] = ((&self.v[i] * Self::BETA2)? + (g.sqr()? * (1.0 - Self::BETA2))?)?;
+            let denom = ((&self.v[i] / bc2)?.sqrt()? + Self::EPS)?;
+            let update = ((&self.m[i] / bc1)? / denom)?;
+            let next = (self.vars[i].as_tensor() - (update * lr)?)?;
+            self.vars[i].set(&next)?;
+        }
+        Ok(sq.iter().fold(0.0f64, |a, &b| a.max(b)).sqrt())
+    }
+}
+
+/// Resumable state next to the checkpoint tensors.
+#[derive(Serialize, Deserialize)]
+struct CheckpointState {
+    epoch: usize,
+    step: usize,
+    best_val: f64,
+    best_epoch: usize,
+    elapsed_s: f64,
+    specs: Vec<RnnSpec>,
+}
+
+/// One batch: per task its input, init and target tensors.
+struct Batch {
+    inputs: Vec<Tensor>,
+    inits: Vec<Option<Tensor>>,
+    targets: Vec<Tensor>,
+}
+
+fn make_batch(
+    set: &TrainSet,
+    tasks: &[Task],
+    starts: &[usize],
+    chunk: usize,
+    noise: Option<&mut StdRng>,
+) -> anyhow::Result<Batch> {
+    let b = starts.len();
+    let mut rng = noise;
+    let mut batch = Batch {
+        inputs: Vec::new(),
+        inits: Vec::new(),
+        targets: Vec::new(),
+    };
+    for task in tasks {
+        let arrays: Vec<(&crate::data::Array, f32)> = task
+            .inputs
+            .iter()
+            .map(|(n, s)| Ok((set.array(n)?, *s)))
+            .collect::<anyhow::Result<_>>()?;
+        let width: usize = arrays.iter().map(|(a, _)| a.dim).sum();
+        let mut x = Vec::with_capacity(b * chunk * width);
+        for &s in starts {
+            for f in s..s + chunk {
+                for (a, sigma) in &arrays {
+                    let row = a.row(f);
+                    match rng.as_deref_mut() {
+                        Some(r) if *sigma > 0.0 => {
+                            let n = Normal::new(0.0f32, *sigma)?;
+                            x.extend(row.iter().map(|v| v + n.sample(r)));
+                        }
+                        _ => x.extend_from_slice(row),
+                    }
+                }
+            }
+        }
+        batch
+            .inputs
+            .push(Tensor::from_vec(x, (b, chunk, width), &Device::Cpu)?);
+        let target = set.array(task.target)?;
+        let mut y = Vec::with_capacity(b * chunk * target.dim);
+        for &s in starts {
+            y.extend_from_slice(&target.data[s * target.dim..(s + chunk) * target.dim]);
+        }
+        batch
+            .targets
+            .push(Tensor::from_vec(y, (b, chunk, target.dim), &Device::Cpu)?);
+        batch.inits.push(match task.init {
+            Some(name) => {
+                let a = set.array(name)?;
+                let v: Vec<f32> = starts.iter().flat_map(|&s| a.row(s).to_vec()).collect();
+                Some(Tensor::from_vec(v, (b, a.dim), &Device::Cpu)?)
+            }
+            None => None,
+        });
+    }
+    Ok(batch)
+}
+
+/// TransPose's cumulative loss: Σ_n mean over n-frame blocks of ‖Σ_block (ŷ − y)‖², n ∈ {1, 3, 9, 27}
+/// (blocks that don't fit the chunk are dropped).
+fn cumulative_loss(err: &Tensor) -> candle_core::Result<Tensor> {
+    let (b, t, d) = err.dims3()?;
+    let mut total = err.sqr()?.mean_all()?;
+    for n in [3usize, 9, 27] {
+        let blocks = t / n;
+        if blocks == 0 {
+            continue;
+        }
+        let e = err.narrow(1, 0, blocks * n)?.reshape((b, blocks, n, d))?.sum(2)?;
+        total = (total + e.sqr()?.mean_all()?)?;
+    }
+    Ok(total)
+}
+
+fn task_loss(loss: Loss, y: &Tensor, target: &Tensor) -> candle_core::Result<Tensor> {
+    use candle_nn::loss::binary_cross_entropy_with_logit as bce;
+    match loss {
+        Loss::Mse => (y - target)?.sqr()?.mean_all(),
+        Loss::CumulativeVelocity => cumulative_loss(&(y - target)?),
+        Loss::Bce => bce(&y.flatten_all()?, &target.flatten_all()?),
+        Loss::VelocityAndStationary => {
+            let vel = cumulative_loss(&(y.narrow(2, 0, 4)? - target.narrow(2, 0, 4)?)?)?;
+            let st = bce(
+                &y.narrow(2, 4, 5)?.flatten_all()?,
+                &target.narrow(2, 4, 5)?.flatten_all()?,
+            )?;
+            vel + st
+        }
+    }
+}
+
+/// Losses of every task on one batch (and the nets' outputs are discarded).
+fn batch_losses(
+    nets: &[Rnn],
+    tasks: &[Task],
+    batch: &Batch,
+    dropout: f32,
+) -> candle_core::Result<Vec<Tensor>> {
+    nets.iter()
+        .zip(tasks)
+        .enumerate()
+        .map(|(i, (net, task))| {
+            let b = batch.inputs[i].dim(0)?;
+            let state = net.initial_state(b, batch.inits[i].as_ref())?;
+            let (y, _) = net.forward(&batch.inputs[i], &state, dropout)?;
+            task_loss(task.loss, &y, &batch.targets[i])
+        })
+        .collect()
+}
+
+/// Chunk starts covering every sequence at least `chunk` long, cut at a random phase.
+fn chunk_starts(set: &TrainSet, chunk: usize, rng: &mut StdRng) -> Vec<usize> {
+    let mut starts = Vec::new();
+    for &(s, len) in &set.sequences {
+        if len < chunk {
+            continue;
+        }
+        let phase = rng.random_range(0..=(len - chunk).min(chunk - 1));
+        let mut o = phase;
+        while o + chunk <= len {
+            starts.push(s + o);
+            o += chunk;
+        }
+    }
+    starts
+}
+
+/// Train `options.method`'s nets; returns the path of the exported weights.
+pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
+    let started = Instant::now();
+    let method = options.method;
+    let tasks = tasks(method);
+    if options.chunk < 27 {
+        bail!("--chunk must be at least 27 frames (the cumulative velocity loss uses 27-frame blocks)");
+    }
+    std::fs::create_dir_all(&options.checkpoint_dir).with_context(|| {
+        format!("creating checkpoint folder {}", options.checkpoint_dir.display())
+    })?;
+
+    eprintln!("loading training data from {} ...", options.data.display());
+    let train_set = load_split(&options.data, "train", method, options.max_train_frames, |i, n| {
+        if i < n {
+            eprint!("\r  train shard {}/{n}", i + 1);
+        } else {
+            eprintln!();
+        }
+    })?;
+    let val_set = load_split(&options.data, "validation", method, options.max_val_frames, |_, _| {})?;
+    eprintln!(
+        "  {} train frames in {} sequences, {} validation frames ({:.0} s)",
+        train_set.frames,
+        train_set.sequences.len(),
+        val_set.frames,
+        started.elapsed().as_secs_f64()
+    );
+
+    let specs = method.specs(options.hidden, options.layers);
+    let mut params = Vec::new();
+    for spec in &specs {
+        params.extend(init_parameters(spec, &Device::Cpu)?);
+    }
+    let mut opt = Optimizer::new(params, &specs)?;
+    let ckpt_tensors = options.checkpoint_dir.join("latest.safetensors");
+    let ckpt_state = options.checkpoint_dir.join("latest.json");
+    let mut state = CheckpointState {
+        epoch: 0,
+        step: 0,
+        best_val: f64::INFINITY,
+        best_epoch: 0,
+        elapsed_s: 0.0,
+        specs: specs.clone(),
+    };
+    if ckpt_tensors.exists() && ckpt_state.exists() {
+        state = resume(&mut opt, &ckpt_tensors, &ckpt_state, &specs)?;
+        eprintln!(
+            "resuming from {} (epoch {}, step {}, best validation {:.5} at epoch {})",
+            options.checkpoint_dir.display(),
+            state.epoch,
+            state.step,
+            state.best_val,
+            state.best_epoch
+        );
+    }
+
+    let log_path = options.checkpoint_dir.join("loss.csv");
+    let new_log = !log_path.exists();
+    let mut log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log_path)
+        .with_context(|| format!("opening {}", log_path.display()))?;
+    if new_log {
+        let names: Vec<String> = tasks.iter().map(|t| t.net.to_owned()).collect();
+        writeln!(
+            log,
+            "epoch,step,elapsed_s,{},{}",
+            names.iter().map(|n| format!("train_{n}")).collect::<Vec<_>>().join(","),
+            names.iter().map(|n| format!("val_{n}")).collect::<Vec<_>>().join(",")
+        )?;
+    }
+
+    // A fixed validation sample: the same chunks every epoch.
+    let mut val_rng = StdRng::seed_from_u64(options.seed ^ 0x5eed);
+    let mut val_starts = chunk_starts(&val_set, options.chunk, &mut val_rng);
+    val_starts.shuffle(&mut val_rng);
+    val_starts.truncate(256);
+    if val_starts.is_empty() {
+        bail!("the validation split has no sequence of at least {} frames", options.chunk);
+    }
+
+    let deadline_s = options.max_minutes * 60.0;
+    let mut stopped_early = false;
+    while state.epoch < options.epochs {
+        let mut rng = StdRng::seed_from_u64(options.seed.wrapping_add(state.epoch as u64));
+        let mut starts = chunk_starts(&train_set, options.chunk, &mut rng);
+        starts.shuffle(&mut rng);
+        let steps = starts.len() / options.batch;
+        if steps == 0 {
+            bail!("not enough training chunks for one batch of {}", options.batch);
+        }
+        let bar = progress_bar(options.progress, steps as u64, state.epoch + 1, options.epochs);
+        let mut sums = vec![0.0f64; tasks.len()];
+        let mut done = 0usize;
+        for batch_starts in starts.chunks_exact(options.batch) {
+            let batch = make_batch(&train_set, tasks, batch_starts, options.chunk, Some(&mut rng))?;
+            let nets = build_nets(&specs, &opt)?;
+            let losses = batch_losses(&nets, tasks, &batch, options.dropout)?;
+            let mut total = losses[0].clone();
+            for l in &losses[1..] {
+                total = (total + l)?;
+            }
+            let grads = total.backward()?;
+            opt.step(&grads, options.lr, options.clip_norm)?;
+            for (s, l) in sums.iter_mut().zip(&losses) {
+                *s += l.to_scalar::<f32>()? as f64;
+            }
+            done += 1;
+            state.step += 1;
+            bar.inc(1);
+            bar.set_message(format!("loss {:.4}", sums.iter().sum::<f64>() / done as f64));
+            if state.elapsed_s + started.elapsed().as_secs_f64() > deadline_s {
+                stopped_early = true;
+                break;
+            }
+        }
+        bar.finish_and_clear();
+        let train_losses: Vec<f64> = sums.iter().map(|s| s / done.max(1) as f64).collect();
+        let val_losses = validate(&specs, &opt, &val_set, tasks, &val_starts, options)?;
+        let val_total: f64 = val_losses.iter().sum();
+        state.epoch += 1;
+        let elapsed = state.elapsed_s + started.elapsed().as_secs_f64();
+        writeln!(
+            log,
+            "{},{},{:.1},{},{}",
+            state.epoch,
+            state.step,
+            elapsed,
+            join(&train_losses),
+            join(&val_losses)
+        )?;
+        log.flush()?;
+        eprintln!(
+            "epoch {:>3} ({} steps{}): train {}  val {}  [{:.0} min]",
+            state.epoch,
+            done,
+            if stopped_early { ", stopped at the time limit" } else { "" },
+            join(&train_losses),
+            join(&val_losses),
+            elapsed / 60.0
+        );
+        if val_total < state.best_val {
+            state.best_val = val_total;
+            state.best_epoch = state.epoch;
+            export(options, &specs, &opt, &state, &val_losses, &train_set)?;
+        }
+        let mut run_state = CheckpointState {
+            elapsed_s: 0.0,
+            specs: specs.clone(),
+            ..state
+        };
+        run_state.elapsed_s = elapsed;
+        save_checkpoint(&opt, &ckpt_tensors, &ckpt_state, &run_state)?;
+        if stopped_early {
+            eprintln!("time limit of {} min reached; run again to resume", options.max_minutes);
+            break;
+        }
+    }
+    eprintln!(
+        "best validation loss {:.5} at epoch {}: weights in {}",
+        state.best_val,
+        state.best_epoch,
+        options.out.display()
+    );
+    Ok(options.out.clone())
+}
+
+fn join(values: &[f64]) -> String {
+    values.iter().map(|v| format!("{v:.5}")).collect::<Vec<_>>().join(",")
+}
+
+fn progress_bar(show: bool, steps: u64, epoch: usize, epochs: usize) -> ProgressBar {
+    if !show {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(steps);
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "epoch {epoch}/{epochs} {{bar:30}} {{pos}}/{{len}} steps {{msg}} [{{elapsed}} < {{eta}}]"
+        ))
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar
+}
+
+/// The nets over the optimizer's current variables (tensors share storage with the `Var`s, so the
+/// graph tracks them).
+fn build_nets(specs: &[RnnSpec], opt: &Optimizer) -> anyhow::Result<Vec<Rnn>> {
+    let tensors = opt.tensors();
+    specs
+        .iter()
+        .map(|s| Rnn::from_tensors(s, &tensors).map_err(anyhow::Error::from))
+        .collect()
+}
+
+fn validate(
+    specs: &[RnnSpec],
+    opt: &Optimizer,
+    set: &TrainSet,
+    tasks: &[Task],
+    starts: &[usize],
+    options: &TrainOptions,
+) -> anyhow::Result<Vec<f64>> {
+    let nets = build_nets(specs, opt)?;
+    let mut sums = vec![0.0f64; tasks.len()];
+    let mut n = 0usize;
+    for chunk in starts.chunks(options.batch) {
+        let batch = make_batch(set, tasks, chunk, options.chunk, None)?;
+        let losses = batch_losses(&nets, tasks, &batch, 0.0)?;
+        for (s, l) in sums.iter_mut().zip(&losses) {
+            *s += l.to_scalar::<f32>()? as f64 * chunk.len() as f64;
+        }
+        n += chunk.len();
+    }
+    Ok(sums.iter().map(|s| s / n as f64).collect())
+}
+
+fn save_checkpoint(
+    opt: &Optimizer,
+    tensors_path: &Path,
+    state_path: &Path,
+    state: &CheckpointState,
+) -> anyhow::Result<()> {
+    let mut all = Vec::new();
+    for (i, name) in opt.names.iter().enumerate() {
+        all.push((format!("param/{name}"), opt.vars[i].as_tensor().clone()));
+        all.push((format!("adam_m/{name}"), opt.m[i].clone()));
+        all.push((format!("adam_v/{name}"), opt.v[i].clone()));
+    }
+    let mut st = serde_json::to_value(state)?;
+    st["adam_step"] = opt.step.into();
+    weights::save_with_metadata(tensors_path, &all, None)?;
+    let tmp = state_path.with_extension("partial");
+    std::fs::write(&tmp, serde_json::to_string_pretty(&st)?)?;
+    std::fs::rename(&tmp, state_path)?;
+    Ok(())
+}
+
+fn resume(
+    opt: &mut Optimizer,
+    tensors_path: &Path,
+    state_path: &Path,
+    specs: &[RnnSpec],
+) -> anyhow::Result<CheckpointState> {
+    let text = std::fs::read_to_string(state_path)
+        .with_context(|| format!("reading {}", state_path.display()))?;
+    let value: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("parsing {}", state_path.display()))?;
+    let state: CheckpointState = serde_json::from_value(value.clone())
+        .with_context(|| format!("parsing {}", state_path.display()))?;
+    if state.specs != specs {
+        bail!(
+            "checkpoint {} was made with other network sizes ({:?}); use another --checkpoint-dir or the same --hidden/--layers",
+            state_path.display(),
+            state.specs.iter().map(|s| (s.hidden, s.layers)).collect::<Vec<_>>()
+        );
+    }
+    let tensors = candle_core::safetensors::load(tensors_path, &Device::Cpu)
+        .with_context(|| format!("reading {}", tensors_path.display()))?;
+    for (i, name) in opt.names.iter().enumerate() {
+        let get = |prefix: &str| {
+            tensors
+                .get(&format!("{prefix}/{name}"))
+                .cloned()
+                .with_context(|| format!("{}: tensor {prefix}/{name} missing", tensors_path.display()))
+        };
+        opt.vars[i].set(&get("param")?)?;
+        opt.m[i] = get("adam_m")?;
+        opt.v[i] = get("adam_v")?;
+    }
+    opt.step = value["adam_step"].as_u64().unwrap_or(0) as usize;
+    Ok(state)
+}
+
+fn export(
+    options: &TrainOptions,
+    specs: &[RnnSpec],
+    opt: &Optimizer,
+    state: &CheckpointState,
+    val_losses: &[f64],
+    train_set: &TrainSet,
+) -> anyhow::Result<()> {
+    let tensors: Vec<(String, Tensor)> = opt
+        .names
+        .iter()
+        .zip(&opt.vars)
+        .map(|(n, v)| (n.clone(), v.as_tensor().to_dtype(DType::F32)))
+        .map(|(n, t)| t.map(|t| (n, t)))
+        .collect::<Result<_, _>>()?;
+    let first_meta = train_set.shard_metadata.first().cloned().unwrap_or_default();
+    let metadata = WeightsMetadata {
+        format: weights::FORMAT.to_owned(),
+        method: options.method,
+        nets: specs.to_vec(),
+        normalization: weights::normalization(options.method).to_owned(),
+        provenance: serde_json::json!({
+            "trainer": "imuflow train (candle, CPU)",
+            "data": options.data.display().to_string(),
+            "dataset_format": first_meta.get("format"),
+            "body_model": first_meta.get("body_model"),
+            "synthesis": first_meta.get("synthesis"),
+            "split": "train (FNV-1a clip hash mod 100 < 80); validation 80-89 for model selection; test 90-99 never used",
+            "train_frames": train_set.frames,
+            "epochs": state.epoch,
+            "steps": state.step,
+            "options": {
+                "hidden": options.hidden, "layers": options.layers, "batch": options.batch,
+                "chunk": options.chunk, "lr": options.lr, "dropout": options.dropout,
+                "clip_norm": options.clip_norm, "seed": options.seed,
+            },
+            "validation_losses": specs.iter().map(|s| s.name.clone()).zip(val_losses.iter().copied())
+                .collect::<std::collections::BTreeMap<_, _>>(),
+        }),
+        licence: "CC BY-NC 4.0, inherited from the Bandai-Namco-Research-Motiondataset it was trained on"
+            .to_owned(),
+    };
+    weights::save(&options.out, &tensors, &metadata)
+}

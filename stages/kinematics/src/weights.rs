@@ -1,0 +1,181 @@
+//! Weight files: safetensors with the nets' tensors under the authors' key names and a JSON metadata
+//! header (`imuflow` key) describing architecture, normalization, training data and licence.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use candle_core::{Device, Tensor};
+use serde::{Deserialize, Serialize};
+
+use crate::error::WeightsError;
+use crate::method::Method;
+use crate::net::{Rnn, RnnSpec};
+
+/// Format tag in the metadata.
+pub const FORMAT: &str = "imuflow-kinematics/1";
+
+/// The metadata header of a weight file.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WeightsMetadata {
+    pub format: String,
+    pub method: Method,
+    /// Every net's architecture.
+    pub nets: Vec<RnnSpec>,
+    /// How the inputs are normalized (human-readable; the code in `features` is the definition).
+    pub normalization: String,
+    /// Where the weights come from (training run summary, or "imported from ...").
+    pub provenance: serde_json::Value,
+    pub licence: String,
+}
+
+/// A method's nets, ready to run.
+pub struct Weights {
+    pub metadata: WeightsMetadata,
+    pub nets: Vec<Rnn>,
+}
+
+impl Weights {
+    /// Load and check a weight file for `method`: every tensor present with the right shape, no foreign
+    /// tensors, the metadata's method matching.
+    pub fn load(path: &Path, method: Method) -> Result<Weights, WeightsError> {
+        let file_err = |message: String| WeightsError::File {
+            path: path.display().to_string(),
+            message,
+        };
+        let bytes = std::fs::read(path).map_err(|e| file_err(e.to_string()))?;
+        let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
+            .map_err(|e| file_err(format!("not a safetensors file: {e}")))?;
+        let metadata: Option<WeightsMetadata> = header
+            .metadata()
+            .as_ref()
+            .and_then(|m| m.get("imuflow"))
+            .map(|s| serde_json::from_str(s))
+            .transpose()
+            .map_err(|e| file_err(format!("metadata 'imuflow' is not valid: {e}")))?;
+        if let Some(meta) = &metadata
+            && meta.method != method
+        {
+            return Err(WeightsError::WrongMethod {
+                expected: method.name().to_owned(),
+                found: meta.method.name().to_owned(),
+            });
+        }
+        let tensors = candle_core::safetensors::load_buffer(&bytes, &Device::Cpu)
+            .map_err(|e| file_err(format!("reading tensors: {e}")))?;
+        let nets = nets_from_tensors(method, &tensors)?;
+        let metadata = metadata.unwrap_or_else(|| WeightsMetadata {
+            format: FORMAT.to_owned(),
+            method,
+            nets: nets.iter().map(|n| n.spec.clone()).collect(),
+            normalization: normalization(method).to_owned(),
+            provenance: serde_json::json!("no metadata in the file"),
+            licence: "unknown".to_owned(),
+        });
+        Ok(Weights { metadata, nets })
+    }
+}
+
+/// Build `method`'s nets from named tensors, with sizes read from the tensors and checked against
+/// what the method's data flow needs.
+pub fn nets_from_tensors(
+    method: Method,
+    tensors: &HashMap<String, Tensor>,
+) -> Result<Vec<Rnn>, WeightsError> {
+    let names = method.net_names();
+    if let Some(stray) = tensors
+        .keys()
+        .find(|k| !names.iter().any(|n| k.starts_with(&format!("{n}."))))
+    {
+        return Err(WeightsError::UnexpectedTensor {
+            name: stray.clone(),
+            method: method.name().to_owned(),
+        });
+    }
+    names
+        .iter()
+        .map(|&name| {
+            let spec = RnnSpec::infer(name, tensors)?;
+            let (input, output, init, input_linear) =
+                method.net_io(name).unwrap_or((0, 0, None, false));
+            let check = |what: &str, found: usize, want: usize| {
+                if found == want {
+                    Ok(())
+                } else {
+                    Err(WeightsError::Shape {
+                        name: format!("{name}.{what}"),
+                        expected: format!("{want} {}", if what.contains("linear2") { "outputs" } else { "inputs" }),
+                        found: vec![found],
+                    })
+                }
+            };
+            let first = if input_linear { "linear1.weight" } else { "rnn.weight_ih_l0" };
+            if spec.input_linear != input_linear {
+                return Err(WeightsError::Shape {
+                    name: format!("{name}.linear1.weight"),
+                    expected: if input_linear { "present".into() } else { "absent".into() },
+                    found: vec![],
+                });
+            }
+            check(first, spec.input, input)?;
+            check("linear2.weight", spec.output, output)?;
+            if let Some(want) = init {
+                check("init_net.0.weight", spec.init_input.unwrap_or(0), want)?;
+            }
+            Ok(Rnn::from_tensors(&spec, tensors)?)
+        })
+        .collect()
+}
+
+/// The input normalization of each method, as written in the metadata.
+pub fn normalization(method: Method) -> &'static str {
+    match method {
+        Method::Pip => {
+            "PIP (reference §2.2): x = [R_rootᵀ(a_i − a_root) for 5 sensors, R_rootᵀa_root, R_rootᵀR_i for 5 sensors, R_root], accelerations in m/s² unscaled, matrices row-major; joint velocities predicted in the root frame divided by 3"
+        }
+        Method::GlobalPose => {
+            "GlobalPose (reference §2.4): x = [R_rootᵀa_i (6), R_rootᵀω_i (6), R_rootᵀR_i (5, row-major), −row1(R_root)], m/s² and rad/s unscaled"
+        }
+    }
+}
+
+/// Write `tensors` (name → f32 tensor) with `metadata` as a safetensors file.
+pub fn save(
+    path: &Path,
+    tensors: &[(String, Tensor)],
+    metadata: &WeightsMetadata,
+) -> anyhow::Result<()> {
+    let meta = serde_json::to_string(metadata)?;
+    save_with_metadata(path, tensors, Some(("imuflow", meta)))
+}
+
+/// Write f32 tensors as safetensors, atomically (temporary file, then rename).
+pub fn save_with_metadata(
+    path: &Path,
+    tensors: &[(String, Tensor)],
+    metadata: Option<(&str, String)>,
+) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let mut buffers = Vec::with_capacity(tensors.len());
+    for (name, t) in tensors {
+        let values = t.flatten_all()?.to_vec1::<f32>()?;
+        let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        buffers.push((name.clone(), t.dims().to_vec(), bytes));
+    }
+    let views: Vec<(String, safetensors::tensor::TensorView)> = buffers
+        .iter()
+        .map(|(n, shape, bytes)| {
+            safetensors::tensor::TensorView::new(safetensors::Dtype::F32, shape.clone(), bytes)
+                .map(|v| (n.clone(), v))
+        })
+        .collect::<Result<_, _>>()?;
+    let meta: Option<HashMap<String, String>> =
+        metadata.map(|(k, v)| HashMap::from([(k.to_owned(), v)]));
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let tmp = path.with_extension("partial");
+    safetensors::serialize_to_file(views, meta, &tmp)
+        .with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))?;
+    Ok(())
+}
