@@ -164,8 +164,10 @@ pub fn load(path: &Path) -> Result<Calibration, FileError> {
 
 fn rotation(q: &[f64; 4]) -> Result<Rotation3<f64>, String> {
     let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-    if !(norm - 1.0).abs().le(&1e-3) {
-        return Err(format!("is not a unit quaternion (norm {norm})"));
+    // A NaN norm fails the range test too.
+    let unit = (1.0 - 1e-3..=1.0 + 1e-3).contains(&norm);
+    match rotation_from_quat_wxyz(q) {
+        Some(r) if unit => Ok(r),
+        _ => Err(format!("is not a unit quaternion (norm {norm})")),
     }
-    rotation_from_quat_wxyz(q).ok_or_else(|| "is not a unit quaternion".to_owned())
 }

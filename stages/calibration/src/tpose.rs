@@ -86,7 +86,8 @@ pub fn check_gravity(
         } else {
             measured_up.angle(&up.into_inner()).to_degrees()
         };
-        if !(angle_deg <= max_deg) {
+        // NaN (from a non-finite reading) fails too.
+        if angle_deg.is_nan() || angle_deg > max_deg {
             return Err(Rejection::GravityMismatch {
                 sensor: sensor_name(k),
                 angle_deg,

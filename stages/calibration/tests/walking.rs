@@ -100,8 +100,8 @@ fn frames_are_flagged_calibrating_until_the_calibration_is_accepted() {
     // Calibrated frames carry the heading corrections.
     let truth = true_heading_corrections(&motion);
     let last = session.outputs.last().expect("frames");
-    for k in 0..NUM_IMUS {
-        assert!((f64::from(last.heading_correction_rad[k]) - truth[k]).abs() < 1e-3);
+    for (out, truth) in last.heading_correction_rad.iter().zip(truth) {
+        assert!((f64::from(*out) - truth).abs() < 1e-3, "{out} vs {truth}");
     }
     assert_eq!(last.heading_correction_rad[PELVIS], 0.0);
 }
