@@ -19,6 +19,9 @@ use rand::{Rng, SeedableRng};
 use rand_distr::StandardNormal;
 
 const STATES: usize = 200;
+
+/// Pose, velocity and generalized force of one benchmark state.
+type State = (Pose, DofVector, DofVector);
 const PASSES: usize = 25;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -27,7 +30,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut data = DynamicsData::new();
     let mut rng = StdRng::seed_from_u64(7);
     let mut normal = move || rng.sample::<f64, _>(StandardNormal);
-    let states: Vec<(Pose, DofVector, DofVector)> = (0..STATES)
+    let states: Vec<State> = (0..STATES)
         .map(|_| {
             let mut pose = Pose::t_pose(Vector3::new(normal(), normal(), normal()));
             for r in pose.parent_from_joint.iter_mut() {
@@ -56,23 +59,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut jac = PointJacobian::zeros();
     let mut out = DofVector::zeros();
 
-    let mut bench =
-        |name: &str, f: &mut dyn FnMut(&mut DynamicsData, &(Pose, DofVector, DofVector))| {
-            let mut per_call = Vec::with_capacity(PASSES);
-            for _ in 0..PASSES {
-                let t0 = Instant::now();
-                for s in &states {
-                    f(&mut data, s);
-                }
-                per_call.push(t0.elapsed().as_secs_f64() * 1e6 / STATES as f64);
+    let mut bench = |name: &str, f: &mut dyn FnMut(&mut DynamicsData, &State)| {
+        let mut per_call = Vec::with_capacity(PASSES);
+        for _ in 0..PASSES {
+            let t0 = Instant::now();
+            for s in &states {
+                f(&mut data, s);
             }
-            per_call.sort_by(f64::total_cmp);
-            println!(
-                "{name:44} median {:8.2} µs   min {:8.2} µs",
-                per_call[PASSES / 2],
-                per_call[0]
-            );
-        };
+            per_call.push(t0.elapsed().as_secs_f64() * 1e6 / STATES as f64);
+        }
+        per_call.sort_by(f64::total_cmp);
+        println!(
+            "{name:44} median {:8.2} µs   min {:8.2} µs",
+            per_call[PASSES / 2],
+            per_call[0]
+        );
+    };
     println!("imuflow-body dynamics, {STATES} random states × {PASSES} passes, per call:");
     bench("set_state (FK, velocities)", &mut |d, (p, v, _)| {
         d.set_state(&model, p, v)

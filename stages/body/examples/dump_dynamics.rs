@@ -99,7 +99,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let h = *data.bias_forces(&model);
         let mut g = DofVector::zeros();
         data.gravity_forces(&model, &mut g);
-        s.push_str("{");
+        s.push('{');
         let _ = write!(
             s,
             "\"root_position\": {}, ",
@@ -108,12 +108,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let rots: Vec<String> = (0..NUM_JOINTS)
             .map(|j| list(pose.parent_from_joint[j].matrix().transpose().iter()))
             .collect();
-        let _ = write!(s, "\"rotations_row_major\": [{}],\n", rots.join(", "));
-        let _ = write!(s, "\"v\": {},\n", list(v.iter()));
+        let _ = writeln!(s, "\"rotations_row_major\": [{}],", rots.join(", "));
+        let _ = writeln!(s, "\"v\": {},", list(v.iter()));
         let rows: Vec<String> = (0..NUM_DOFS).map(|r| list(m.row(r).iter())).collect();
-        let _ = write!(s, "\"M\": [{}],\n", rows.join(",\n"));
-        let _ = write!(s, "\"h\": {},\n", list(h.iter()));
-        let _ = write!(s, "\"gravity_h\": {},\n", list(g.iter()));
+        let _ = writeln!(s, "\"M\": [{}],", rows.join(",\n"));
+        let _ = writeln!(s, "\"h\": {},", list(h.iter()));
+        let _ = writeln!(s, "\"gravity_h\": {},", list(g.iter()));
         let mut pj = Vec::new();
         for (joint, p) in &points {
             data.point_jacobian(*joint, p, &mut jac);

@@ -12,6 +12,8 @@
 //!   augmentation model, for training and the imu-source stage.
 //! - [`npz`]: AMASS-style `.npz` motion import and export (Z-up SMPL `trans` ↔ Y-up root position).
 //! - [`metrics`]: evaluation metrics (SIP, angle and position errors, jitter, foot contact).
+//! - [`dynamics`]: floating-base rigid-body dynamics (mass matrix, bias forces, inverse/forward dynamics,
+//!   point Jacobians) in GlobalPose's singularity-free coordinates; [`urdf`]: the same model as URDF.
 
 // Library code returns errors; panicking helpers are for tests only.
 #![cfg_attr(
