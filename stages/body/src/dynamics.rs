@@ -32,20 +32,24 @@
 //! about the centre of mass, merged by the parallel-axis theorem). Joints without a segment (spine2, neck,
 //! collars, feet, hands) are massless. Gravity defaults to [`GRAVITY_IN_MODEL_MPS2`].
 //!
-//! **Armature.** A massless leaf joint (feet, hands) moves nothing, so its three rows of `M` are zero and `M`
-//! is singular; massless inner joints (spine2, neck, collars) make `M` badly conditioned. Like a rotor
-//! inertia in robot models (Pinocchio's `model.armature`), we add `armature_kgm2[j]` (default
-//! [`DEFAULT_ARMATURE_KGM2`] = 1e-3 kg·m², about a hand's own rotational inertia) to the diagonal of `M` for
-//! each of joint j's three rotational DoFs, and the matching `armature·v̇` to inverse dynamics and energy
-//! (`½·armature·|ω_j|²`). It is a public field: set it to zero for the pure rigid-body terms (then use only
-//! [`DynamicsData::mass_matrix`] and [`DynamicsData::inverse_dynamics`], not forward dynamics).
+//! **Armature.** A massless leaf joint (feet, hands) moves nothing, so its three rows of `M` are zero and
+//! `M` is singular (massless inner joints such as spine2, neck and collars are fine: they move their
+//! children). Like a rotor inertia in robot models (Pinocchio's `model.armature`), we add
+//! `armature_kgm2[j]` (default [`DEFAULT_ARMATURE_KGM2`] = 1e-3 kg·m²) to the diagonal of `M` for each of
+//! joint j's three rotational DoFs, and the matching `armature·v̇` to inverse dynamics and energy
+//! (`½·armature·|ω_j|²`). For a 73 kg subject in the T-pose it is < 1 % of the diagonal of `M` for the
+//! trunk, hips, knee flexion, shoulders and collars (0.05–15 kg·m²) but comparable to the small
+//! twist inertias: forearm 1.9e-3, hand 0.6e-3 (wrist flexion 3e-3), ankle 2–8e-3 kg·m². Lower it if
+//! those matter (1e-4 still keeps `M` well conditioned). It is a public field; set it to zero for the
+//! pure rigid-body terms (then use only [`DynamicsData::mass_matrix`] and
+//! [`DynamicsData::inverse_dynamics`]: forward dynamics needs `M` positive definite).
 //!
 //! # Algorithms (Featherstone, *Rigid Body Dynamics Algorithms*, 2008)
 //!
 //! Link quantities are spatial vectors in link (joint) coordinates, angular part first. `M` by the
 //! composite-rigid-body algorithm (RBDA §6.2), `h` and `τ` by recursive Newton–Euler (§5.3), forward
-//! dynamics by `M` and `h` and a sparse `LᵀDL` factorisation that exploits the tree (§6.5: no fill-in, so
-//! its cost is Σ depth² instead of 75³/3). Point Jacobians as in GlobalPose (§5.4): identity for the root
+//! dynamics by `M` and `h` and an `LᵀDL` factorisation in 3×3 blocks that exploits the tree (§6.5: no
+//! fill-in, so its cost is Σ depth² block products instead of a dense 75³/3). Point Jacobians as in GlobalPose (§5.4): identity for the root
 //! translation and `−R_Wi·[p_i]×` for each ancestor i, with `p_i` the point in frame i.
 //!
 //! # Use (Model/Data split, allocation-free per call)
@@ -602,7 +606,8 @@ impl DynamicsData {
     }
 
     /// Solve `M·x = b` in place with the factorisation of [`DynamicsData::factorize_mass_matrix`]
-    /// (computed on demand if missing for the stored state).
+    /// (computed on demand if missing for the stored state; it is kept until the next `set_state`, so
+    /// refactorise after changing the model). Useful for `M⁻¹·Jᵀ` in contact solvers.
     pub fn solve_mass_matrix(
         &mut self,
         model: &RigidBodyModel,
