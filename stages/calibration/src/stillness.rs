@@ -72,3 +72,59 @@ impl StillnessDetector {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use imuflow_graph::frames::ImuFrame;
+
+    fn sample(gyro: f32, accel_x: f32, valid_mask: u32) -> Sample {
+        let mut f = ImuFrame {
+            valid_mask,
+            ..Default::default()
+        };
+        for k in 0..NUM_IMUS {
+            f.orientation_wxyz[k] = [1.0, 0.0, 0.0, 0.0];
+            f.specific_force_mps2[k] = [accel_x, 9.81, 0.0];
+            f.angular_rate_radps[k] = [0.0, 0.0, gyro];
+        }
+        Sample::from_frame(&f, 0.0)
+    }
+
+    fn detector() -> StillnessDetector {
+        StillnessDetector::new(StillnessConfig {
+            window_frames: 4,
+            max_gyro_radps: 0.3,
+            max_accel_std_mps2: 0.4,
+        })
+    }
+
+    #[test]
+    fn still_once_the_window_is_full_and_quiet() {
+        let mut d = detector();
+        let still: Vec<bool> = (0..6)
+            .map(|_| d.push(&sample(0.1, 0.0, 0b111111)))
+            .collect();
+        assert_eq!(still, [false, false, false, true, true, true]);
+        // Fast turning, then a shaking accelerometer, break stillness.
+        assert!(!d.push(&sample(1.5, 0.0, 0b111111)));
+        let mut d = detector();
+        let shaking: Vec<bool> = (0..8)
+            .map(|i| d.push(&sample(0.0, if i % 2 == 0 { 1.0 } else { -1.0 }, 0b111111)))
+            .collect();
+        assert!(shaking.iter().all(|s| !s));
+    }
+
+    #[test]
+    fn an_unusable_sensor_restarts_the_window() {
+        let mut d = detector();
+        for _ in 0..5 {
+            d.push(&sample(0.0, 0.0, 0b111111));
+        }
+        assert!(!d.push(&sample(0.0, 0.0, 0b011111)));
+        let again: Vec<bool> = (0..4)
+            .map(|_| d.push(&sample(0.0, 0.0, 0b111111)))
+            .collect();
+        assert_eq!(again, [false, false, false, true]);
+    }
+}
