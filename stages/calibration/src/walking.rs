@@ -173,6 +173,8 @@ pub fn measure_step(
         };
         g.offset_in_inertial_mps2[k] = offset;
         let p = integrate_with_zupt(motion, k, &(gravity - offset));
+        // Eq. 21 removes the component along g; the paper prints `g·a` in the denominator, a typo
+        // for `g·g` (only that makes p̄ orthogonal to g).
         g.vertical_m[k] = p.dot(&up);
         g.displacement_m[k] = horizontal(&p, &up);
         if g.vertical_m[k].abs() > config.max_vertical_m {
