@@ -33,6 +33,19 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 30000)]
         throughput_frames: u64,
     },
+    /// Per-frame inference time of the kinematics networks (streaming, one frame at a time, in this
+    /// process; set RAYON_NUM_THREADS=1, candle's small-op threading costs more than it gains).
+    Kinematics {
+        /// PIP weights ("none" to skip).
+        #[arg(long, default_value = "models/pip.safetensors")]
+        pip: String,
+        /// GlobalPose weights ("none" to skip).
+        #[arg(long, default_value = "models/globalpose.safetensors")]
+        globalpose: String,
+        /// Timed frames per method.
+        #[arg(long, default_value_t = 3000)]
+        frames: usize,
+    },
 }
 
 pub const SOURCE_SPEC: StageSpec = StageSpec {
@@ -251,12 +264,19 @@ fn run_chain(stages: usize, frames: u64, rate_hz: f64) -> anyhow::Result<ChainRe
 }
 
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
-    let BenchCommand::Transport {
-        stages,
-        frames,
-        rate_hz,
-        throughput_frames,
-    } = cmd;
+    let (stages, frames, rate_hz, throughput_frames) = match cmd {
+        BenchCommand::Transport {
+            stages,
+            frames,
+            rate_hz,
+            throughput_frames,
+        } => (stages, frames, rate_hz, throughput_frames),
+        BenchCommand::Kinematics {
+            pip,
+            globalpose,
+            frames,
+        } => return bench_kinematics(&pip, &globalpose, frames),
+    };
     if stages < 2 {
         bail!("--stages must be at least 2 (a source and a relay)");
     }
@@ -306,5 +326,30 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         fast.frames as f64 / fast.wall_s,
         fast.frames as f64 * std::mem::size_of::<MotionFrame>() as f64 / fast.wall_s / 1e6
     );
+    Ok(())
+}
+
+fn bench_kinematics(pip: &str, globalpose: &str, frames: usize) -> anyhow::Result<()> {
+    use imuflow_kinematics::Method;
+    println!(
+        "kinematics benchmark: {frames} streaming frames per method (RAYON_NUM_THREADS={})",
+        std::env::var("RAYON_NUM_THREADS").unwrap_or_else(|_| "unset".into())
+    );
+    println!("{:<11} {:>10} {:>10} {:>10} {:>10}", "method", "mean µs", "p50 µs", "p99 µs", "max µs");
+    for (method, path) in [(Method::Pip, pip), (Method::GlobalPose, globalpose)] {
+        if path == "none" {
+            continue;
+        }
+        let t = imuflow_kinematics::bench::step_times_us(method, std::path::Path::new(path), frames, 100)?;
+        let pct = |p: f64| t[((t.len() - 1) as f64 * p).round() as usize];
+        println!(
+            "{:<11} {:>10.1} {:>10.1} {:>10.1} {:>10.1}",
+            method.name(),
+            t.iter().sum::<f64>() / t.len() as f64,
+            pct(0.5),
+            pct(0.99),
+            t[t.len() - 1]
+        );
+    }
     Ok(())
 }

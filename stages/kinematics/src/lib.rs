@@ -7,6 +7,7 @@
 //! - [`weights`]: weight files (safetensors + metadata), loading with shape checks.
 //! - [`data`], [`train`]: training data from the dataset shards, and `imuflow train`.
 
+pub mod bench;
 pub mod data;
 pub mod error;
 pub mod eval;
