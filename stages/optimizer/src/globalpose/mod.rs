@@ -1,0 +1,1 @@
+//! GlobalPose physics (work in progress).

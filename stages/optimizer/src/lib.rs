@@ -1,0 +1,3 @@
+//! The optimizer stage (work in progress).
+
+pub mod globalpose;
