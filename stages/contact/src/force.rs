@@ -1,0 +1,1 @@
+//! GlobalPose's force-based contact estimation (work in progress).

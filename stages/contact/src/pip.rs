@@ -1,0 +1,1 @@
+//! PIP's contact rule (work in progress).

@@ -1,0 +1,1 @@
+//! The `contact` stage (work in progress: filled in with the PIP rule).

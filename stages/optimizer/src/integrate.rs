@@ -1,0 +1,202 @@
+//! The no-physics baseline: the networks' pose, with the root translation integrated from the root
+//! velocity after GlobalPose's stationary-joint refinement.
+//!
+//! GlobalPose (SIGGRAPH 2025) Eq. 4/25, as implemented (reference §5.4 "Root velocity refinement"):
+//! with `r_i` the position of contact joint i ∈ {pelvis, feet, hands} relative to the root (world axes),
+//! `s_i` its stationary probability and `w_i = clip(5·s_i − 3, 0, 1)` (0 at s ≤ 0.6, 1 at s ≥ 0.8),
+//!
+//! ```text
+//! v = (Σ_i w_i·(r_i(t−1) − r_i(t))/dt + β_v·v_net) / (β_v + Σ_i w_i),   β_v = 1
+//! ```
+//!
+//! a weighted average of "a stationary joint stays where it is" and the network's root velocity. The
+//! first frame puts the lowest contact joint on the floor. PIP's kinematics carries foot-contact
+//! probabilities only (pelvis and hands 0), so with PIP weights only the feet anchor the root.
+
+use imuflow_body::kinematics::FkData;
+use imuflow_body::skeleton::CONTACT_JOINTS;
+use imuflow_body::{NUM_JOINTS, forward_kinematics};
+use imuflow_contact::ContactSet;
+use nalgebra::Vector3;
+
+use crate::estimate::place_on_floor;
+use crate::{DT_S, Method, MotionEstimate, PhysicsBody, Reference, StepReport};
+
+/// Weight of the network velocity against the stationary joints (GlobalPose reference §5.4: β_velocity = 1).
+pub const NETWORK_VELOCITY_WEIGHT: f64 = 1.0;
+
+/// A joint counts as in contact (for the output's contact mask) from this stationary weight on.
+const CONTACT_WEIGHT: f64 = 0.5;
+
+/// Stationary weight `w = clip(5·s − 3, 0, 1)` (GlobalPose reference §5.4).
+pub fn stationary_weight(probability: f64) -> f64 {
+    (5.0 * probability - 3.0).clamp(0.0, 1.0)
+}
+
+/// The `integrate` method.
+pub struct Integrate {
+    physics: PhysicsBody,
+    fk: FkData,
+    /// Contact joints relative to the root (world axes) in the previous frame; `None` before the first.
+    previous_rel: Option<[Vector3<f64>; CONTACT_JOINTS.len()]>,
+    previous: MotionEstimate,
+    contacts: ContactSet,
+}
+
+impl Integrate {
+    pub fn new(physics: PhysicsBody) -> Integrate {
+        Integrate {
+            physics,
+            fk: FkData::new(),
+            previous_rel: None,
+            previous: MotionEstimate::default(),
+            contacts: ContactSet::new(),
+        }
+    }
+
+    /// The contacts of the last step: joints whose stationary weight reached 0.5 (no forces).
+    pub fn contacts(&self) -> &ContactSet {
+        &self.contacts
+    }
+
+    /// Contact joints relative to the root, in world axes, of the reference pose.
+    fn contact_joints_rel(
+        &mut self,
+        reference: &Reference,
+    ) -> [Vector3<f64>; CONTACT_JOINTS.len()] {
+        let mut pose = reference.pose.clone();
+        pose.root_in_world_m = Vector3::zeros();
+        forward_kinematics(&self.physics.body.skeleton, &pose, &mut self.fk);
+        CONTACT_JOINTS.map(|j| self.fk.joint_in_world_m[j.index()])
+    }
+}
+
+impl Method for Integrate {
+    fn reset(&mut self) {
+        self.previous_rel = None;
+    }
+
+    fn step(
+        &mut self,
+        reference: &Reference,
+        _contacts: Option<&ContactSet>,
+        out: &mut MotionEstimate,
+    ) -> anyhow::Result<StepReport> {
+        let rel = self.contact_joints_rel(reference);
+        let weights = reference.stationary_prob.map(stationary_weight);
+        *out = MotionEstimate {
+            pose: reference.pose.clone(),
+            ..MotionEstimate::default()
+        };
+        match &self.previous_rel {
+            None => {
+                out.pose.root_in_world_m = Vector3::zeros();
+                place_on_floor(&self.physics, &mut out.pose, &CONTACT_JOINTS, &mut self.fk);
+            }
+            Some(previous_rel) => {
+                let mut sum = NETWORK_VELOCITY_WEIGHT * reference.root_velocity_mps;
+                for i in 0..CONTACT_JOINTS.len() {
+                    sum += weights[i] * (previous_rel[i] - rel[i]) / DT_S;
+                }
+                let v = sum / (NETWORK_VELOCITY_WEIGHT + weights.iter().sum::<f64>());
+                out.pose.root_in_world_m = self.previous.pose.root_in_world_m + v * DT_S;
+                out.v.fixed_rows_mut::<3>(0).copy_from(&v);
+                // Joint velocities in the body crate's coordinates: log(R_prevᵀ·R)/dt in the joint frame.
+                for j in 0..NUM_JOINTS {
+                    let d = self.previous.pose.parent_from_joint[j].transpose()
+                        * out.pose.parent_from_joint[j];
+                    let w = d.scaled_axis() / DT_S;
+                    out.v.fixed_rows_mut::<3>(3 + 3 * j).copy_from(&w);
+                }
+            }
+        }
+        self.contacts.clear();
+        for (i, j) in CONTACT_JOINTS.iter().enumerate() {
+            if weights[i] >= CONTACT_WEIGHT {
+                out.contact_mask |= 1 << j.index();
+            }
+        }
+        self.contacts.mask = out.contact_mask;
+        self.previous_rel = Some(rel);
+        self.previous = out.clone();
+        Ok(StepReport::default())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use imuflow_body::JointId;
+    use nalgebra::Rotation3;
+
+    fn reference() -> Reference {
+        let mut r = Reference::default();
+        r.stationary_prob = [0.0; 5];
+        r
+    }
+
+    #[test]
+    fn the_weight_ramps_from_point_six_to_point_eight() {
+        assert_eq!(stationary_weight(0.6), 0.0);
+        assert!((stationary_weight(0.7) - 0.5).abs() < 1e-12);
+        assert_eq!(stationary_weight(0.8), 1.0);
+        assert_eq!(stationary_weight(0.95), 1.0);
+    }
+
+    #[test]
+    fn without_stationary_joints_the_root_follows_the_network_velocity() {
+        let mut m = Integrate::new(PhysicsBody::new(1.75, 70.0).unwrap());
+        let mut r = reference();
+        r.root_velocity_mps = Vector3::new(0.0, 0.0, 1.2);
+        let mut out = MotionEstimate::default();
+        m.step(&r, None, &mut out).unwrap();
+        let start = out.pose.root_in_world_m;
+        // The first frame stands the T-pose on its feet (clearance: feet rest on the floor).
+        assert!(
+            (start.y - m.physics.body.rest_root_height_m).abs() < 1e-9,
+            "{start}"
+        );
+        for _ in 0..60 {
+            m.step(&r, None, &mut out).unwrap();
+        }
+        let moved = out.pose.root_in_world_m - start;
+        assert!(
+            (moved - Vector3::new(0.0, 0.0, 1.2)).norm() < 1e-9,
+            "{moved}"
+        );
+        assert!((out.v[2] - 1.2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_stationary_foot_holds_the_root_against_a_wrong_network_velocity() {
+        // Hand-derived: one foot fully stationary (w = 1), the pose still, the network says 1 m/s:
+        // v = (1·0 + 1·1 m/s) / (1 + 1) = 0.5 m/s.
+        let mut m = Integrate::new(PhysicsBody::new(1.75, 70.0).unwrap());
+        let mut r = reference();
+        r.stationary_prob[1] = 0.9;
+        r.root_velocity_mps = Vector3::new(1.0, 0.0, 0.0);
+        let mut out = MotionEstimate::default();
+        m.step(&r, None, &mut out).unwrap();
+        m.step(&r, None, &mut out).unwrap();
+        assert!((out.v[0] - 0.5).abs() < 1e-12, "{}", out.v[0]);
+        assert_eq!(out.contact_mask, 1 << JointId::LEFT_FOOT.index());
+        // A swinging pose that moves the foot backwards relative to the root while the foot is
+        // stationary moves the root forward by the same amount (walking): rotate the left hip.
+        let before = m.contact_joints_rel(&r)[1];
+        r.pose.parent_from_joint[JointId::LEFT_HIP.index()] =
+            Rotation3::new(Vector3::new(-0.2, 0.0, 0.0));
+        let after = m.contact_joints_rel(&r)[1];
+        r.root_velocity_mps = Vector3::zeros();
+        let root_before = out.pose.root_in_world_m;
+        m.step(&r, None, &mut out).unwrap();
+        // (before − after)/dt weighted 1 against the network's 0 with weight 1: half of it.
+        let want = (before - after) / 2.0;
+        assert!((out.pose.root_in_world_m - root_before - want).norm() < 1e-9);
+        // The joint velocity of the hip is the rotation over one frame.
+        let w = Vector3::new(out.v[3 + 3], out.v[4 + 3], out.v[5 + 3]);
+        assert!(
+            (w - Vector3::new(-0.2, 0.0, 0.0) / DT_S).norm() < 1e-9,
+            "{w}"
+        );
+    }
+}
