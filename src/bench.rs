@@ -335,12 +335,20 @@ fn bench_kinematics(pip: &str, globalpose: &str, frames: usize) -> anyhow::Resul
         "kinematics benchmark: {frames} streaming frames per method (RAYON_NUM_THREADS={})",
         std::env::var("RAYON_NUM_THREADS").unwrap_or_else(|_| "unset".into())
     );
-    println!("{:<11} {:>10} {:>10} {:>10} {:>10}", "method", "mean µs", "p50 µs", "p99 µs", "max µs");
+    println!(
+        "{:<11} {:>10} {:>10} {:>10} {:>10}",
+        "method", "mean µs", "p50 µs", "p99 µs", "max µs"
+    );
     for (method, path) in [(Method::Pip, pip), (Method::GlobalPose, globalpose)] {
         if path == "none" {
             continue;
         }
-        let t = imuflow_kinematics::bench::step_times_us(method, std::path::Path::new(path), frames, 100)?;
+        let t = imuflow_kinematics::bench::step_times_us(
+            method,
+            std::path::Path::new(path),
+            frames,
+            100,
+        )?;
         let pct = |p: f64| t[((t.len() - 1) as f64 * p).round() as usize];
         println!(
             "{:<11} {:>10.1} {:>10.1} {:>10.1} {:>10.1}",

@@ -103,7 +103,11 @@ pub struct EvalArgs {
     #[arg(long, value_name = "FILE", default_value = "models/pip.safetensors")]
     pip: String,
     /// GlobalPose weights ("none" to skip).
-    #[arg(long, value_name = "FILE", default_value = "models/globalpose.safetensors")]
+    #[arg(
+        long,
+        value_name = "FILE",
+        default_value = "models/globalpose.safetensors"
+    )]
     globalpose: String,
     /// Which copies of each test clip: ideal, augmented (sensor noise and mounting errors) or all.
     #[arg(long, default_value = "augmented", value_parser = ["ideal", "augmented", "all"])]
@@ -123,7 +127,10 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
         _ => Copies::Augmented,
     };
     let mut rows = Vec::new();
-    for (method, weights) in [(Method::Pip, &args.pip), (Method::GlobalPose, &args.globalpose)] {
+    for (method, weights) in [
+        (Method::Pip, &args.pip),
+        (Method::GlobalPose, &args.globalpose),
+    ] {
         if weights == "none" {
             continue;
         }

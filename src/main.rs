@@ -1,8 +1,8 @@
 //! `imuflow`: the command line. A thin dispatcher: the work lives in the crates.
 
 mod bench;
-mod registry;
 mod kinematics_cmd;
+mod registry;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -70,8 +70,8 @@ impl TrainSet {
 
 /// The shard files of `split` in `dir`, in order.
 pub fn shard_files(dir: &Path, split: &str) -> anyhow::Result<Vec<PathBuf>> {
-    let entries =
-        std::fs::read_dir(dir).with_context(|| format!("reading dataset folder {}", dir.display()))?;
+    let entries = std::fs::read_dir(dir)
+        .with_context(|| format!("reading dataset folder {}", dir.display()))?;
     let mut files: Vec<PathBuf> = entries
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
@@ -248,7 +248,10 @@ pub fn from_to(a: [f32; 3], b: [f32; 3]) -> Mat3 {
     let rb = Vector3::new(b[0] as f64, b[1] as f64, b[2] as f64);
     let r = Rotation3::rotation_between(&ra, &rb).unwrap_or_else(|| {
         // Opposite vectors: half a turn about any perpendicular axis.
-        let axis = ra.cross(&Vector3::x()).try_normalize(1e-9).unwrap_or(Vector3::z());
+        let axis = ra
+            .cross(&Vector3::x())
+            .try_normalize(1e-9)
+            .unwrap_or(Vector3::z());
         Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), std::f64::consts::PI)
     });
     let m = r.matrix();
@@ -299,7 +302,10 @@ impl Builder {
     }
 
     fn put(&mut self, name: &'static str, values: &[f32]) {
-        let a = self.arrays.get_mut(name).expect("array declared in Builder::new");
+        let a = self
+            .arrays
+            .get_mut(name)
+            .expect("array declared in Builder::new");
         debug_assert_eq!(values.len(), a.dim, "{name}");
         a.data.extend_from_slice(values);
     }
@@ -393,8 +399,9 @@ impl Builder {
                         .flat_map(|j| rt_mul(&root, &g[j.index()]))
                         .collect();
                     self.put("rrj", &rrj);
-                    let arb: Vec<f32> =
-                        (0..6).flat_map(|i| rt_mul_vec(&root, &imu.acceleration[i])).collect();
+                    let arb: Vec<f32> = (0..6)
+                        .flat_map(|i| rt_mul_vec(&root, &imu.acceleration[i]))
+                        .collect();
                     let wrb: Vec<f32> = (0..6)
                         .flat_map(|i| rt_mul_vec(&root, &imu.angular_velocity[i]))
                         .collect();
@@ -415,7 +422,10 @@ impl Builder {
 }
 
 pub(crate) fn pose_of(shard: &Shard, f: usize) -> Pose {
-    let root = shard.root[f * 3..f * 3 + 3].iter().map(|&v| v as f64).collect::<Vec<_>>();
+    let root = shard.root[f * 3..f * 3 + 3]
+        .iter()
+        .map(|&v| v as f64)
+        .collect::<Vec<_>>();
     let mut pose = Pose::t_pose(Vector3::new(root[0], root[1], root[2]));
     for j in 0..NUM_JOINTS {
         let m = shard.local(f, j);

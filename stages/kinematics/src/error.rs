@@ -13,7 +13,9 @@ pub enum WeightsError {
     },
     #[error("tensor '{name}' is {found}, expected f32")]
     DType { name: String, found: String },
-    #[error("tensor '{name}' is not used by the {method} networks (wrong method or a corrupt file?)")]
+    #[error(
+        "tensor '{name}' is not used by the {method} networks (wrong method or a corrupt file?)"
+    )]
     UnexpectedTensor { name: String, method: String },
     #[error("the weights are for method '{found}', not '{expected}'")]
     WrongMethod { expected: String, found: String },

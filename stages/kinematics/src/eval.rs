@@ -153,7 +153,11 @@ fn sequence_flags(shard: &Shard) -> Vec<bool> {
         .and_then(|s| s.as_array())
         .map(|seqs| {
             seqs.iter()
-                .map(|s| s.get("augmented").and_then(|a| a.as_bool()).unwrap_or(false))
+                .map(|s| {
+                    s.get("augmented")
+                        .and_then(|a| a.as_bool())
+                        .unwrap_or(false)
+                })
                 .collect()
         })
         .unwrap_or_default()
@@ -163,7 +167,15 @@ fn sequence_flags(shard: &Shard) -> Vec<bool> {
 pub fn table(rows: &[(Method, Scores)]) -> String {
     let mut out = format!(
         "{:<11} {:>5} {:>8} {:>9} {:>10} {:>10} {:>14} {:>14} {:>9}\n",
-        "method", "seqs", "frames", "SIP (°)", "angle (°)", "joint (cm)", "jitter km/s³", "truth jitter", "µs/frame"
+        "method",
+        "seqs",
+        "frames",
+        "SIP (°)",
+        "angle (°)",
+        "joint (cm)",
+        "jitter km/s³",
+        "truth jitter",
+        "µs/frame"
     );
     for (m, s) in rows {
         out.push_str(&format!(

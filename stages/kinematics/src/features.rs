@@ -145,7 +145,12 @@ mod tests {
         pip_input(&imu, &mut a);
         pip_input(&turned, &mut b);
         for k in 0..18 + 45 {
-            assert!((a[k] - b[k]).abs() < 1e-5, "feature {k}: {} vs {}", a[k], b[k]);
+            assert!(
+                (a[k] - b[k]).abs() < 1e-5,
+                "feature {k}: {} vs {}",
+                a[k],
+                b[k]
+            );
         }
         // The root orientation block is absolute: it must change.
         assert!((63..72).any(|k| (a[k] - b[k]).abs() > 0.1));

@@ -155,11 +155,17 @@ impl Streamer {
         pose.parent_from_joint[0] = Rotation3::identity();
         pose.root_in_world_m = Vector3::zeros();
         forward_kinematics(&self.body.skeleton, &pose, &mut self.fk);
-        let rel = |fk: &FkData, j: JointId| (fk.position(j) - fk.position(JointId::ROOT)).cast::<f32>();
+        let rel =
+            |fk: &FkData, j: JointId| (fk.position(j) - fk.position(JointId::ROOT)).cast::<f32>();
         let mut inits: Vec<Option<Vec<f32>>> = vec![None; self.nets.len()];
         match self.method {
             Method::Pip => {
-                inits[0] = Some(LEAF_JOINTS.iter().flat_map(|&j| rel(&self.fk, j).data.0[0]).collect());
+                inits[0] = Some(
+                    LEAF_JOINTS
+                        .iter()
+                        .flat_map(|&j| rel(&self.fk, j).data.0[0])
+                        .collect(),
+                );
                 inits[3] = Some(vec![0.0; 72]);
             }
             Method::GlobalPose => {
@@ -240,7 +246,11 @@ impl Streamer {
         })
     }
 
-    fn step_globalpose(&mut self, imu: &ImuInput, root: &Rotation3<f64>) -> anyhow::Result<Estimate> {
+    fn step_globalpose(
+        &mut self,
+        imu: &ImuInput,
+        root: &Rotation3<f64>,
+    ) -> anyhow::Result<Estimate> {
         let mut x = [0.0; GLOBALPOSE_INPUT];
         globalpose_input(imu, &mut x);
         let g0 = unit(v3(&x[81..84]));
@@ -249,11 +259,20 @@ impl Streamer {
         // Tilt-correct the relative orientations onto each refined gravity (reference §2.4).
         let rrb = |tilt: &Rotation3<f64>| -> Vec<f32> {
             (0..5)
-                .flat_map(|i| row_major(&(tilt * rot(&x[36 + 9 * i..45 + 9 * i].try_into().unwrap_or([0.0; 9])))))
+                .flat_map(|i| {
+                    row_major(
+                        &(tilt * rot(&x[36 + 9 * i..45 + 9 * i].try_into().unwrap_or([0.0; 9]))),
+                    )
+                })
                 .collect()
         };
         let rrb1 = rrb(&from_to(&g0, &g1));
-        let ik1_in = [rrb1.as_slice(), &[g1.x as f32, g1.y as f32, g1.z as f32], &pl[..15]].concat();
+        let ik1_in = [
+            rrb1.as_slice(),
+            &[g1.x as f32, g1.y as f32, g1.z as f32],
+            &pl[..15],
+        ]
+        .concat();
         let ik1 = self.run(1, &ik1_in)?;
         let g2 = unit(v3(&ik1[69..72]));
         let rrb2 = rrb(&(from_to(&g1, &g2) * from_to(&g0, &g1)));
@@ -280,7 +299,12 @@ impl Streamer {
             .flat_map(|i| (root_ct * v3(&imu.acceleration[i])).cast::<f32>().data.0[0])
             .collect();
         let wrb: Vec<f32> = (0..6)
-            .flat_map(|i| (root_ct * v3(&imu.angular_velocity[i])).cast::<f32>().data.0[0])
+            .flat_map(|i| {
+                (root_ct * v3(&imu.angular_velocity[i]))
+                    .cast::<f32>()
+                    .data
+                    .0[0]
+            })
             .collect();
         let vr = self.run(3, &[rrj.as_slice(), &prj, &arb, &wrb, &g2f].concat())?;
         // v = R_root'·v_H with its vertical component replaced by v_V (reference §2.4).
@@ -317,7 +341,11 @@ pub fn pose_from_reduced_r6d(r6d: &[f32], root: &Rotation3<f64>) -> [Rotation3<f
         let v: [f64; 6] = std::array::from_fn(|i| r6d[6 * k + i] as f64);
         let r = rotation_from_r6d(&v);
         // A degenerate output decodes to zero columns; keep the joint at identity instead.
-        global[j.index()] = if r.matrix().determinant() > 0.5 { r } else { Rotation3::identity() };
+        global[j.index()] = if r.matrix().determinant() > 0.5 {
+            r
+        } else {
+            Rotation3::identity()
+        };
     }
     let mut local = [Rotation3::identity(); NUM_JOINTS];
     for j in REDUCED_JOINTS {

@@ -85,7 +85,9 @@ impl RnnSpec {
                 .ok_or(WeightsError::MissingTensor { name: full })
         };
         let hh = shape("rnn.weight_hh_l0")?;
-        let hidden = *hh.get(1).ok_or_else(|| bad_rank(name, "rnn.weight_hh_l0", &hh))?;
+        let hidden = *hh
+            .get(1)
+            .ok_or_else(|| bad_rank(name, "rnn.weight_hh_l0", &hh))?;
         let layers = (0..)
             .take_while(|k| tensors.contains_key(&format!("{name}.rnn.weight_ih_l{k}")))
             .count();
@@ -414,7 +416,11 @@ mod tests {
             c = f * c + i * g;
             h = o * c.tanh();
             let want = 2.0 * h - 1.0;
-            assert!((y[k] as f64 - want).abs() < 1e-6, "step {k}: {} vs {want}", y[k]);
+            assert!(
+                (y[k] as f64 - want).abs() < 1e-6,
+                "step {k}: {} vs {want}",
+                y[k]
+            );
         }
     }
 
@@ -430,9 +436,18 @@ mod tests {
         let mut st = state.clone();
         let mut max_diff = 0.0f32;
         for t in 0..40 {
-            let y = net.step(&x.narrow(1, t, 1).unwrap().squeeze(1).unwrap(), &mut st).unwrap();
+            let y = net
+                .step(&x.narrow(1, t, 1).unwrap().squeeze(1).unwrap(), &mut st)
+                .unwrap();
             let w = whole.narrow(1, t, 1).unwrap().squeeze(1).unwrap();
-            let d = (y - w).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+            let d = (y - w)
+                .unwrap()
+                .abs()
+                .unwrap()
+                .max_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap();
             max_diff = max_diff.max(d);
         }
         assert!(max_diff <= 1e-6, "streaming differs by {max_diff}");
@@ -447,7 +462,14 @@ mod tests {
         let st = net.initial_state(1, Some(&init)).unwrap();
         let zero = net.initial_state(1, None).unwrap();
         assert_eq!(st.h.len(), 2);
-        let norm = |t: &Tensor| t.abs().unwrap().sum_all().unwrap().to_scalar::<f32>().unwrap();
+        let norm = |t: &Tensor| {
+            t.abs()
+                .unwrap()
+                .sum_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap()
+        };
         assert!(norm(&st.h[1]) > 0.0 && norm(&st.c[0]) > 0.0);
         assert_eq!(norm(&zero.h[0]), 0.0);
     }
@@ -469,10 +491,16 @@ mod tests {
             Tensor::zeros((32, 7), DType::F32, &Device::Cpu).unwrap(),
         );
         let err = Rnn::from_tensors(&s, &tensors).err().unwrap().to_string();
-        assert!(err.contains("net.rnn.weight_hh_l1") && err.contains("[32, 7]"), "{err}");
+        assert!(
+            err.contains("net.rnn.weight_hh_l1") && err.contains("[32, 7]"),
+            "{err}"
+        );
         let mut tensors = good;
         tensors.remove("net.linear2.bias");
         let err = Rnn::from_tensors(&s, &tensors).err().unwrap().to_string();
-        assert!(err.contains("net.linear2.bias") && err.contains("missing"), "{err}");
+        assert!(
+            err.contains("net.linear2.bias") && err.contains("missing"),
+            "{err}"
+        );
     }
 }

@@ -81,7 +81,10 @@ pub fn run() -> anyhow::Result<()> {
         None => StartPose::NPose,
     };
     let weights = Weights::load(&weights_path, method).with_context(|| {
-        format!("stage '{stage}': loading weights '{}'", weights_path.display())
+        format!(
+            "stage '{stage}': loading weights '{}'",
+            weights_path.display()
+        )
     })?;
     let mut streamer = Streamer::new(weights, start.pose())?;
     let input = ctx.input::<BodyImuFrame>("imu")?;

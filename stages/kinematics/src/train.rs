@@ -331,7 +331,10 @@ fn cumulative_loss(err: &Tensor) -> candle_core::Result<Tensor> {
         if blocks == 0 {
             continue;
         }
-        let e = err.narrow(1, 0, blocks * n)?.reshape((b, blocks, n, d))?.sum(2)?;
+        let e = err
+            .narrow(1, 0, blocks * n)?
+            .reshape((b, blocks, n, d))?
+            .sum(2)?;
         total = (total + e.sqr()?.mean_all()?)?;
     }
     Ok(total)
@@ -396,21 +399,38 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
     let method = options.method;
     let tasks = tasks(method);
     if options.chunk < 27 {
-        bail!("--chunk must be at least 27 frames (the cumulative velocity loss uses 27-frame blocks)");
+        bail!(
+            "--chunk must be at least 27 frames (the cumulative velocity loss uses 27-frame blocks)"
+        );
     }
     std::fs::create_dir_all(&options.checkpoint_dir).with_context(|| {
-        format!("creating checkpoint folder {}", options.checkpoint_dir.display())
+        format!(
+            "creating checkpoint folder {}",
+            options.checkpoint_dir.display()
+        )
     })?;
 
     eprintln!("loading training data from {} ...", options.data.display());
-    let train_set = load_split(&options.data, "train", method, options.max_train_frames, |i, n| {
-        if i < n {
-            eprint!("\r  train shard {}/{n}", i + 1);
-        } else {
-            eprintln!();
-        }
-    })?;
-    let val_set = load_split(&options.data, "validation", method, options.max_val_frames, |_, _| {})?;
+    let train_set = load_split(
+        &options.data,
+        "train",
+        method,
+        options.max_train_frames,
+        |i, n| {
+            if i < n {
+                eprint!("\r  train shard {}/{n}", i + 1);
+            } else {
+                eprintln!();
+            }
+        },
+    )?;
+    let val_set = load_split(
+        &options.data,
+        "validation",
+        method,
+        options.max_val_frames,
+        |_, _| {},
+    )?;
     eprintln!(
         "  {} train frames in {} sequences, {} validation frames ({:.0} s)",
         train_set.frames,
@@ -459,8 +479,16 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
         writeln!(
             log,
             "epoch,step,elapsed_s,{},{}",
-            names.iter().map(|n| format!("train_{n}")).collect::<Vec<_>>().join(","),
-            names.iter().map(|n| format!("val_{n}")).collect::<Vec<_>>().join(",")
+            names
+                .iter()
+                .map(|n| format!("train_{n}"))
+                .collect::<Vec<_>>()
+                .join(","),
+            names
+                .iter()
+                .map(|n| format!("val_{n}"))
+                .collect::<Vec<_>>()
+                .join(",")
         )?;
     }
 
@@ -470,7 +498,10 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
     val_starts.shuffle(&mut val_rng);
     val_starts.truncate(256);
     if val_starts.is_empty() {
-        bail!("the validation split has no sequence of at least {} frames", options.chunk);
+        bail!(
+            "the validation split has no sequence of at least {} frames",
+            options.chunk
+        );
     }
 
     let deadline_s = options.max_minutes * 60.0;
@@ -481,13 +512,27 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
         starts.shuffle(&mut rng);
         let steps = starts.len() / options.batch;
         if steps == 0 {
-            bail!("not enough training chunks for one batch of {}", options.batch);
+            bail!(
+                "not enough training chunks for one batch of {}",
+                options.batch
+            );
         }
-        let bar = progress_bar(options.progress, steps as u64, state.epoch + 1, options.epochs);
+        let bar = progress_bar(
+            options.progress,
+            steps as u64,
+            state.epoch + 1,
+            options.epochs,
+        );
         let mut sums = vec![0.0f64; tasks.len()];
         let mut done = 0usize;
         for batch_starts in starts.chunks_exact(options.batch) {
-            let batch = make_batch(&train_set, tasks, batch_starts, options.chunk, Some(&mut rng))?;
+            let batch = make_batch(
+                &train_set,
+                tasks,
+                batch_starts,
+                options.chunk,
+                Some(&mut rng),
+            )?;
             let nets = build_nets(&specs, &opt)?;
             let losses = batch_losses(&nets, tasks, &batch, options.dropout)?;
             let mut total = losses[0].clone();
@@ -502,7 +547,10 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
             done += 1;
             state.step += 1;
             bar.inc(1);
-            bar.set_message(format!("loss {:.4}", sums.iter().sum::<f64>() / done as f64));
+            bar.set_message(format!(
+                "loss {:.4}",
+                sums.iter().sum::<f64>() / done as f64
+            ));
             if state.elapsed_s + started.elapsed().as_secs_f64() > deadline_s {
                 stopped_early = true;
                 break;
@@ -528,7 +576,11 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
             "epoch {:>3} ({} steps{}): train {}  val {}  [{:.0} min]",
             state.epoch,
             done,
-            if stopped_early { ", stopped at the time limit" } else { "" },
+            if stopped_early {
+                ", stopped at the time limit"
+            } else {
+                ""
+            },
             join(&train_losses),
             join(&val_losses),
             elapsed / 60.0
@@ -546,7 +598,10 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
         run_state.elapsed_s = elapsed;
         save_checkpoint(&opt, &ckpt_tensors, &ckpt_state, &run_state)?;
         if stopped_early {
-            eprintln!("time limit of {} min reached; run again to resume", options.max_minutes);
+            eprintln!(
+                "time limit of {} min reached; run again to resume",
+                options.max_minutes
+            );
             break;
         }
     }
@@ -560,7 +615,11 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
 }
 
 fn join(values: &[f64]) -> String {
-    values.iter().map(|v| format!("{v:.5}")).collect::<Vec<_>>().join(",")
+    values
+        .iter()
+        .map(|v| format!("{v:.5}"))
+        .collect::<Vec<_>>()
+        .join(",")
 }
 
 fn progress_bar(show: bool, steps: u64, epoch: usize, epochs: usize) -> ProgressBar {
@@ -638,15 +697,19 @@ fn resume(
 ) -> anyhow::Result<CheckpointState> {
     let text = std::fs::read_to_string(state_path)
         .with_context(|| format!("reading {}", state_path.display()))?;
-    let value: serde_json::Value = serde_json::from_str(&text)
-        .with_context(|| format!("parsing {}", state_path.display()))?;
+    let value: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("parsing {}", state_path.display()))?;
     let state: CheckpointState = serde_json::from_value(value.clone())
         .with_context(|| format!("parsing {}", state_path.display()))?;
     if state.specs != specs {
         bail!(
             "checkpoint {} was made with other network sizes ({:?}); use another --checkpoint-dir or the same --hidden/--layers",
             state_path.display(),
-            state.specs.iter().map(|s| (s.hidden, s.layers)).collect::<Vec<_>>()
+            state
+                .specs
+                .iter()
+                .map(|s| (s.hidden, s.layers))
+                .collect::<Vec<_>>()
         );
     }
     let tensors = candle_core::safetensors::load(tensors_path, &Device::Cpu)
@@ -656,7 +719,9 @@ fn resume(
             tensors
                 .get(&format!("{prefix}/{name}"))
                 .cloned()
-                .with_context(|| format!("{}: tensor {prefix}/{name} missing", tensors_path.display()))
+                .with_context(|| {
+                    format!("{}: tensor {prefix}/{name} missing", tensors_path.display())
+                })
         };
         opt.vars[i].set(&get("param")?)?;
         opt.m[i] = get("adam_m")?;
@@ -681,7 +746,11 @@ fn export(
         .map(|(n, v)| (n.clone(), v.as_tensor().to_dtype(DType::F32)))
         .map(|(n, t)| t.map(|t| (n, t)))
         .collect::<Result<_, _>>()?;
-    let first_meta = train_set.shard_metadata.first().cloned().unwrap_or_default();
+    let first_meta = train_set
+        .shard_metadata
+        .first()
+        .cloned()
+        .unwrap_or_default();
     let metadata = WeightsMetadata {
         format: weights::FORMAT.to_owned(),
         method: options.method,
@@ -705,8 +774,9 @@ fn export(
             "validation_losses": specs.iter().map(|s| s.name.clone()).zip(val_losses.iter().copied())
                 .collect::<std::collections::BTreeMap<_, _>>(),
         }),
-        licence: "CC BY-NC 4.0, inherited from the Bandai-Namco-Research-Motiondataset it was trained on"
-            .to_owned(),
+        licence:
+            "CC BY-NC 4.0, inherited from the Bandai-Namco-Research-Motiondataset it was trained on"
+                .to_owned(),
     };
     weights::save(&options.out, &tensors, &metadata)
 }

@@ -103,16 +103,31 @@ pub fn nets_from_tensors(
                 } else {
                     Err(WeightsError::Shape {
                         name: format!("{name}.{what}"),
-                        expected: format!("{want} {}", if what.contains("linear2") { "outputs" } else { "inputs" }),
+                        expected: format!(
+                            "{want} {}",
+                            if what.contains("linear2") {
+                                "outputs"
+                            } else {
+                                "inputs"
+                            }
+                        ),
                         found: vec![found],
                     })
                 }
             };
-            let first = if input_linear { "linear1.weight" } else { "rnn.weight_ih_l0" };
+            let first = if input_linear {
+                "linear1.weight"
+            } else {
+                "rnn.weight_ih_l0"
+            };
             if spec.input_linear != input_linear {
                 return Err(WeightsError::Shape {
                     name: format!("{name}.linear1.weight"),
-                    expected: if input_linear { "present".into() } else { "absent".into() },
+                    expected: if input_linear {
+                        "present".into()
+                    } else {
+                        "absent".into()
+                    },
                     found: vec![],
                 });
             }

@@ -10,12 +10,17 @@ use imuflow_kinematics::import::{import_checkpoint, read_checkpoint};
 use imuflow_kinematics::weights::{Weights, nets_from_tensors};
 
 fn fixture(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name)
 }
 
 fn check_method(method: Method) {
     let stem = method.name();
-    let out = std::env::temp_dir().join(format!("imuflow-import-{stem}-{}.safetensors", std::process::id()));
+    let out = std::env::temp_dir().join(format!(
+        "imuflow-import-{stem}-{}.safetensors",
+        std::process::id()
+    ));
     import_checkpoint(method, &fixture(&format!("{stem}-small.pt")), &out).unwrap();
     let weights = Weights::load(&out, method).unwrap();
     std::fs::remove_file(&out).ok();
@@ -27,7 +32,11 @@ fn check_method(method: Method) {
     for net in &weights.nets {
         let e = &expected["nets"][&net.spec.name];
         let vec = |v: &serde_json::Value| -> Vec<f32> {
-            v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap() as f32).collect()
+            v.as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap() as f32)
+                .collect()
         };
         let init = (!e["init"].is_null())
             .then(|| Tensor::from_vec(vec(&e["init"]), (1, ()), &Device::Cpu).unwrap());
@@ -37,7 +46,13 @@ fn check_method(method: Method) {
         assert_eq!(inputs.len(), outputs.len());
         for (x, want) in inputs.iter().zip(outputs) {
             let x = Tensor::from_vec(vec(x), (1, ()), &Device::Cpu).unwrap();
-            let y: Vec<f32> = net.step(&x, &mut state).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+            let y: Vec<f32> = net
+                .step(&x, &mut state)
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1()
+                .unwrap();
             let want = vec(want);
             assert_eq!(y.len(), want.len(), "{}", net.spec.name);
             for (a, b) in y.iter().zip(&want) {
@@ -45,7 +60,10 @@ fn check_method(method: Method) {
             }
         }
     }
-    assert!(worst < 1e-4, "{stem}: largest difference to the Python reference {worst}");
+    assert!(
+        worst < 1e-4,
+        "{stem}: largest difference to the Python reference {worst}"
+    );
 }
 
 #[test]
@@ -61,13 +79,25 @@ fn imported_globalpose_checkpoint_streams_like_the_reference() {
 #[test]
 fn wrong_method_and_corrupt_files_are_named() {
     // A GlobalPose checkpoint is not PIP: the first foreign tensor is named.
-    let err = read_checkpoint(Method::Pip, &fixture("globalpose-small.pt")).unwrap_err().to_string();
+    let err = read_checkpoint(Method::Pip, &fixture("globalpose-small.pt"))
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("not used by the pip networks"), "{err}");
     // Not a checkpoint at all.
-    let err = read_checkpoint(Method::Pip, &fixture("pip-small-expected.json")).unwrap_err().to_string();
-    assert!(err.contains("pip-small-expected.json") && err.contains("not a PyTorch checkpoint"), "{err}");
-    let err = read_checkpoint(Method::Pip, &fixture("missing.pt")).unwrap_err().to_string();
-    assert!(err.contains("missing.pt") && err.contains("no such file"), "{err}");
+    let err = read_checkpoint(Method::Pip, &fixture("pip-small-expected.json"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("pip-small-expected.json") && err.contains("not a PyTorch checkpoint"),
+        "{err}"
+    );
+    let err = read_checkpoint(Method::Pip, &fixture("missing.pt"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("missing.pt") && err.contains("no such file"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -75,14 +105,26 @@ fn missing_and_misshapen_tensors_are_named() {
     let mut tensors = read_checkpoint(Method::Pip, &fixture("pip-small.pt")).unwrap();
     let good = tensors.clone();
     tensors.remove("rnn3.rnn.bias_hh_l1");
-    let err = nets_from_tensors(Method::Pip, &tensors).err().unwrap().to_string();
-    assert!(err.contains("rnn3.rnn.bias_hh_l1") && err.contains("missing"), "{err}");
+    let err = nets_from_tensors(Method::Pip, &tensors)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("rnn3.rnn.bias_hh_l1") && err.contains("missing"),
+        "{err}"
+    );
     // rnn2 reading 70 inputs instead of [leaf 15, imu 72] = 87.
     let mut tensors = good;
     tensors.insert(
         "rnn2.linear1.weight".into(),
         Tensor::zeros((12, 70), candle_core::DType::F32, &Device::Cpu).unwrap(),
     );
-    let err = nets_from_tensors(Method::Pip, &tensors).err().unwrap().to_string();
-    assert!(err.contains("rnn2.linear1.weight") && err.contains("87"), "{err}");
+    let err = nets_from_tensors(Method::Pip, &tensors)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("rnn2.linear1.weight") && err.contains("87"),
+        "{err}"
+    );
 }
