@@ -2,6 +2,7 @@
 
 mod bench;
 mod kinematics_cmd;
+mod physics_eval;
 mod registry;
 
 use std::path::PathBuf;
@@ -70,6 +71,30 @@ enum Command {
     Eval(kinematics_cmd::EvalArgs),
     /// Convert the authors' PyTorch checkpoint (PIP or GlobalPose) to an imuflow weight file.
     ImportCheckpoint(kinematics_cmd::ImportArgs),
+    /// The body model.
+    #[command(subcommand)]
+    Body(BodyCommand),
+    /// Score the physics methods (integrate, pip, globalpose) on the dataset's test split with the
+    /// same kinematics: jitter, foot skating, penetration, translation, standing ground forces.
+    EvalPhysics(physics_eval::EvalPhysicsArgs),
+}
+
+#[derive(Subcommand)]
+enum BodyCommand {
+    /// Write the dynamic body model as URDF (floating root; each spherical joint as three continuous
+    /// x/y/z joints with massless links), so other tools (Pinocchio, RBDL, pybullet) load the same
+    /// masses and inertias as imuflow's physics.
+    ExportUrdf {
+        /// Output file.
+        #[arg(long, short, value_name = "FILE", default_value = "out/body.urdf")]
+        out: PathBuf,
+        /// Subject stature, m.
+        #[arg(long, default_value_t = 1.75)]
+        stature_m: f64,
+        /// Subject mass, kg.
+        #[arg(long, default_value_t = 70.0)]
+        mass_kg: f64,
+    },
 }
 
 #[derive(Subcommand)]
@@ -136,6 +161,26 @@ impl GraphArgs {
     }
 }
 
+/// `imuflow body export-urdf`.
+fn export_urdf(out: &std::path::Path, stature_m: f64, mass_kg: f64) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let params = imuflow_body::BodyParams::builtin()?;
+    let body = imuflow_body::BodyModel::new(&params, stature_m, mass_kg)?;
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    std::fs::write(out, imuflow_body::urdf::export_urdf(&body))
+        .with_context(|| format!("{}: cannot write", out.display()))?;
+    println!(
+        "{}: {:.1} kg, {:.2} m ({} joints)",
+        out.display(),
+        body.mass_kg,
+        body.stature_m,
+        imuflow_body::NUM_JOINTS
+    );
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logging(matches!(cli.command, Command::Stage { .. }));
@@ -181,6 +226,24 @@ fn main() -> ExitCode {
             ExitCode::from(2)
         }
         Command::Clean => clean(),
+        Command::EvalPhysics(args) => match physics_eval::run(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
+        Command::Body(BodyCommand::ExportUrdf {
+            out,
+            stature_m,
+            mass_kg,
+        }) => match export_urdf(&out, stature_m, mass_kg) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
         Command::Dataset(cmd) => dataset(cmd),
         Command::ImportCheckpoint(args) => match kinematics_cmd::import(args) {
             Ok(()) => ExitCode::SUCCESS,

@@ -16,6 +16,8 @@ fn specs() -> Vec<StageSpec> {
         imuflow_imu_source::SPEC,
         imuflow_calibration::SPEC,
         imuflow_kinematics::SPEC,
+        imuflow_contact::SPEC,
+        imuflow_optimizer::SPEC,
         bench::SOURCE_SPEC,
         bench::RELAY_SPEC,
     ]
@@ -34,6 +36,8 @@ pub fn run_stage(kind: &str) -> anyhow::Result<()> {
         k if k == imuflow_rerun_logger::SPEC.kind => imuflow_rerun_logger::run(),
         k if k == imuflow_calibration::SPEC.kind => imuflow_calibration::run(),
         k if k == imuflow_kinematics::SPEC.kind => imuflow_kinematics::run(),
+        k if k == imuflow_contact::SPEC.kind => imuflow_contact::run(),
+        k if k == imuflow_optimizer::SPEC.kind => imuflow_optimizer::run(),
         k if k == bench::SOURCE_SPEC.kind => bench::run_source(),
         k if k == bench::RELAY_SPEC.kind => bench::run_relay(),
         other => bail!("unknown stage kind '{other}' (see `imuflow stage --list`)"),

@@ -7,8 +7,10 @@ Reads the .rrd with the official rerun SDK (rerun-sdk[datafusion]==0.36.3, RrdRe
 numbers (decoded through the layout schema the recorder writes), timelines and entities against
 what the graph should produce. Exits non-zero with a message on any mismatch.
 
-usage: verify_outputs.py RRD MCAP TOPIC=COUNT [TOPIC=COUNT ...]
+usage: verify_outputs.py RRD MCAP TOPIC=COUNT [TOPIC=COUNT ...] [+COLUMN ...]
   e.g. verify_outputs.py out/smoke.rrd out/smoke.mcap source.imu=600 source.imu/json=600
+  +COLUMN: an .rrd column that must exist, e.g. +/motion/skeleton/joints:Points3D:positions.
+  Without any, the IMU columns of a logger input named `imu` are required.
 """
 import json
 import struct
@@ -62,7 +64,15 @@ def check_mcap(path, want):
     print(f"verify_outputs: {path}: OK ({', '.join(f'{t}: {n}' for t, n in sorted(want.items()))}; layouts decoded)")
 
 
-def check_rrd(path):
+def imu_columns():
+    columns = []
+    for sensor in SENSORS:
+        columns += [f"/imu/{sensor}/orientation:Transform3D:quaternion",
+                    f"/plots/imu/{sensor}/specific_force_mps2:Scalars:scalars"]
+    return columns
+
+
+def check_rrd(path, columns):
     reader = rx.RrdReader(path)
     recordings = reader.recordings()
     if not recordings or recordings[0].application_id != "imuflow":
@@ -71,18 +81,18 @@ def check_rrd(path):
     for timeline in ["seq", "capture_time"]:
         if f"Index(timeline:{timeline})" not in schema:
             fail(f"{path}: timeline '{timeline}' missing")
-    for sensor in SENSORS:
-        for column in [f"/imu/{sensor}/orientation:Transform3D:quaternion",
-                       f"/plots/imu/{sensor}/specific_force_mps2:Scalars:scalars"]:
-            if column not in schema:
-                fail(f"{path}: column {column} missing")
+    for column in columns:
+        if column not in schema:
+            fail(f"{path}: column {column} missing")
     print(f"verify_outputs: {path}: OK (rerun SDK {rx.__name__} read {len(recordings)} recording)")
 
 
 if __name__ == "__main__":
-    if len(sys.argv) < 4 or any("=" not in a for a in sys.argv[3:]):
+    topics = [a for a in sys.argv[3:] if not a.startswith("+")]
+    columns = [a[1:] for a in sys.argv[3:] if a.startswith("+")]
+    if len(sys.argv) < 4 or not topics or any("=" not in a for a in topics):
         print(__doc__, file=sys.stderr)
         sys.exit(2)
-    expected = {t: int(n) for t, n in (a.rsplit("=", 1) for a in sys.argv[3:])}
-    check_rrd(sys.argv[1])
+    expected = {t: int(n) for t, n in (a.rsplit("=", 1) for a in topics)}
+    check_rrd(sys.argv[1], columns or imu_columns())
     check_mcap(sys.argv[2], expected)

@@ -77,8 +77,10 @@ mod tests {
         for j in [JointId::LEFT_FOOT, JointId::RIGHT_FOOT, JointId::LEFT_ANKLE] {
             let h = geometry.height_above(j, &rest[j.index()], 0.0);
             assert!(h.abs() < 1e-12, "{j:?} rests on the floor: {h}");
-            assert!(geometry.clearance(j) > 0.02, "{j:?} sits above its sole");
         }
+        // The ankle sits at Winter's ankle height (0.039 × stature, body.toml) above its sole.
+        let ankle = geometry.clearance(JointId::LEFT_ANKLE);
+        assert!((ankle - 0.039 * 1.75).abs() < 0.01, "{ankle}");
         // Standing: the pelvis is a leg length above the floor, far from sitting on it.
         let pelvis = geometry.height_above(JointId::PELVIS, &rest[0], 0.0);
         assert!(pelvis > 0.6, "{pelvis}");

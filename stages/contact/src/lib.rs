@@ -17,7 +17,8 @@ pub mod force;
 pub mod geometry;
 pub mod pip;
 pub mod set;
-// pub mod stage;
+pub mod stage;
 
 pub use geometry::ContactGeometry;
 pub use set::{ContactPoint, ContactSet};
+pub use stage::{SPEC, run};

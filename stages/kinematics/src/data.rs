@@ -126,20 +126,20 @@ pub fn load_split(
     Ok(set)
 }
 
-pub(crate) struct Shard<'a> {
+pub struct Shard<'a> {
     orientation: Vec<f32>,
     accel: Vec<f32>,
     gyro: Vec<f32>,
     pose: Vec<f32>,
     root: Vec<f32>,
     joints: Vec<f32>,
-    pub(crate) offsets: Vec<usize>,
-    pub(crate) metadata: Option<serde_json::Value>,
+    pub offsets: Vec<usize>,
+    pub metadata: Option<serde_json::Value>,
     _bytes: std::marker::PhantomData<&'a [u8]>,
 }
 
 impl<'a> Shard<'a> {
-    pub(crate) fn parse(bytes: &'a [u8]) -> anyhow::Result<Shard<'a>> {
+    pub fn parse(bytes: &'a [u8]) -> anyhow::Result<Shard<'a>> {
         let (_, header) = SafeTensors::read_metadata(bytes).context("safetensors header")?;
         let metadata = header
             .metadata()
@@ -189,7 +189,7 @@ impl<'a> Shard<'a> {
         Ok(shard)
     }
 
-    pub(crate) fn imu(&self, f: usize) -> ImuInput {
+    pub fn imu(&self, f: usize) -> ImuInput {
         let mut imu = ImuInput::default();
         for i in 0..6 {
             let o = f * 54 + i * 9;
@@ -421,7 +421,7 @@ impl Builder {
     }
 }
 
-pub(crate) fn pose_of(shard: &Shard, f: usize) -> Pose {
+pub fn pose_of(shard: &Shard, f: usize) -> Pose {
     let root = shard.root[f * 3..f * 3 + 3]
         .iter()
         .map(|&v| v as f64)

@@ -145,7 +145,7 @@ fn positions(fk: &FkData) -> [Vector3<f64>; NUM_JOINTS] {
 }
 
 /// Per sequence of a shard: whether it is an augmented copy (from the shard metadata).
-fn sequence_flags(shard: &Shard) -> Vec<bool> {
+pub fn sequence_flags(shard: &Shard) -> Vec<bool> {
     shard
         .metadata
         .as_ref()

@@ -171,8 +171,8 @@ mod tests {
         assert!(world[0].abs() < 1e-6 && (world[1] + 1.0).abs() < 1e-6 && world[2].abs() < 1e-6);
         // Root angular velocity back in M.
         let w = mul_vec(&imu.orientation[5], &[x[33], x[34], x[35]]);
-        for k in 0..3 {
-            assert!((w[k] - imu.angular_velocity[5][k]).abs() < 1e-5);
+        for (got, want) in w.iter().zip(&imu.angular_velocity[5]) {
+            assert!((got - want).abs() < 1e-5);
         }
     }
 }

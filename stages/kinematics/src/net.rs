@@ -99,10 +99,9 @@ impl RnnSpec {
         }
         .ok_or_else(|| bad_rank(name, "rnn.weight_ih_l0", &hh))?;
         let output = shape("linear2.weight")?[0];
-        let init_input = match tensors.get(&format!("{name}.init_net.0.weight")) {
-            Some(t) => Some(t.dims().get(1).copied().unwrap_or(0)),
-            None => None,
-        };
+        let init_input = tensors
+            .get(&format!("{name}.init_net.0.weight"))
+            .map(|t| t.dims().get(1).copied().unwrap_or(0));
         Ok(RnnSpec {
             name: name.to_owned(),
             input,

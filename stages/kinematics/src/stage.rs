@@ -171,7 +171,8 @@ fn quat_wxyz(r: &Rotation3<f64>) -> [f32; 4] {
     [q.w as f32, q.i as f32, q.j as f32, q.k as f32]
 }
 
-fn fill(out: &mut KinematicsFrame, e: &Estimate) {
+/// Write an estimate into a wire frame (the header is the caller's).
+pub fn fill(out: &mut KinematicsFrame, e: &Estimate) {
     for j in 0..24 {
         out.local_pose_wxyz[j] = quat_wxyz(&e.pose[j]);
         out.joint_position_m[j] = e.joint_position[j].cast::<f32>().into();

@@ -136,7 +136,7 @@ pub fn nets_from_tensors(
             if let Some(want) = init {
                 check("init_net.0.weight", spec.init_input.unwrap_or(0), want)?;
             }
-            Ok(Rnn::from_tensors(&spec, tensors)?)
+            Rnn::from_tensors(&spec, tensors)
         })
         .collect()
 }

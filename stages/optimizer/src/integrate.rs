@@ -33,6 +33,36 @@ pub fn stationary_weight(probability: f64) -> f64 {
     (5.0 * probability - 3.0).clamp(0.0, 1.0)
 }
 
+/// Eq. 25: the refined root velocity from the contact joints relative to the root (world axes) in the
+/// previous and this frame, their stationary probabilities, and the network's root velocity.
+pub fn refined_root_velocity(
+    previous_rel: &[Vector3<f64>; CONTACT_JOINTS.len()],
+    rel: &[Vector3<f64>; CONTACT_JOINTS.len()],
+    stationary_prob: &[f64; CONTACT_JOINTS.len()],
+    network_velocity: &Vector3<f64>,
+) -> Vector3<f64> {
+    let mut sum = NETWORK_VELOCITY_WEIGHT * network_velocity;
+    let mut total = NETWORK_VELOCITY_WEIGHT;
+    for i in 0..CONTACT_JOINTS.len() {
+        let w = stationary_weight(stationary_prob[i]);
+        sum += w * (previous_rel[i] - rel[i]) / DT_S;
+        total += w;
+    }
+    sum / total
+}
+
+/// Contact joints ([`CONTACT_JOINTS`]) of `reference`'s pose relative to the root, in world axes.
+pub fn contact_joints_rel(
+    physics: &PhysicsBody,
+    reference: &Reference,
+    fk: &mut FkData,
+) -> [Vector3<f64>; CONTACT_JOINTS.len()] {
+    let mut pose = reference.pose.clone();
+    pose.root_in_world_m = Vector3::zeros();
+    forward_kinematics(&physics.body.skeleton, &pose, fk);
+    CONTACT_JOINTS.map(|j| fk.joint_in_world_m[j.index()])
+}
+
 /// The `integrate` method.
 pub struct Integrate {
     physics: PhysicsBody,
@@ -64,10 +94,7 @@ impl Integrate {
         &mut self,
         reference: &Reference,
     ) -> [Vector3<f64>; CONTACT_JOINTS.len()] {
-        let mut pose = reference.pose.clone();
-        pose.root_in_world_m = Vector3::zeros();
-        forward_kinematics(&self.physics.body.skeleton, &pose, &mut self.fk);
-        CONTACT_JOINTS.map(|j| self.fk.joint_in_world_m[j.index()])
+        contact_joints_rel(&self.physics, reference, &mut self.fk)
     }
 }
 
@@ -94,11 +121,12 @@ impl Method for Integrate {
                 place_on_floor(&self.physics, &mut out.pose, &CONTACT_JOINTS, &mut self.fk);
             }
             Some(previous_rel) => {
-                let mut sum = NETWORK_VELOCITY_WEIGHT * reference.root_velocity_mps;
-                for i in 0..CONTACT_JOINTS.len() {
-                    sum += weights[i] * (previous_rel[i] - rel[i]) / DT_S;
-                }
-                let v = sum / (NETWORK_VELOCITY_WEIGHT + weights.iter().sum::<f64>());
+                let v = refined_root_velocity(
+                    previous_rel,
+                    &rel,
+                    &reference.stationary_prob,
+                    &reference.root_velocity_mps,
+                );
                 out.pose.root_in_world_m = self.previous.pose.root_in_world_m + v * DT_S;
                 out.v.fixed_rows_mut::<3>(0).copy_from(&v);
                 // Joint velocities in the body crate's coordinates: log(R_prevᵀ·R)/dt in the joint frame.
@@ -130,9 +158,10 @@ mod tests {
     use nalgebra::Rotation3;
 
     fn reference() -> Reference {
-        let mut r = Reference::default();
-        r.stationary_prob = [0.0; 5];
-        r
+        Reference {
+            stationary_prob: [0.0; 5],
+            ..Reference::default()
+        }
     }
 
     #[test]

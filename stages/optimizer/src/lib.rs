@@ -19,10 +19,11 @@ pub mod globalpose;
 pub mod integrate;
 pub mod pip;
 pub mod reference;
-// pub mod stage; (wired once the pip and globalpose methods exist)
+pub mod stage;
 
 pub use estimate::MotionEstimate;
 pub use reference::Reference;
+pub use stage::{SPEC, run};
 
 use imuflow_body::dynamics::RigidBodyModel;
 use imuflow_body::{BodyModel, BodyParams};

@@ -55,7 +55,7 @@ pub const SPEC: StageSpec = StageSpec {
             name: "contacts",
             frame: FrameType::Contact,
             required: false,
-            doc: "contacts for this frame (method pip: the contact stage's PIP rule; required there)",
+            doc: "contacts for this frame (method pip: the contact stage's PIP rule; without it pip applies the rule itself)",
         },
     ]),
     outputs: &[
@@ -80,8 +80,20 @@ pub const SPEC: StageSpec = StageSpec {
             default: "integrate",
             doc: "integrate (no physics), pip (CVPR 2022 QP) or globalpose (SIGGRAPH 2025 double tracking)",
         },
-        float("stature_m", 1.0, 2.5, "1.75", "subject stature (m): scales the body model"),
-        float("mass_kg", 20.0, 250.0, "70", "subject mass (kg): scales the segment masses"),
+        float(
+            "stature_m",
+            1.0,
+            2.5,
+            "1.75",
+            "subject stature (m): scales the body model",
+        ),
+        float(
+            "mass_kg",
+            20.0,
+            250.0,
+            "70",
+            "subject mass (kg): scales the segment masses",
+        ),
         float(
             "kp_rotation",
             0.0,
@@ -89,7 +101,13 @@ pub const SPEC: StageSpec = StageSpec {
             "pip 2400, globalpose 3600",
             "joint-rotation PD stiffness (1/s²)",
         ),
-        float("kd_rotation", 0.0, 1e4, "60", "joint-rotation PD damping (1/s)"),
+        float(
+            "kd_rotation",
+            0.0,
+            1e4,
+            "60",
+            "joint-rotation PD damping (1/s)",
+        ),
         float(
             "kp_position",
             0.0,
@@ -97,7 +115,13 @@ pub const SPEC: StageSpec = StageSpec {
             "3600",
             "joint-position PD stiffness (1/s²)",
         ),
-        float("kd_position", 0.0, 1e4, "60", "joint-position PD damping (1/s)"),
+        float(
+            "kd_position",
+            0.0,
+            1e4,
+            "60",
+            "joint-position PD damping (1/s)",
+        ),
         float(
             "friction",
             0.0,
@@ -110,7 +134,7 @@ pub const SPEC: StageSpec = StageSpec {
 
 /// One of the three methods.
 enum AnyMethod {
-    Integrate(Integrate),
+    Integrate(Box<Integrate>),
     Pip(Box<Pip>),
     GlobalPose(Box<GlobalPose>),
 }
@@ -118,7 +142,7 @@ enum AnyMethod {
 impl AnyMethod {
     fn method(&mut self) -> &mut dyn Method {
         match self {
-            AnyMethod::Integrate(m) => m,
+            AnyMethod::Integrate(m) => m.as_mut(),
             AnyMethod::Pip(m) => m.as_mut(),
             AnyMethod::GlobalPose(m) => m.as_mut(),
         }
@@ -137,10 +161,13 @@ impl AnyMethod {
 /// Builds the method a stage's parameters ask for.
 fn build(stage: &str, params: &Params) -> anyhow::Result<(String, AnyMethod)> {
     let name = params.str("method").unwrap_or("integrate").to_owned();
-    let physics = PhysicsBody::new(params.float("stature_m", 1.75), params.float("mass_kg", 70.0))
-        .with_context(|| format!("stage '{stage}': body model"))?;
+    let physics = PhysicsBody::new(
+        params.float("stature_m", 1.75),
+        params.float("mass_kg", 70.0),
+    )
+    .with_context(|| format!("stage '{stage}': body model"))?;
     let method = match name.as_str() {
-        "integrate" => AnyMethod::Integrate(Integrate::new(physics)),
+        "integrate" => AnyMethod::Integrate(Box::new(Integrate::new(physics))),
         "pip" => {
             let d = PipConfig::default();
             let config = PipConfig {
@@ -165,7 +192,10 @@ fn build(stage: &str, params: &Params) -> anyhow::Result<(String, AnyMethod)> {
             };
             AnyMethod::GlobalPose(Box::new(GlobalPose::new(physics, config)?))
         }
-        other => bail!("stage '{stage}': unknown method '{other}' ({})", METHODS.join(", ")),
+        other => bail!(
+            "stage '{stage}': unknown method '{other}' ({})",
+            METHODS.join(", ")
+        ),
     };
     Ok((name, method))
 }
@@ -183,9 +213,10 @@ pub fn run() -> anyhow::Result<()> {
         None
     };
     if method_name == "pip" && contacts_in.is_none() {
-        bail!(
-            "stage '{stage}': method pip needs input 'contacts' (a contact stage with method pip, \
-             fed back this optimizer's motion; see configs/pip.toml)"
+        tracing::info!(
+            stage,
+            "no 'contacts' input: pip applies PIP's contact rule to its own state (as a contact \
+             stage fed back this optimizer's motion would; configs/pip.toml wires one)"
         );
     }
     let mut motion_out = ctx.output::<MotionFrame>("motion")?;

@@ -7,6 +7,11 @@
 //! - ImuFrame / BodyImuFrame: each sensor's orientation as a transform with axes (sensors laid
 //!   out side by side along x so they do not overlap), and its acceleration, angular rate and
 //!   valid flag as time series under `plots/`.
+//! - MotionFrame: the skeleton (bones as lines, joints as points whose radius grows with the joint's
+//!   torque) at its global position, ground-reaction forces as arrows from the joints, and the torque
+//!   magnitude per joint as a bar chart under `plots/<input>/torque_norm_nm`.
+//! - KinematicsFrame: the networks' joint positions relative to the root (points and bones).
+//! - ContactFrame: contact points, and their forces as arrows.
 //! - Every frame type: each small field (up to 6 scalars, e.g. stationary probabilities, root
 //!   velocity) as a time series under `plots/<input>/<field>`, and the INVALID flag.
 //!
@@ -14,8 +19,10 @@
 //! coordinates so the viewer shows "up" correctly.
 
 use anyhow::{Context, bail};
+use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose, forward_kinematics};
 use imuflow_graph::frames::{
-    BodyImuFrame, FrameLayout, FrameType, ImuFrame, NUM_IMUS, ScalarType, flags,
+    BodyImuFrame, ContactFrame, FrameLayout, FrameType, ImuFrame, KinematicsFrame, MotionFrame,
+    NUM_IMUS, ScalarType, flags,
 };
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, Role, StageSpec};
 use imuflow_graph::stage::Params;
@@ -41,6 +48,13 @@ const AXIS_LENGTH_M: f32 = 0.1;
 const FLUSH_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10);
 /// Fields with at most this many scalars are logged as time series.
 const MAX_SERIES_SCALARS: usize = 6;
+/// Drawn length of a force arrow per newton (1 m per 1000 N: body weight is about 0.7 m).
+const FORCE_ARROW_M_PER_N: f32 = 1e-3;
+/// Joint point radius: base, and extra per N·m of joint torque.
+const JOINT_RADIUS_M: f32 = 0.015;
+const JOINT_RADIUS_M_PER_NM: f32 = 2e-4;
+/// Radius of drawn bones, m.
+const BONE_RADIUS_M: f32 = 0.008;
 
 pub const SPEC: StageSpec = StageSpec {
     kind: "rerun-logger",
@@ -55,6 +69,13 @@ pub const SPEC: StageSpec = StageSpec {
             required: false,
             default: "",
             doc: ".rrd file to write (set this or `connect`)",
+        },
+        ParamSpec {
+            name: "stature_m",
+            ty: ParamType::Float { min: 1.0, max: 2.5 },
+            required: false,
+            default: "1.75",
+            doc: "stature of the body model used to draw MotionFrame skeletons (m)",
         },
         ParamSpec {
             name: "connect",
@@ -135,9 +156,11 @@ pub fn run() -> anyhow::Result<()> {
         }
     }
 
+    let body = BodyModel::new(&BodyParams::builtin()?, params_stature(&ctx), 70.0)?;
+    let mut drawer = SkeletonDrawer::new(body);
     let live = ctx.mode() == Mode::Live;
     let logged = if ctx.ready()? {
-        log_frames(&mut ctx, &rec, &inputs, live)
+        log_frames(&mut ctx, &rec, &inputs, live, &mut drawer)
     } else {
         Ok(())
     };
@@ -167,6 +190,7 @@ fn log_frames(
     rec: &rerun::RecordingStream,
     inputs: &[(String, FrameType)],
     live: bool,
+    drawer: &mut SkeletonDrawer,
 ) -> anyhow::Result<()> {
     while let Some(index) = ctx.next_any()? {
         let (Some(held), Some((name, frame))) = (ctx.held(index), inputs.get(index)) else {
@@ -209,6 +233,21 @@ fn log_frames(
                         f.valid_mask,
                         ["free_acceleration_mps2", "angular_velocity_radps"],
                     )?;
+                }
+            }
+            FrameType::Motion => {
+                if let Some(f) = frame_ref::<MotionFrame>(held) {
+                    drawer.log_motion(rec, name, f)?;
+                }
+            }
+            FrameType::Kinematics => {
+                if let Some(f) = frame_ref::<KinematicsFrame>(held) {
+                    drawer.log_joints(rec, name, &f.joint_position_m, None)?;
+                }
+            }
+            FrameType::Contact => {
+                if let Some(f) = frame_ref::<ContactFrame>(held) {
+                    log_contacts(rec, name, f)?;
                 }
             }
             _ => {}
@@ -284,5 +323,127 @@ fn log_small_fields(
             )?;
         }
     }
+    Ok(())
+}
+
+fn params_stature(ctx: &StageContext) -> f64 {
+    Params(ctx.params()).float("stature_m", 1.75)
+}
+
+/// Draws skeletons: forward kinematics of the body model for MotionFrames.
+struct SkeletonDrawer {
+    body: BodyModel,
+    pose: Pose,
+    fk: imuflow_body::FkData,
+}
+
+impl SkeletonDrawer {
+    fn new(body: BodyModel) -> SkeletonDrawer {
+        SkeletonDrawer {
+            body,
+            pose: Pose::default(),
+            fk: imuflow_body::FkData::new(),
+        }
+    }
+
+    /// Skeleton at its global position, ground-reaction force arrows, torque magnitudes.
+    fn log_motion(
+        &mut self,
+        rec: &rerun::RecordingStream,
+        input: &str,
+        f: &MotionFrame,
+    ) -> anyhow::Result<()> {
+        for j in 0..NUM_JOINTS {
+            let [w, x, y, z] = f.local_pose_wxyz[j].map(f64::from);
+            let Some(r) = imuflow_body::rotation::rotation_from_quat_wxyz(&[w, x, y, z]) else {
+                return Ok(()); // not a pose (e.g. an all-zero invalid frame): draw nothing
+            };
+            self.pose.parent_from_joint[j] = r;
+        }
+        self.pose.root_in_world_m = nalgebra::Vector3::from(f.root_position_m).cast();
+        if !self.pose.is_finite() {
+            return Ok(());
+        }
+        forward_kinematics(&self.body.skeleton, &self.pose, &mut self.fk);
+        let joints: [[f32; 3]; NUM_JOINTS] =
+            self.fk.joint_in_world_m.map(|p| p.cast::<f32>().into());
+        // Torque per joint: the norm of its three generalized-force entries (the root's: virtual torque).
+        let torque: Vec<f32> = (0..NUM_JOINTS)
+            .map(|j| {
+                let t = &f.tau[3 + 3 * j..6 + 3 * j];
+                (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt()
+            })
+            .collect();
+        self.log_joints(rec, input, &joints, Some(&torque))?;
+        rec.log(
+            format!("plots/{input}/torque_norm_nm"),
+            &rerun::BarChart::new(torque),
+        )?;
+        let (origins, vectors): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..NUM_JOINTS)
+            .filter(|&j| f.ground_reaction_force_n[j].iter().any(|v| *v != 0.0))
+            .map(|j| {
+                (
+                    joints[j],
+                    f.ground_reaction_force_n[j].map(|v| v * FORCE_ARROW_M_PER_N),
+                )
+            })
+            .unzip();
+        rec.log(
+            format!("{input}/ground_reaction_force"),
+            &rerun::Arrows3D::from_vectors(vectors)
+                .with_origins(origins)
+                .with_colors([rerun::Color::from_rgb(230, 80, 40)]),
+        )?;
+        Ok(())
+    }
+
+    /// Joints as points (radius from `torque` when given) and bones as lines.
+    fn log_joints(
+        &self,
+        rec: &rerun::RecordingStream,
+        input: &str,
+        joints: &[[f32; 3]; NUM_JOINTS],
+        torque: Option<&[f32]>,
+    ) -> anyhow::Result<()> {
+        if !joints.iter().flatten().all(|v| v.is_finite()) {
+            return Ok(());
+        }
+        let radii: Vec<f32> = (0..NUM_JOINTS)
+            .map(|j| JOINT_RADIUS_M + torque.map_or(0.0, |t| t[j] * JOINT_RADIUS_M_PER_NM))
+            .collect();
+        rec.log(
+            format!("{input}/skeleton/joints"),
+            &rerun::Points3D::new(joints.iter().copied()).with_radii(radii),
+        )?;
+        let bones = JointId::all()
+            .filter_map(|j| j.parent().map(|p| [joints[p.index()], joints[j.index()]]));
+        rec.log(
+            format!("{input}/skeleton/bones"),
+            &rerun::LineStrips3D::new(bones).with_radii([BONE_RADIUS_M]),
+        )?;
+        Ok(())
+    }
+}
+
+/// Contact points and their forces.
+fn log_contacts(rec: &rerun::RecordingStream, input: &str, f: &ContactFrame) -> anyhow::Result<()> {
+    let n = (f.num_points as usize).min(f.point_position_m.len());
+    let points = &f.point_position_m[..n];
+    if !points.iter().flatten().all(|v| v.is_finite()) {
+        return Ok(());
+    }
+    rec.log(
+        format!("{input}/points"),
+        &rerun::Points3D::new(points.iter().copied())
+            .with_radii([0.02])
+            .with_colors([rerun::Color::from_rgb(40, 160, 230)]),
+    )?;
+    let forces = f.point_force_n[..n]
+        .iter()
+        .map(|v| v.map(|x| x * FORCE_ARROW_M_PER_N));
+    rec.log(
+        format!("{input}/forces"),
+        &rerun::Arrows3D::from_vectors(forces).with_origins(points.iter().copied()),
+    )?;
     Ok(())
 }

@@ -1,0 +1,215 @@
+//! The tracking least squares of GlobalPose's pre- and re-tracking (SIGGRAPH 2025 Eq. 11/14 in the
+//! unconstrained form of App. B, Eq. 26/27):
+//!
+//! ```text
+//! min_q̈  ‖[0 | I₇₂]·q̈ − θ̈_des‖² + Σ_i k_i·‖J_i·q̈ + J̇_i·q̇ − r̈_des,i‖² + β·‖M·q̈ − t‖²
+//! ```
+//!
+//! with `t = −h` (pre-tracking) or `t = −h + J_cᵀ·λ` (re-tracking), so that the last term is the
+//! generalized force `τ = M·q̈ + h (− J_cᵀλ)` the motion needs.
+//!
+//! The original stacks the rows into a sparse matrix and runs scipy's LSQR with default tolerances (an
+//! iterative, approximate solve). With 75 unknowns we form the normal equations
+//! `(AᵀA + Σ k_i·J_iᵀJ_i + β·M²)·q̈ = Aᵀθ̈_des + Σ k_i·J_iᵀ(r̈_des,i − J̇_i·q̇) + β·M·t` (M is symmetric,
+//! so `MᵀM = M²`, computed once per frame and shared by both passes) and solve them exactly with a
+//! dense in-place Cholesky factorisation. The matrix is positive definite: `AᵀA` covers the 72
+//! rotational DoFs and every point Jacobian has the identity on the root translation. Squaring the
+//! condition number is harmless here (the test compares against an SVD solve of the stacked system
+//! to 1e-8).
+
+use imuflow_body::dynamics::{DofVector, MassMatrix, NUM_DOFS, PointJacobian};
+use nalgebra::Vector3;
+
+use imuflow_contact::force::NUM_CONTACT_JOINTS;
+
+/// The terms of one tracking pass.
+pub struct TrackingTerms<'a> {
+    /// Desired angular accelerations `θ̈_des` in the rotational DoFs (entries `3..75`; `0..3` ignored).
+    pub theta_ddot_des: &'a DofVector,
+    /// Jacobians `J_i` of the tracked points (the contact joints).
+    pub jacobians: &'a [PointJacobian; NUM_CONTACT_JOINTS],
+    /// `J̇_i·q̇` of the tracked points.
+    pub jdot_v: &'a [Vector3<f64>; NUM_CONTACT_JOINTS],
+    /// Desired linear accelerations `r̈_des,i`.
+    pub r_ddot_des: &'a [Vector3<f64>; NUM_CONTACT_JOINTS],
+    /// Tracking weights `k_i` (on the squared norms).
+    pub weights: &'a [f64; NUM_CONTACT_JOINTS],
+    /// Mass matrix `M`.
+    pub mass: &'a MassMatrix,
+    /// `M²`.
+    pub mass_squared: &'a MassMatrix,
+    /// Torque target `t`: `M·q̈ ≈ t`.
+    pub torque_target: &'a DofVector,
+    /// Torque weight β (on the squared norm).
+    pub torque_weight: f64,
+}
+
+/// Solve one pass into `qddot`, using `normal` as scratch. False (and `qddot` unspecified) when the
+/// normal matrix is not positive definite or a value is not finite.
+pub fn solve_tracking(
+    terms: &TrackingTerms<'_>,
+    normal: &mut MassMatrix,
+    qddot: &mut DofVector,
+) -> bool {
+    let beta = terms.torque_weight;
+    normal.copy_from(terms.mass_squared);
+    *normal *= beta;
+    terms.mass.mul_to(terms.torque_target, qddot);
+    *qddot *= beta;
+    for d in 3..NUM_DOFS {
+        normal[(d, d)] += 1.0;
+        qddot[d] += terms.theta_ddot_des[d];
+    }
+    for i in 0..NUM_CONTACT_JOINTS {
+        let k = terms.weights[i];
+        if k == 0.0 {
+            continue;
+        }
+        let j = &terms.jacobians[i];
+        normal.gemm_tr(k, j, j, 1.0);
+        let rhs = terms.r_ddot_des[i] - terms.jdot_v[i];
+        qddot.gemv_tr(k, j, &rhs, 1.0);
+    }
+    cholesky_solve_in_place(normal, qddot)
+}
+
+/// Solve `A·x = b` for symmetric positive definite `A` by Cholesky, overwriting `A` with its factor
+/// (lower triangle) and `b` with `x`. False when `A` is not positive definite or not finite.
+pub fn cholesky_solve_in_place(a: &mut MassMatrix, b: &mut DofVector) -> bool {
+    const N: usize = NUM_DOFS;
+    let s = a.as_mut_slice(); // column-major: (r, c) at c·N + r
+    for c in 0..N {
+        // Diagonal.
+        let mut d = s[c * N + c];
+        for k in 0..c {
+            let l = s[k * N + c];
+            d -= l * l;
+        }
+        if d.is_nan() || d <= 0.0 {
+            return false;
+        }
+        let d = d.sqrt();
+        s[c * N + c] = d;
+        // Column c below the diagonal: L[r][c] = (A[r][c] − Σ_k L[r][k]·L[c][k]) / L[c][c].
+        for r in c + 1..N {
+            let mut v = s[c * N + r];
+            for k in 0..c {
+                v -= s[k * N + r] * s[k * N + c];
+            }
+            s[c * N + r] = v / d;
+        }
+    }
+    // L·y = b.
+    for r in 0..N {
+        let mut v = b[r];
+        for k in 0..r {
+            v -= s[k * N + r] * b[k];
+        }
+        b[r] = v / s[r * N + r];
+    }
+    // Lᵀ·x = y.
+    for r in (0..N).rev() {
+        let mut v = b[r];
+        for k in r + 1..N {
+            v -= s[r * N + k] * b[k];
+        }
+        b[r] = v / s[r * N + r];
+    }
+    b.iter().all(|v| v.is_finite())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::DMatrix;
+
+    #[test]
+    fn globalpose_normal_equations_equal_an_svd_solve_of_the_stacked_rows() {
+        let mut seed = 7u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        };
+        // A symmetric positive definite "mass matrix" with a spread of scales, random Jacobians.
+        let b = MassMatrix::from_fn(|_, _| rnd());
+        let mut mass = Box::new(b.transpose() * b * 0.2);
+        for d in 0..NUM_DOFS {
+            mass[(d, d)] += if d < 3 { 70.0 } else { 0.5 };
+        }
+        let mass_squared = Box::new(*mass * *mass);
+        let theta = DofVector::from_fn(|_, _| 100.0 * rnd());
+        let jac: [PointJacobian; NUM_CONTACT_JOINTS] =
+            std::array::from_fn(|_| PointJacobian::from_fn(|_, _| rnd()));
+        let jdv: [Vector3<f64>; NUM_CONTACT_JOINTS] =
+            std::array::from_fn(|_| Vector3::new(rnd(), rnd(), rnd()));
+        let rdd: [Vector3<f64>; NUM_CONTACT_JOINTS] =
+            std::array::from_fn(|_| Vector3::new(rnd(), rnd(), rnd()) * 50.0);
+        let weights = [1.0, 10.0, 1.0, 10.0, 1.0];
+        let target = DofVector::from_fn(|_, _| 500.0 * rnd());
+        let beta = 1e-3 / 80.0 * 3.0;
+        let terms = TrackingTerms {
+            theta_ddot_des: &theta,
+            jacobians: &jac,
+            jdot_v: &jdv,
+            r_ddot_des: &rdd,
+            weights: &weights,
+            mass: &mass,
+            mass_squared: &mass_squared,
+            torque_target: &target,
+            torque_weight: beta,
+        };
+        let mut normal = Box::new(MassMatrix::zeros());
+        let mut x = DofVector::zeros();
+        assert!(solve_tracking(&terms, &mut normal, &mut x));
+
+        // The stacked system of Eq. 26/27, rows scaled by the square roots of the weights.
+        let rows = 72 + 3 * NUM_CONTACT_JOINTS + NUM_DOFS;
+        let mut a = DMatrix::<f64>::zeros(rows, NUM_DOFS);
+        let mut rhs = nalgebra::DVector::<f64>::zeros(rows);
+        for r in 0..72 {
+            a[(r, 3 + r)] = 1.0;
+            rhs[r] = theta[3 + r];
+        }
+        for i in 0..NUM_CONTACT_JOINTS {
+            let s = weights[i].sqrt();
+            for k in 0..3 {
+                let r = 72 + 3 * i + k;
+                for c in 0..NUM_DOFS {
+                    a[(r, c)] = s * jac[i][(k, c)];
+                }
+                rhs[r] = s * (rdd[i][k] - jdv[i][k]);
+            }
+        }
+        let sb = beta.sqrt();
+        for k in 0..NUM_DOFS {
+            let r = 72 + 3 * NUM_CONTACT_JOINTS + k;
+            for c in 0..NUM_DOFS {
+                a[(r, c)] = sb * mass[(k, c)];
+            }
+            rhs[r] = sb * target[k];
+        }
+        let want = a.svd(true, true).solve(&rhs, 1e-14).unwrap();
+        let err = (0..NUM_DOFS)
+            .map(|k| (x[k] - want[k]).abs())
+            .fold(0.0, f64::max);
+        let scale = want.amax();
+        assert!(
+            err < 1e-8 * scale.max(1.0),
+            "max error {err} (scale {scale})"
+        );
+    }
+
+    #[test]
+    fn globalpose_cholesky_rejects_an_indefinite_matrix() {
+        let mut a = Box::new(MassMatrix::identity());
+        a[(40, 40)] = -1.0;
+        let mut b = DofVector::repeat(1.0);
+        assert!(!cholesky_solve_in_place(&mut a, &mut b));
+        let mut a = Box::new(MassMatrix::identity() * 4.0);
+        let mut b = DofVector::repeat(2.0);
+        assert!(cholesky_solve_in_place(&mut a, &mut b));
+        assert!(b.iter().all(|v| (v - 0.5).abs() < 1e-15));
+    }
+}
