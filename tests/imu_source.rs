@@ -336,13 +336,57 @@ fn imuflow_run_without_a_graph_replays_the_bundled_sample() {
     );
     let messages = mcap_messages(&rec);
     let imu: Vec<_> = messages.iter().filter(|m| m.0 == "source.imu").collect();
-    let truth = messages.iter().filter(|m| m.0 == "source.truth").count();
-    // models/sample/README.md: 779 frames (13.0 s at 60 Hz) with the true pose beside each.
-    assert_eq!(imu.len(), 779);
-    assert_eq!(truth, 779);
-    let last: ImuFrame = frame_from_bytes(&imu[778].2).expect("ImuFrame");
-    assert_eq!(last.header.seq, 778);
-    assert_eq!(last.header.capture_ns, (778.0_f64 * 1e9 / 60.0) as u64);
+    let truth: Vec<MotionFrame> = messages
+        .iter()
+        .filter(|m| m.0 == "source.truth")
+        .map(|m| frame_from_bytes(&m.2).expect("MotionFrame"))
+        .collect();
+    let motion: Vec<MotionFrame> = messages
+        .iter()
+        .filter(|m| m.0 == "opt.motion")
+        .map(|m| frame_from_bytes(&m.2).expect("MotionFrame"))
+        .collect();
+    // models/sample/README.md: 1511 frames (25.2 s at 60 Hz) with the true pose beside each.
+    assert_eq!(imu.len(), 1511);
+    assert_eq!(truth.len(), 1511);
+    assert_eq!(motion.len(), 1511);
+    let last: ImuFrame = frame_from_bytes(&imu[1510].2).expect("ImuFrame");
+    assert_eq!(last.header.seq, 1510);
+    assert_eq!(last.header.capture_ns, (1510.0_f64 * 1e9 / 60.0) as u64);
+    // The whole pipeline ran: calibration ended inside the prelude (12.2 s), and from then on the
+    // physics stands the subject on the floor (root height near the truth's) and carries its weight.
+    let calibrated: Vec<&MotionFrame> = motion
+        .iter()
+        .filter(|m| !m.header.has(flags::CALIBRATING))
+        .collect();
+    assert!(
+        calibrated.len() > 900 && calibrated.len() < 1300,
+        "{} calibrated frames",
+        calibrated.len()
+    );
+    let first = 1511 - calibrated.len();
+    let mean = |v: &mut dyn Iterator<Item = f64>| {
+        let (sum, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+        sum / n as f64
+    };
+    let root_height = mean(&mut calibrated.iter().map(|m| f64::from(m.root_position_m[1])));
+    let true_height = mean(
+        &mut truth[first..]
+            .iter()
+            .map(|m| f64::from(m.root_position_m[1])),
+    );
+    assert!(
+        (root_height - true_height).abs() < 0.1,
+        "root height {root_height} vs truth {true_height}"
+    );
+    let weight_share = mean(&mut calibrated.iter().map(|m| {
+        let fy: f32 = m.ground_reaction_force_n.iter().map(|f| f[1]).sum();
+        f64::from(fy) / (70.0 * 9.81)
+    }));
+    assert!(
+        (0.8..1.2).contains(&weight_share),
+        "mean vertical ground force {weight_share} × body weight"
+    );
     assert!(std::fs::metadata(&rrd).map(|m| m.len()).unwrap_or(0) > 10_000);
     assert_clean(&sb);
 }
