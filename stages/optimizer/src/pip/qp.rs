@@ -1,8 +1,28 @@
 //! Assembly and solution of PIP's per-frame QP (see the module docs of [`super`]).
 //!
-//! clarabel form: `min ½xᵀPx + qᵀx` s.t. `A·x + s = b`, `s ∈ {0}^75 × R₊^m` (rows 0..75: the equation of
-//! motion; then friction rows and velocity-bound rows `a·x ≤ b`). `P` is built column by column in its
-//! upper triangle directly in CSC form; `A` from triplets.
+//! The QP is assembled once per solve as
+//! - the cost on `v̇`: `½v̇ᵀP_aa·v̇ + q_aᵀv̇` (rotation and position PD), the weights of the force
+//!   penalty per λ component and of the torque regulariser per DoF;
+//! - `M`, `h` and the contact Jacobians `J_k` of the equation of motion `τ = M·v̇ + h − Σ_k J_kᵀλ_k`;
+//! - the inequality rows `C·z ≤ d` over `z = [v̇ (75), λ (3 per point)]` (friction pyramid on λ,
+//!   velocity bounds on v̇).
+//!
+//! and solved in one of two exactly equivalent ways ([`Formulation`]):
+//! - **Reduced** (default): τ substituted, `z = [v̇, λ]` with the dense Hessian
+//!   `H = blockdiag(P_aa, diag(w_λ²)) + BᵀB`, `B = [W·M, −W·J_cᵀ]` (`W` the torque weights), and
+//!   gradient `g = [q_a, 0] + Bᵀ·W·h`. `H = LLᵀ` (Cholesky). The unconstrained optimum is
+//!   `z_u = −H⁻¹g`; with inequalities, clarabel solves the dual
+//!   `min_{μ≥0} ½μᵀ(X̃ᵀX̃)μ + (d̃ − C̃·z_u)ᵀμ`, `X̃ = L⁻¹C̃ᵀ` (rows of `C` scaled to unit `‖L⁻¹cᵢ‖`: a
+//!   unit-diagonal dual Hessian), and `z = z_u − L⁻ᵀ·X̃·μ`. One variable per inequality row
+//!   (~44 with both feet in contact), bound constraints only.
+//! - **Full**: the original form, clarabel on `x = [v̇, λ, τ]` with the equation of motion as 75
+//!   equality rows (`min ½xᵀPx + qᵀx` s.t. `A·x + s = b`, `s ∈ {0}^75 × R₊^m`). Used when `H` is not
+//!   numerically positive definite (a zero torque or force weight) and as the tests' reference.
+//!
+//! Both end the same way: `τ = M·v̇ + h − Σ_k J_kᵀλ_k` from the solved `v̇`, `λ` (so the equation of
+//! motion holds to rounding), and the fallback checks on `x = [v̇, λ, τ]`.
+
+use std::time::Instant;
 
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::{
@@ -16,21 +36,23 @@ use imuflow_body::{JointId, Pose};
 use imuflow_contact::ContactSet;
 use imuflow_contact::pip::FEET;
 use imuflow_graph::frames::MAX_CONTACT_POINTS;
-use nalgebra::Vector3;
+use nalgebra::{Cholesky, DMatrix, DVector, Vector3};
 
 use super::{POSITION_PD_JOINTS, PipConfig};
 use crate::{PhysicsBody, Reference};
 
-/// What clarabel reported for one step (the last solve when there was a re-solve).
+/// What the solver reported for one step (the last solve when there was a re-solve).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SolveStats {
     /// Solves this step (2 when the unconstrained re-solve ran).
     pub solves: u32,
-    /// Interior-point iterations of the last solve.
+    /// clarabel's interior-point iterations of the last solve (0 when it had no inequality rows, which
+    /// the reduced formulation solves in closed form).
     pub iterations: u32,
-    /// clarabel's solve time of the last solve (s), setup and factorisations included.
+    /// Wall time of the last solve (s) after assembly: reduction, factorisations, clarabel, recovery.
     pub solve_time_s: f64,
-    /// Variables and constraint rows of the last solve.
+    /// Variables and constraint rows of the last solve: `[v̇, λ]` and the inequality rows for the
+    /// reduced formulation, `[v̇, λ, τ]` and equality + inequality rows for the full one.
     pub variables: usize,
     pub constraints: usize,
 }
@@ -45,31 +67,63 @@ pub struct Solution {
     pub tau: DofVector,
 }
 
+/// How [`Qp::solve_with`] solves the (same) QP; see the module docs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Formulation {
+    /// τ eliminated, the dual of the QP in `[v̇, λ]` (the default).
+    Reduced,
+    /// The original QP in `[v̇, λ, τ]` with the equation of motion as equalities (chosen by the tests;
+    /// the reduced path falls back to it internally).
+    #[cfg_attr(not(test), allow(dead_code))]
+    Full,
+}
+
+enum Reduced {
+    Solved(Vec<f64>, u32),
+    Failed,
+    NotPositiveDefinite,
+}
+
 /// Reusable buffers of the QP.
 pub struct Qp {
+    /// Upper triangle of the cost Hessian on v̇.
     paa: Box<MassMatrix>,
-    q: Vec<f64>,
+    mass: Box<MassMatrix>,
+    h: DofVector,
+    /// Linear cost on v̇.
+    q: DofVector,
+    /// Per λ component, the force-penalty weight (not squared).
+    lam_w: Vec<f64>,
+    /// Per DoF, the torque-regulariser weight (not squared).
+    tau_w: DofVector,
+    nc: usize,
     jac: Box<PointJacobian>,
     contact_jac: Box<[PointJacobian; MAX_CONTACT_POINTS]>,
     cols: Vec<usize>,
-    a_rows: Vec<usize>,
-    a_cols: Vec<usize>,
-    a_vals: Vec<f64>,
-    b: Vec<f64>,
+    /// Inequality rows `C·z ≤ d` over `z = [v̇, λ]`, as triplets.
+    c_rows: Vec<usize>,
+    c_cols: Vec<usize>,
+    c_vals: Vec<f64>,
+    d: Vec<f64>,
 }
 
 impl Qp {
     pub fn new() -> Qp {
         Qp {
             paa: Box::new(MassMatrix::zeros()),
-            q: Vec::new(),
+            mass: Box::new(MassMatrix::zeros()),
+            h: DofVector::zeros(),
+            q: DofVector::zeros(),
+            lam_w: Vec::new(),
+            tau_w: DofVector::zeros(),
+            nc: 0,
             jac: Box::new(PointJacobian::zeros()),
             contact_jac: Box::new([PointJacobian::zeros(); MAX_CONTACT_POINTS]),
             cols: Vec::with_capacity(NUM_DOFS),
-            a_rows: Vec::new(),
-            a_cols: Vec::new(),
-            a_vals: Vec::new(),
-            b: Vec::new(),
+            c_rows: Vec::new(),
+            c_cols: Vec::new(),
+            c_vals: Vec::new(),
+            d: Vec::new(),
         }
     }
 
@@ -87,18 +141,87 @@ impl Qp {
         inequalities: bool,
         stats: &mut SolveStats,
     ) -> Option<Solution> {
+        self.solve_with(
+            Formulation::Reduced,
+            physics,
+            config,
+            data,
+            pose,
+            reference,
+            contacts,
+            inequalities,
+            stats,
+        )
+    }
+
+    /// [`Qp::solve`] with a chosen formulation (the reduced one falls back to the full one when its
+    /// Hessian is not positive definite).
+    #[allow(clippy::too_many_arguments)]
+    pub fn solve_with(
+        &mut self,
+        formulation: Formulation,
+        physics: &PhysicsBody,
+        config: &PipConfig,
+        data: &mut DynamicsData,
+        pose: &Pose,
+        reference: &Reference,
+        contacts: &ContactSet,
+        inequalities: bool,
+        stats: &mut SolveStats,
+    ) -> Option<Solution> {
+        if !self.assemble(
+            physics,
+            config,
+            data,
+            pose,
+            reference,
+            contacts,
+            inequalities,
+        ) {
+            return None;
+        }
+        let start = Instant::now();
+        stats.solves += 1;
+        let z = match formulation {
+            Formulation::Reduced => match self.solve_reduced(config) {
+                Reduced::Solved(z, iterations) => {
+                    stats.iterations = iterations;
+                    stats.variables = NUM_DOFS + 3 * self.nc;
+                    stats.constraints = self.d.len();
+                    Some(z)
+                }
+                Reduced::Failed => None,
+                Reduced::NotPositiveDefinite => self.solve_full(config, stats),
+            },
+            Formulation::Full => self.solve_full(config, stats),
+        };
+        let solution = z.and_then(|z| self.finish(config, &z));
+        stats.solve_time_s = start.elapsed().as_secs_f64();
+        solution
+    }
+
+    /// Fill the cost, dynamics and inequality buffers; false when some data is not finite.
+    #[allow(clippy::too_many_arguments)]
+    fn assemble(
+        &mut self,
+        physics: &PhysicsBody,
+        config: &PipConfig,
+        data: &mut DynamicsData,
+        pose: &Pose,
+        reference: &Reference,
+        contacts: &ContactSet,
+        inequalities: bool,
+    ) -> bool {
         let model = &physics.model;
         let nc = contacts.points().len();
+        self.nc = nc;
         let lam0 = NUM_DOFS;
-        let tau0 = NUM_DOFS + 3 * nc;
-        let n = tau0 + NUM_DOFS;
         let v = *data.velocity();
         let dt = config.dt;
 
         // ---- cost ----
         self.paa.fill(0.0);
-        self.q.clear();
-        self.q.resize(n, 0.0);
+        self.q.fill(0.0);
         // Joint-rotation PD (Eq. 3/5), tangent space, root rotation included.
         for j in JointId::all() {
             let i = j.index();
@@ -131,79 +254,37 @@ impl Qp {
                 }
             }
         }
-        let mut colptr = Vec::with_capacity(n + 1);
-        let mut rowval = Vec::with_capacity(3000);
-        let mut nzval = Vec::with_capacity(3000);
-        colptr.push(0);
-        for c in 0..NUM_DOFS {
-            for r in 0..=c {
-                let x = self.paa[(r, c)];
-                if x != 0.0 {
-                    rowval.push(r);
-                    nzval.push(x);
-                }
-            }
-            colptr.push(rowval.len());
-        }
         // Height-scaled force penalty ("Signorini", reference §5.2 cost 3).
-        for (k, p) in contacts.points().iter().enumerate() {
+        self.lam_w.clear();
+        for p in contacts.points() {
             let height = p.position.y - contacts.surface_height_m[p.joint.index()];
             let w = config.coeff_lambda * height.max(config.lambda_min_height_m);
-            for r in 0..3 {
-                rowval.push(lam0 + 3 * k + r);
-                nzval.push(w * w);
-                colptr.push(rowval.len());
-            }
+            self.lam_w.extend([w; 3]);
         }
         // Torque regulariser (Eq. 12): root 6 DoFs virtual, the rest joint torques.
         for d in 0..NUM_DOFS {
-            let w = if d < 6 {
+            self.tau_w[d] = if d < 6 {
                 config.coeff_root_virtual
             } else {
                 config.coeff_joint_torque
             };
-            rowval.push(tau0 + d);
-            nzval.push(w * w);
-            colptr.push(rowval.len());
         }
 
-        // ---- constraints ----
-        self.a_rows.clear();
-        self.a_cols.clear();
-        self.a_vals.clear();
-        self.b.clear();
-        // Equation of motion (Eq. 9): M·v̇ − τ − Σ J_kᵀλ_k = −h.
-        let h = *data.bias_forces(model);
-        let m = data.mass_matrix(model);
-        for c in 0..NUM_DOFS {
-            for r in 0..NUM_DOFS {
-                let x = m[(r, c)];
-                if x != 0.0 {
-                    self.push_a(r, c, x);
-                }
-            }
-        }
-        for d in 0..NUM_DOFS {
-            self.push_a(d, tau0 + d, -1.0);
-            self.b.push(-h[d]);
-        }
+        // ---- dynamics: M·v̇ + h = τ + Σ_k J_kᵀ·λ_k (Eq. 9) ----
+        self.h = *data.bias_forces(model);
+        *self.mass = *data.mass_matrix(model);
         for (k, p) in contacts.points().iter().enumerate() {
             let i = p.joint.index();
             let fk = data.fk();
             let local = fk.world_from_joint[i].inverse() * (p.position - fk.joint_in_world_m[i]);
             data.point_jacobian(p.joint, &local, &mut self.contact_jac[k]);
-            chain_columns(p.joint, &mut self.cols);
-            for ci in 0..self.cols.len() {
-                let c = self.cols[ci];
-                for r in 0..3 {
-                    let x = self.contact_jac[k][(r, c)];
-                    if x != 0.0 {
-                        self.push_a(c, lam0 + 3 * k + r, -x);
-                    }
-                }
-            }
         }
-        let mut rows = NUM_DOFS;
+
+        // ---- inequalities C·z ≤ d ----
+        self.c_rows.clear();
+        self.c_cols.clear();
+        self.c_vals.clear();
+        self.d.clear();
         if inequalities {
             // Friction pyramid (Eq. 10): (±√2, −μ, 0)·λ ≤ 0, (0, −μ, ±√2)·λ ≤ 0.
             let s2 = std::f64::consts::SQRT_2;
@@ -215,13 +296,13 @@ impl Qp {
                     [0.0, -mu, s2],
                     [0.0, -mu, -s2],
                 ] {
+                    let row = self.d.len();
                     for (r, &x) in coef.iter().enumerate() {
                         if x != 0.0 {
-                            self.push_a(rows, lam0 + 3 * k + r, x);
+                            self.push_c(row, lam0 + 3 * k + r, x);
                         }
                     }
-                    self.b.push(0.0);
-                    rows += 1;
+                    self.d.push(0.0);
                 }
             }
             // Feet, always (reference §5.2(b)).
@@ -238,56 +319,232 @@ impl Qp {
                 );
                 let th_y = -height / dt;
                 let bounds = [(-th, th), (th_y, th.max(th_y) + 1e-6), (-th, th)];
-                rows = self.velocity_rows(data, foot, bounds, dt, rows);
+                self.velocity_rows(data, foot, bounds, dt);
             }
             // Other contact bodies (reference §5.2(a)).
             let (slide, rise) = (config.contact_body_slide_mps, config.contact_body_rise_mps);
             for j in JointId::all() {
                 if contacts.contains(j) && !FEET.contains(&j) {
                     let bounds = [(-slide, slide), (0.0, rise), (-slide, slide)];
-                    rows = self.velocity_rows(data, j, bounds, dt, rows);
+                    self.velocity_rows(data, j, bounds, dt);
                 }
             }
         }
-        let m_rows = rows;
-        let finite = self
-            .q
+        self.q
             .iter()
-            .chain(&nzval)
-            .chain(&self.b)
-            .chain(&self.a_vals)
-            .all(|x| x.is_finite());
-        if !finite {
-            return None;
+            .chain(self.paa.iter())
+            .chain(self.mass.iter())
+            .chain(self.h.iter())
+            .chain(&self.lam_w)
+            .chain(&self.d)
+            .chain(&self.c_vals)
+            .all(|x| x.is_finite())
+            && self.contact_jac[..nc]
+                .iter()
+                .all(|j| j.iter().all(|x| x.is_finite()))
+    }
+
+    /// The reduced formulation (module docs): `z = [v̇, λ]`.
+    fn solve_reduced(&self, config: &PipConfig) -> Reduced {
+        let nc = self.nc;
+        let nz = NUM_DOFS + 3 * nc;
+        let m = self.d.len();
+        // B = [W·M, −W·J_cᵀ]: W·τ = B·z + W·h.
+        let mut b = DMatrix::<f64>::zeros(NUM_DOFS, nz);
+        for c in 0..NUM_DOFS {
+            for r in 0..NUM_DOFS {
+                b[(r, c)] = self.tau_w[r] * self.mass[(r, c)];
+            }
         }
+        for k in 0..nc {
+            let jk = &self.contact_jac[k];
+            for r in 0..3 {
+                let col = NUM_DOFS + 3 * k + r;
+                for c in 0..NUM_DOFS {
+                    b[(c, col)] = -self.tau_w[c] * jk[(r, c)];
+                }
+            }
+        }
+        let mut hess = b.tr_mul(&b);
+        for c in 0..NUM_DOFS {
+            for r in 0..=c {
+                let x = self.paa[(r, c)];
+                hess[(r, c)] += x;
+                if r != c {
+                    hess[(c, r)] += x;
+                }
+            }
+        }
+        for (i, w) in self.lam_w.iter().enumerate() {
+            hess[(NUM_DOFS + i, NUM_DOFS + i)] += w * w;
+        }
+        let wh = DVector::from_iterator(NUM_DOFS, (0..NUM_DOFS).map(|i| self.tau_w[i] * self.h[i]));
+        let mut g = b.tr_mul(&wh);
+        for i in 0..NUM_DOFS {
+            g[i] += self.q[i];
+        }
+        let Some(chol) = Cholesky::new(hess) else {
+            return Reduced::NotPositiveDefinite;
+        };
+        let mut z = chol.solve(&g);
+        z.neg_mut();
+        if !z.iter().all(|x| x.is_finite()) {
+            return Reduced::NotPositiveDefinite;
+        }
+        if m == 0 {
+            return Reduced::Solved(z.as_slice().to_vec(), 0);
+        }
+        // Cᵀ (nz × m), then X = L⁻¹Cᵀ.
+        let mut x = DMatrix::<f64>::zeros(nz, m);
+        for ((&r, &c), &v) in self.c_rows.iter().zip(&self.c_cols).zip(&self.c_vals) {
+            x[(c, r)] += v;
+        }
+        // Dual linear term d − C·z_u (before scaling).
+        let mut p: Vec<f64> = (0..m).map(|i| self.d[i] - x.column(i).dot(&z)).collect();
+        let l = chol.l();
+        if !l.solve_lower_triangular_mut(&mut x) {
+            return Reduced::NotPositiveDefinite;
+        }
+        // Scale each row to ‖L⁻¹cᵢ‖ = 1 (μ = D·ν).
+        for (i, pi) in p.iter_mut().enumerate() {
+            let s = x.column(i).norm();
+            if s > 0.0 && s.is_finite() {
+                x.column_mut(i).unscale_mut(s);
+                *pi /= s;
+            }
+        }
+        let qd = x.tr_mul(&x);
+        // clarabel: min ½νᵀQν + pᵀν s.t. −ν + s = 0, s ≥ 0.
+        let mut colptr = Vec::with_capacity(m + 1);
+        let mut rowval = Vec::with_capacity(m * (m + 1) / 2);
+        let mut nzval = Vec::with_capacity(m * (m + 1) / 2);
+        colptr.push(0);
+        for c in 0..m {
+            for r in 0..=c {
+                rowval.push(r);
+                nzval.push(qd[(r, c)]);
+            }
+            colptr.push(rowval.len());
+        }
+        let p_mat = CscMatrix::new(m, m, colptr, rowval, nzval);
+        let a_mat = CscMatrix::new(m, m, (0..=m).collect(), (0..m).collect(), vec![-1.0; m]);
+        let zeros = vec![0.0; m];
+        let cones = [NonnegativeConeT(m)];
+        let Ok(mut solver) = DefaultSolver::new(
+            &p_mat,
+            &p,
+            &a_mat,
+            &zeros,
+            &cones,
+            // Rows already scaled to a unit-diagonal dual Hessian: clarabel's equilibration only
+            // costs time (and an iteration); no infinite bounds to presolve away.
+            DefaultSettings {
+                equilibrate_enable: false,
+                presolve_enable: false,
+                ..settings(config)
+            },
+        ) else {
+            return Reduced::Failed;
+        };
+        solver.solve();
+        let sol = &solver.solution;
+        if !matches!(
+            sol.status,
+            SolverStatus::Solved | SolverStatus::AlmostSolved
+        ) {
+            return Reduced::Failed;
+        }
+        let nu = DVector::from_iterator(m, sol.x.iter().map(|v| v.max(0.0)));
+        let mut corr = &x * nu;
+        if !l.tr_solve_lower_triangular_mut(&mut corr) {
+            return Reduced::Failed;
+        }
+        z -= corr;
+        Reduced::Solved(z.as_slice().to_vec(), sol.iterations)
+    }
+
+    /// The full formulation (module docs): returns `[v̇, λ]` of `x = [v̇, λ, τ]`.
+    fn solve_full(&self, config: &PipConfig, stats: &mut SolveStats) -> Option<Vec<f64>> {
+        let nc = self.nc;
+        let lam0 = NUM_DOFS;
+        let tau0 = NUM_DOFS + 3 * nc;
+        let n = tau0 + NUM_DOFS;
+        // P: upper triangle, column by column.
+        let mut colptr = Vec::with_capacity(n + 1);
+        let mut rowval = Vec::with_capacity(3000);
+        let mut nzval = Vec::with_capacity(3000);
+        colptr.push(0);
+        for c in 0..NUM_DOFS {
+            for r in 0..=c {
+                let x = self.paa[(r, c)];
+                if x != 0.0 {
+                    rowval.push(r);
+                    nzval.push(x);
+                }
+            }
+            colptr.push(rowval.len());
+        }
+        for (i, w) in self.lam_w.iter().enumerate() {
+            rowval.push(lam0 + i);
+            nzval.push(w * w);
+            colptr.push(rowval.len());
+        }
+        for d in 0..NUM_DOFS {
+            rowval.push(tau0 + d);
+            nzval.push(self.tau_w[d] * self.tau_w[d]);
+            colptr.push(rowval.len());
+        }
+        let mut q = vec![0.0; n];
+        q[..NUM_DOFS].copy_from_slice(self.q.as_slice());
+        // A: the equation of motion M·v̇ − τ − Σ J_kᵀλ_k = −h, then the inequalities.
+        let (mut ar, mut ac, mut av) = (Vec::new(), Vec::new(), Vec::new());
+        let mut push = |r: usize, c: usize, x: f64| {
+            ar.push(r);
+            ac.push(c);
+            av.push(x);
+        };
+        for c in 0..NUM_DOFS {
+            for r in 0..NUM_DOFS {
+                let x = self.mass[(r, c)];
+                if x != 0.0 {
+                    push(r, c, x);
+                }
+            }
+        }
+        for d in 0..NUM_DOFS {
+            push(d, tau0 + d, -1.0);
+        }
+        for k in 0..nc {
+            for c in 0..NUM_DOFS {
+                for r in 0..3 {
+                    let x = self.contact_jac[k][(r, c)];
+                    if x != 0.0 {
+                        push(c, lam0 + 3 * k + r, -x);
+                    }
+                }
+            }
+        }
+        for ((&r, &c), &x) in self.c_rows.iter().zip(&self.c_cols).zip(&self.c_vals) {
+            push(NUM_DOFS + r, c, x);
+        }
+        let m_rows = NUM_DOFS + self.d.len();
+        let b: Vec<f64> = self
+            .h
+            .iter()
+            .map(|x| -x)
+            .chain(self.d.iter().copied())
+            .collect();
         let p_mat = CscMatrix::new(n, n, colptr, rowval, nzval);
-        let a_mat = CscMatrix::new_from_triplets(
-            m_rows,
-            n,
-            self.a_rows.clone(),
-            self.a_cols.clone(),
-            self.a_vals.clone(),
-        );
+        let a_mat = CscMatrix::new_from_triplets(m_rows, n, ar, ac, av);
         let mut cones: Vec<SupportedConeT<f64>> = vec![ZeroConeT(NUM_DOFS)];
         if m_rows > NUM_DOFS {
             cones.push(NonnegativeConeT(m_rows - NUM_DOFS));
         }
-        let tol = config.solver_tolerance;
-        let settings = DefaultSettings {
-            verbose: false,
-            max_iter: config.solver_max_iterations,
-            tol_gap_abs: tol,
-            tol_gap_rel: tol,
-            tol_feas: tol,
-            ..DefaultSettings::default()
-        };
         let mut solver =
-            DefaultSolver::new(&p_mat, &self.q, &a_mat, &self.b, &cones, settings).ok()?;
+            DefaultSolver::new(&p_mat, &q, &a_mat, &b, &cones, settings(config)).ok()?;
         solver.solve();
         let sol = &solver.solution;
-        stats.solves += 1;
         stats.iterations = sol.iterations;
-        stats.solve_time_s = sol.solve_time;
         stats.variables = n;
         stats.constraints = m_rows;
         if !matches!(
@@ -296,19 +553,27 @@ impl Qp {
         ) {
             return None;
         }
-        let x = &sol.x;
-        let norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+        Some(sol.x[..tau0].to_vec())
+    }
+
+    /// τ from the equation of motion (exact projection, see the module docs), the fallback checks.
+    fn finish(&self, config: &PipConfig, z: &[f64]) -> Option<Solution> {
+        let acceleration = DofVector::from_column_slice(&z[..NUM_DOFS]);
+        let mut forces = [Vector3::zeros(); MAX_CONTACT_POINTS];
+        let mut tau = *self.mass * acceleration + self.h;
+        for (k, f) in forces.iter_mut().enumerate().take(self.nc) {
+            let i = NUM_DOFS + 3 * k;
+            *f = Vector3::new(z[i], z[i + 1], z[i + 2]);
+            tau -= self.contact_jac[k].transpose() * *f;
+        }
+        let norm = z
+            .iter()
+            .chain(tau.iter())
+            .map(|v| v * v)
+            .sum::<f64>()
+            .sqrt();
         if !norm.is_finite() || norm > config.fallback_norm {
             return None;
-        }
-        let acceleration = DofVector::from_column_slice(&x[..NUM_DOFS]);
-        let mut forces = [Vector3::zeros(); MAX_CONTACT_POINTS];
-        // τ from the equation of motion (exact projection, see the module docs).
-        let m = data.mass_matrix(model);
-        let mut tau = m * acceleration + h;
-        for (k, f) in forces.iter_mut().enumerate().take(nc) {
-            *f = Vector3::new(x[lam0 + 3 * k], x[lam0 + 3 * k + 1], x[lam0 + 3 * k + 2]);
-            tau -= self.contact_jac[k].transpose() * *f;
         }
         Some(Solution {
             acceleration,
@@ -317,21 +582,14 @@ impl Qp {
         })
     }
 
-    fn push_a(&mut self, r: usize, c: usize, x: f64) {
-        self.a_rows.push(r);
-        self.a_cols.push(c);
-        self.a_vals.push(x);
+    fn push_c(&mut self, r: usize, c: usize, x: f64) {
+        self.c_rows.push(r);
+        self.c_cols.push(c);
+        self.c_vals.push(x);
     }
 
     /// Rows `lo_i ≤ v_i + dt·J_i·v̇ ≤ hi_i` for joint `j`'s origin; infinite bounds give no row.
-    fn velocity_rows(
-        &mut self,
-        data: &DynamicsData,
-        j: JointId,
-        bounds: [(f64, f64); 3],
-        dt: f64,
-        mut rows: usize,
-    ) -> usize {
+    fn velocity_rows(&mut self, data: &DynamicsData, j: JointId, bounds: [(f64, f64); 3], dt: f64) {
         data.point_jacobian(j, &Vector3::zeros(), &mut self.jac);
         let vel = data.point_velocity(j, &Vector3::zeros());
         chain_columns(j, &mut self.cols);
@@ -340,18 +598,30 @@ impl Qp {
                 if !bound.is_finite() && bound > 0.0 {
                     continue;
                 }
+                let row = self.d.len();
                 for ci in 0..self.cols.len() {
                     let c = self.cols[ci];
                     let x = self.jac[(i, c)];
                     if x != 0.0 {
-                        self.push_a(rows, c, sign * dt * x);
+                        self.push_c(row, c, sign * dt * x);
                     }
                 }
-                self.b.push(bound - sign * vel[i]);
-                rows += 1;
+                self.d.push(bound - sign * vel[i]);
             }
         }
-        rows
+    }
+}
+
+/// clarabel's settings from the configuration.
+fn settings(config: &PipConfig) -> DefaultSettings<f64> {
+    let tol = config.solver_tolerance;
+    DefaultSettings {
+        verbose: false,
+        max_iter: config.solver_max_iterations,
+        tol_gap_abs: tol,
+        tol_gap_rel: tol,
+        tol_feas: tol,
+        ..DefaultSettings::default()
     }
 }
 

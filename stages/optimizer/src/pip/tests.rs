@@ -1,6 +1,6 @@
 use super::*;
 use imuflow_body::GRAVITY_IN_MODEL_MPS2;
-use imuflow_body::dynamics::{DynamicsData, PointJacobian};
+use imuflow_body::dynamics::{DynamicsData, NUM_DOFS, PointJacobian};
 use nalgebra::Rotation3;
 
 fn pip(config: PipConfig) -> Pip {
@@ -213,4 +213,188 @@ fn a_given_contact_set_is_used_and_reset_restarts_from_the_reference() {
     m.step(&lifted, None, &mut out).unwrap();
     assert!((out.pose.root_in_world_m.y - m.physics.body.rest_root_height_m).abs() < 1e-9);
     assert_eq!(out.v, DofVector::zeros());
+}
+
+/// A small deterministic generator (xorshift) for the random states below.
+struct Rng(u64);
+
+impl Rng {
+    /// Uniform in [−1, 1).
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+    }
+
+    fn vector(&mut self, scale: f64) -> Vector3<f64> {
+        Vector3::new(self.next(), self.next(), self.next()) * scale
+    }
+}
+
+/// Solve one QP with both formulations at a tight tolerance; assert equal optima; return the
+/// reduced solution and the number of contact points.
+fn compare_formulations(
+    m: &Pip,
+    pose: &Pose,
+    v: &DofVector,
+    reference: &Reference,
+    contacts: &ContactSet,
+    inequalities: bool,
+) -> qp::Solution {
+    use qp::Formulation;
+    let config = PipConfig {
+        solver_tolerance: 1e-11,
+        solver_max_iterations: 200,
+        ..m.config.clone()
+    };
+    let mut data = DynamicsData::new();
+    let mut solve = |formulation| {
+        data.set_state(&m.physics.model, pose, v);
+        let mut stats = SolveStats::default();
+        let sol = qp::Qp::new()
+            .solve_with(
+                formulation,
+                &m.physics,
+                &config,
+                &mut data,
+                pose,
+                reference,
+                contacts,
+                inequalities,
+                &mut stats,
+            )
+            .unwrap_or_else(|| panic!("{formulation:?} failed: {stats:?}"));
+        (sol, stats)
+    };
+    let (full, full_stats) = solve(Formulation::Full);
+    let (reduced, reduced_stats) = solve(Formulation::Reduced);
+    assert_eq!(full_stats.variables, reduced_stats.variables + NUM_DOFS);
+    let close = |a: &[f64], b: &[f64], what: &str| {
+        let scale = 1.0 + b.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let err = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x - y) * (x - y))
+            .sum::<f64>()
+            .sqrt();
+        assert!(
+            err < 1e-6 * scale,
+            "{what}: ‖reduced − full‖ = {err:e} (‖full‖ + 1 = {scale})"
+        );
+    };
+    close(
+        reduced.acceleration.as_slice(),
+        full.acceleration.as_slice(),
+        "v̇",
+    );
+    close(reduced.tau.as_slice(), full.tau.as_slice(), "τ");
+    let nc = contacts.points().len();
+    let flat = |s: &qp::Solution| -> Vec<f64> {
+        s.forces[..nc]
+            .iter()
+            .flat_map(|f| [f.x, f.y, f.z])
+            .collect()
+    };
+    close(&flat(&reduced), &flat(&full), "λ");
+    reduced
+}
+
+#[test]
+fn the_reduced_qp_has_the_full_formulations_optimum_on_random_states_with_contacts() {
+    let m = pip(PipConfig::default());
+    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    let mut fk = FkData::new();
+    let mut data = DynamicsData::new();
+    let mut seen_active_friction = false;
+    for case in 0..8 {
+        // A perturbed standing pose on the floor, a random velocity and a random reference.
+        let mut pose = standing_pose(&m, 0.0);
+        for i in 1..pose.parent_from_joint.len() {
+            pose.parent_from_joint[i] = Rotation3::new(rng.vector(0.15));
+        }
+        place_on_floor(&m.physics, &mut pose, &FEET, &mut fk);
+        let mut v = DofVector::zeros();
+        for x in v.iter_mut() {
+            *x = 0.5 * rng.next();
+        }
+        let mut r = standing_reference([0.5 + 0.5 * rng.next().abs(), 0.9]);
+        for i in 0..r.pose.parent_from_joint.len() {
+            r.pose.parent_from_joint[i] = Rotation3::new(rng.vector(0.3));
+        }
+        for j in r.joint_velocity_mps.iter_mut() {
+            *j = rng.vector(1.0);
+        }
+        data.set_state(&m.physics.model, &pose, &v);
+        let mut contacts = ContactSet::new();
+        pip_contacts(
+            &data.fk().joint_in_world_m,
+            r.foot_contact_prob,
+            &m.physics.geometry,
+            &m.config.contact,
+            &mut contacts,
+        );
+        if case % 2 == 1 {
+            // A kneeling-like extra contact body: 4 points around the left knee (velocity rows (a)).
+            let knee = data.fk().joint_in_world_m[JointId::LEFT_KNEE.index()];
+            for (dx, dz) in [(0.1, 0.1), (0.1, -0.1), (-0.1, 0.1), (-0.1, -0.1)] {
+                contacts
+                    .push(imuflow_contact::ContactPoint {
+                        joint: JointId::LEFT_KNEE,
+                        position: knee + Vector3::new(dx, 0.0, dz),
+                        force: Vector3::zeros(),
+                    })
+                    .unwrap();
+            }
+        }
+        assert!(!contacts.points().is_empty(), "case {case}: no contact");
+        let sol = compare_formulations(&m, &pose, &v, &r, &contacts, true);
+        // Non-trivial: some friction-pyramid row is (nearly) active somewhere.
+        let mu = m.config.friction;
+        seen_active_friction |= sol.forces[..contacts.points().len()].iter().any(|f| {
+            f.norm() > 1.0
+                && (std::f64::consts::SQRT_2 * f.x.abs().max(f.z.abs()) - mu * f.y).abs()
+                    < 1e-3 * f.norm()
+        });
+        // The unconstrained re-solve too.
+        compare_formulations(&m, &pose, &v, &r, &contacts, false);
+    }
+    assert!(seen_active_friction, "no case had an active friction row");
+}
+
+#[test]
+fn without_contact_points_the_foot_bounds_still_hold_and_match_the_full_formulation() {
+    // 5 cm above the floor, falling and drifting, both feet "locked" (c = 0.9) but no contact point:
+    // the QP has no λ, and the foot velocity bounds are constraints on v̇ alone.
+    let m = pip(PipConfig::default());
+    let pose = standing_pose(&m, 0.05);
+    let mut v = DofVector::zeros();
+    v[0] = 0.4;
+    v[1] = -0.5;
+    let mut r = standing_reference([0.9, 0.9]);
+    r.pose.parent_from_joint[JointId::LEFT_KNEE.index()] =
+        Rotation3::new(Vector3::new(0.8, 0.0, 0.0));
+    let contacts = ContactSet::new();
+    let sol = compare_formulations(&m, &pose, &v, &r, &contacts, true);
+    let free = compare_formulations(&m, &pose, &v, &r, &contacts, false);
+    let mut data = DynamicsData::new();
+    data.set_state(&m.physics.model, &pose, &v);
+    let mut jac = PointJacobian::zeros();
+    let mut violated = 0.0f64;
+    // The bounded joints are the contact rule's feet (SMPL 10/11).
+    for foot in imuflow_contact::pip::FEET {
+        data.point_jacobian(foot, &Vector3::zeros(), &mut jac);
+        let vel = data.point_velocity(foot, &Vector3::zeros());
+        let next = vel + jac * sol.acceleration * m.config.dt;
+        // Locked: |v⁺_x|, |v⁺_z| ≤ th ≈ 1.2e-5 (and v⁺_y ≤ th + 1e-6).
+        assert!(
+            next.x.abs() < 2e-5 && next.z.abs() < 2e-5,
+            "{foot:?}: {next}"
+        );
+        assert!(next.y < 2e-5, "{foot:?}: {next}");
+        let next_free = vel + jac * free.acceleration * m.config.dt;
+        violated = violated.max(next_free.x.abs()).max(next_free.y);
+    }
+    // Without the bounds the feet would move: they bind.
+    assert!(violated > 0.01, "{violated}");
 }
