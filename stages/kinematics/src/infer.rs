@@ -13,7 +13,7 @@ use imuflow_body::skeleton::{CONTACT_JOINTS, FULL_JOINTS, LEAF_JOINTS, REDUCED_J
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 
-use crate::data::PIP_VELOCITY_SCALE;
+use crate::data::{FPS, PIP_VELOCITY_SCALE};
 use crate::features::{
     GLOBALPOSE_INPUT, ImuInput, PIP_INPUT, ROOT_IMU, globalpose_input, pip_input,
 };
@@ -31,7 +31,8 @@ pub struct Estimate {
     pub pose: [Rotation3<f64>; NUM_JOINTS],
     /// Joint positions relative to the root, M axes (m).
     pub joint_position: [Vector3<f64>; NUM_JOINTS],
-    /// Joint velocities in M (m/s); zero where the method does not estimate them.
+    /// Joint velocities in M (m/s). PIP predicts them; for GlobalPose they are the predicted root
+    /// velocity plus the frame-to-frame change of the root-relative joint positions.
     pub joint_velocity: [Vector3<f64>; NUM_JOINTS],
     /// [left, right] foot contact probability.
     pub foot_contact: [f64; 2],
@@ -78,6 +79,8 @@ pub struct Streamer {
     /// The pose at the first frame (its root orientation is replaced by the root IMU's).
     start: Pose,
     started: bool,
+    /// GlobalPose: the previous frame's root-relative joint positions (for the joint velocities).
+    previous_joint_position: Option<[Vector3<f64>; NUM_JOINTS]>,
 }
 
 fn tensor(values: &[f32]) -> candle_core::Result<Tensor> {
@@ -129,6 +132,7 @@ impl Streamer {
             fk: FkData::new(),
             start,
             started: false,
+            previous_joint_position: None,
         })
     }
 
@@ -195,6 +199,7 @@ impl Streamer {
             })
             .collect::<candle_core::Result<_>>()?;
         self.started = true;
+        self.previous_joint_position = None;
         Ok(())
     }
 
@@ -318,8 +323,17 @@ impl Streamer {
         for (k, j) in FULL_JOINTS.iter().enumerate() {
             joint_position[j.index()] = root_c * v3(&prj[3 * k..3 * k + 3]);
         }
-        let mut joint_velocity = [Vector3::zeros(); NUM_JOINTS];
-        joint_velocity[0] = root_velocity;
+        // GlobalPose predicts the root velocity only. The other joints' velocities (which the frame
+        // promises, and PIP's physics tracks) follow from it and the change of the root-relative
+        // positions: v_j = v_root + d(p_j − p_root)/dt (backward difference; root velocity only on
+        // the first frame).
+        let mut joint_velocity = [root_velocity; NUM_JOINTS];
+        if let Some(previous) = &self.previous_joint_position {
+            for j in 1..NUM_JOINTS {
+                joint_velocity[j] += (joint_position[j] - previous[j]) * f64::from(FPS);
+            }
+        }
+        self.previous_joint_position = Some(joint_position);
         let _ = CONTACT_JOINTS;
         Ok(Estimate {
             pose,
