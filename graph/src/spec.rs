@@ -105,6 +105,25 @@ pub struct ParamSpec {
     pub doc: &'static str,
 }
 
+impl ParamSpec {
+    /// An optional float parameter within `min..=max` (the common case for gains and sizes).
+    pub const fn float(
+        name: &'static str,
+        min: f64,
+        max: f64,
+        default: &'static str,
+        doc: &'static str,
+    ) -> ParamSpec {
+        ParamSpec {
+            name,
+            ty: ParamType::Float { min, max },
+            required: false,
+            default,
+            doc,
+        }
+    }
+}
+
 /// Everything a built-in stage kind declares.
 #[derive(Debug, Clone, Copy)]
 pub struct StageSpec {

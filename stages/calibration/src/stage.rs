@@ -14,22 +14,6 @@ use crate::calibrator::{Calibrator, CalibratorConfig, Event};
 use crate::convention::{InertialFrame, ReferencePose};
 use crate::{NUM_IMUS, file, sensor_name};
 
-const fn float(
-    name: &'static str,
-    min: f64,
-    max: f64,
-    default: &'static str,
-    doc: &'static str,
-) -> ParamSpec {
-    ParamSpec {
-        name,
-        ty: ParamType::Float { min, max },
-        required: false,
-        default,
-        doc,
-    }
-}
-
 pub const SPEC: StageSpec = StageSpec {
     kind: "calibration",
     role: Role::Transform,
@@ -75,7 +59,7 @@ pub const SPEC: StageSpec = StageSpec {
             default: "model",
             doc: "sensors' inertial-frame convention: model (I = M), z-up (Xsens-like), z-down (Noitom-like)",
         },
-        float(
+        ParamSpec::float(
             "heading_deg",
             -360.0,
             360.0,
@@ -103,84 +87,84 @@ pub const SPEC: StageSpec = StageSpec {
             default: "true",
             doc: "walking: re-estimate the heading corrections at every later stand-step-stand",
         },
-        float(
+        ParamSpec::float(
             "hold_s",
             0.3,
             60.0,
             "1.5",
             "a still period counts as a hold / stand after this long, s",
         ),
-        float(
+        ParamSpec::float(
             "average_s",
             0.1,
             60.0,
             "1.0",
             "the end of a hold averaged for orientations and offsets, s",
         ),
-        float(
+        ParamSpec::float(
             "still_window_s",
             0.05,
             5.0,
             "0.25",
             "trailing window of the stillness test, s",
         ),
-        float(
+        ParamSpec::float(
             "still_gyro_radps",
             0.0,
             10.0,
             "0.3",
             "still: mean angular-rate norm of every sensor below this, rad/s",
         ),
-        float(
+        ParamSpec::float(
             "still_accel_std_mps2",
             0.0,
             10.0,
             "0.4",
             "still: std of every sensor's specific force below this, m/s²",
         ),
-        float(
+        ParamSpec::float(
             "max_step_s",
             0.2,
             30.0,
             "3.0",
             "walking: longest motion between two stands that counts as one step, s",
         ),
-        float(
+        ParamSpec::float(
             "max_gravity_deg",
             0.0,
             180.0,
             "8",
             "largest angle between measured gravity and the frame's down axis, deg",
         ),
-        float(
+        ParamSpec::float(
             "max_pose_change_deg",
             0.0,
             180.0,
             "20",
             "walking: largest orientation change of a sensor between the stands, deg",
         ),
-        float(
+        ParamSpec::float(
             "max_vertical_m",
             0.0,
             10.0,
             "0.1",
             "walking: largest vertical displacement of a sensor over the step, m",
         ),
-        float(
+        ParamSpec::float(
             "min_step_m",
             0.0,
             10.0,
             "0.2",
             "walking: shortest pelvis step, m",
         ),
-        float(
+        ParamSpec::float(
             "max_step_m",
             0.0,
             10.0,
             "1.5",
             "walking: longest pelvis step, m",
         ),
-        float(
+        ParamSpec::float(
             "max_step_mismatch_m",
             0.0,
             10.0,

@@ -25,20 +25,30 @@ use nalgebra::Vector3;
 use crate::pip::{PipContactConfig, pip_contacts};
 use crate::{ContactGeometry, ContactSet};
 
-const fn float(
-    name: &'static str,
-    min: f64,
-    max: f64,
-    default: &'static str,
-    doc: &'static str,
-) -> ParamSpec {
-    ParamSpec {
-        name,
-        ty: ParamType::Float { min, max },
-        required: false,
-        default,
-        doc,
-    }
+/// The subject's stature, shared by every stage that builds the body model.
+pub const STATURE_PARAM: ParamSpec = ParamSpec::float(
+    "stature_m",
+    1.0,
+    2.5,
+    "1.75",
+    "subject stature (m): scales the body model",
+);
+/// The subject's mass, shared by every stage that builds the body model.
+pub const MASS_PARAM: ParamSpec = ParamSpec::float(
+    "mass_kg",
+    20.0,
+    250.0,
+    "70",
+    "subject mass (kg): scales the segment masses",
+);
+
+/// The built-in body model scaled by a stage's `stature_m` and `mass_kg`.
+pub fn subject_body(params: &Params) -> anyhow::Result<BodyModel> {
+    Ok(BodyModel::new(
+        &BodyParams::builtin()?,
+        params.float(STATURE_PARAM.name, 1.75),
+        params.float(MASS_PARAM.name, 70.0),
+    )?)
 }
 
 pub const SPEC: StageSpec = StageSpec {
@@ -73,28 +83,16 @@ pub const SPEC: StageSpec = StageSpec {
             default: "pip",
             doc: "pip (CVPR 2022 §3.2.3: height + foot-contact probability)",
         },
-        float(
-            "stature_m",
-            1.0,
-            2.5,
-            "1.75",
-            "subject stature (m): scales the body model",
-        ),
-        float(
-            "mass_kg",
-            20.0,
-            250.0,
-            "70",
-            "subject mass (kg): scales the segment masses",
-        ),
-        float(
+        STATURE_PARAM,
+        MASS_PARAM,
+        ParamSpec::float(
             "foot_threshold",
             0.0,
             1.0,
             "0.5",
             "foot-contact probability above which a foot near the floor is in contact (PIP 0.5)",
         ),
-        float(
+        ParamSpec::float(
             "foot_margin_m",
             0.0,
             0.5,
@@ -187,12 +185,7 @@ pub fn run() -> anyhow::Result<()> {
     if method != "pip" {
         anyhow::bail!("stage '{stage}': unknown method '{method}' (pip)");
     }
-    let body = BodyModel::new(
-        &BodyParams::builtin()?,
-        params.float("stature_m", 1.75),
-        params.float("mass_kg", 70.0),
-    )
-    .with_context(|| format!("stage '{stage}': body model"))?;
+    let body = subject_body(&params).with_context(|| format!("stage '{stage}': body model"))?;
     let mut estimator = ContactEstimator::new(body, config_from(&params));
     let kin = ctx.input::<KinematicsFrame>("kin")?;
     let state = ctx.input::<MotionFrame>("state")?;

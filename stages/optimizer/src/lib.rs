@@ -44,11 +44,16 @@ impl PhysicsBody {
     /// The built-in body model scaled to a subject (stature in m, mass in kg).
     pub fn new(stature_m: f64, mass_kg: f64) -> anyhow::Result<PhysicsBody> {
         let body = BodyModel::new(&BodyParams::builtin()?, stature_m, mass_kg)?;
-        Ok(PhysicsBody {
+        Ok(PhysicsBody::from_body(body))
+    }
+
+    /// The rigid-body model and contact geometry of a body model.
+    pub fn from_body(body: BodyModel) -> PhysicsBody {
+        PhysicsBody {
             model: RigidBodyModel::new(&body),
             geometry: ContactGeometry::new(&body),
             body,
-        })
+        }
     }
 }
 

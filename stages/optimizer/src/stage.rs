@@ -10,6 +10,7 @@
 
 use anyhow::{Context, bail};
 use imuflow_contact::ContactSet;
+use imuflow_contact::stage::{MASS_PARAM, STATURE_PARAM, subject_body};
 use imuflow_graph::frames::{ContactFrame, KinematicsFrame, MotionFrame, flags};
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
 use imuflow_graph::stage::Params;
@@ -20,22 +21,6 @@ use crate::globalpose::{GlobalPose, GlobalPoseConfig};
 use crate::integrate::Integrate;
 use crate::pip::{Pip, PipConfig};
 use crate::{Method, MotionEstimate, PhysicsBody, Reference};
-
-const fn float(
-    name: &'static str,
-    min: f64,
-    max: f64,
-    default: &'static str,
-    doc: &'static str,
-) -> ParamSpec {
-    ParamSpec {
-        name,
-        ty: ParamType::Float { min, max },
-        required: false,
-        default,
-        doc,
-    }
-}
 
 /// The methods, as the `method` parameter names them.
 pub const METHODS: [&str; 3] = ["integrate", "pip", "globalpose"];
@@ -80,49 +65,37 @@ pub const SPEC: StageSpec = StageSpec {
             default: "integrate",
             doc: "integrate (no physics), pip (CVPR 2022 QP) or globalpose (SIGGRAPH 2025 double tracking)",
         },
-        float(
-            "stature_m",
-            1.0,
-            2.5,
-            "1.75",
-            "subject stature (m): scales the body model",
-        ),
-        float(
-            "mass_kg",
-            20.0,
-            250.0,
-            "70",
-            "subject mass (kg): scales the segment masses",
-        ),
-        float(
+        STATURE_PARAM,
+        MASS_PARAM,
+        ParamSpec::float(
             "kp_rotation",
             0.0,
             1e6,
             "pip 2400, globalpose 3600",
             "joint-rotation PD stiffness (1/s²)",
         ),
-        float(
+        ParamSpec::float(
             "kd_rotation",
             0.0,
             1e4,
             "60",
             "joint-rotation PD damping (1/s)",
         ),
-        float(
+        ParamSpec::float(
             "kp_position",
             0.0,
             1e6,
             "3600",
             "joint-position PD stiffness (1/s²)",
         ),
-        float(
+        ParamSpec::float(
             "kd_position",
             0.0,
             1e4,
             "60",
             "joint-position PD damping (1/s)",
         ),
-        float(
+        ParamSpec::float(
             "friction",
             0.0,
             5.0,
@@ -159,13 +132,12 @@ impl AnyMethod {
 }
 
 /// Builds the method a stage's parameters ask for.
-fn build(stage: &str, params: &Params) -> anyhow::Result<(String, AnyMethod)> {
+fn build(stage: &str, params: &Params) -> anyhow::Result<(String, AnyMethod, PhysicsBody)> {
     let name = params.str("method").unwrap_or("integrate").to_owned();
-    let physics = PhysicsBody::new(
-        params.float("stature_m", 1.75),
-        params.float("mass_kg", 70.0),
-    )
-    .with_context(|| format!("stage '{stage}': body model"))?;
+    let physics = PhysicsBody::from_body(
+        subject_body(params).with_context(|| format!("stage '{stage}': body model"))?,
+    );
+    let for_stage = physics.clone();
     let method = match name.as_str() {
         "integrate" => AnyMethod::Integrate(Box::new(Integrate::new(physics))),
         "pip" => {
@@ -197,14 +169,14 @@ fn build(stage: &str, params: &Params) -> anyhow::Result<(String, AnyMethod)> {
             METHODS.join(", ")
         ),
     };
-    Ok((name, method))
+    Ok((name, method, for_stage))
 }
 
 /// Runs the optimizer stage as the current process's stage.
 pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
-    let (method_name, mut method) = build(&stage, &Params(ctx.params()))?;
+    let (method_name, mut method, physics) = build(&stage, &Params(ctx.params()))?;
     let kin = ctx.input::<KinematicsFrame>("kin")?;
     let has_contacts = ctx.input_names().iter().any(|n| n == "contacts");
     let contacts_in = if has_contacts {
@@ -224,10 +196,6 @@ pub fn run() -> anyhow::Result<()> {
     if !ctx.ready()? {
         return Ok(());
     }
-    let physics = PhysicsBody::new(
-        Params(ctx.params()).float("stature_m", 1.75),
-        Params(ctx.params()).float("mass_kg", 70.0),
-    )?;
     let mut fk = imuflow_body::kinematics::FkData::new();
     let mut estimate = MotionEstimate::default();
     let mut counts = Counts::default();
