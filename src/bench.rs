@@ -35,6 +35,13 @@ pub enum BenchCommand {
     },
     /// Per-frame inference time of the kinematics networks (streaming, one frame at a time, in this
     /// process; set RAYON_NUM_THREADS=1, candle's small-op threading costs more than it gains).
+    /// Per-frame time of the physics methods (integrate, pip, globalpose) on a synthetic march in
+    /// place (contacts change every step). Build with --release.
+    Physics {
+        /// Frames (60 Hz).
+        #[arg(long, default_value_t = 1200)]
+        frames: usize,
+    },
     Kinematics {
         /// PIP weights ("none" to skip).
         #[arg(long, default_value = "models/pip.safetensors")]
@@ -276,6 +283,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             globalpose,
             frames,
         } => return bench_kinematics(&pip, &globalpose, frames),
+        BenchCommand::Physics { frames } => return bench_physics(frames),
     };
     if stages < 2 {
         bail!("--stages must be at least 2 (a source and a relay)");
@@ -357,6 +365,37 @@ fn bench_kinematics(pip: &str, globalpose: &str, frames: usize) -> anyhow::Resul
             pct(0.5),
             pct(0.99),
             t[t.len() - 1]
+        );
+    }
+    Ok(())
+}
+
+/// `imuflow bench physics`.
+fn bench_physics(frames: usize) -> anyhow::Result<()> {
+    use imuflow_optimizer::bench::{run_all, summary};
+    println!("physics benchmark: {frames} frames of a march in place per method (60 Hz)");
+    println!(
+        "{:<11} {:>10} {:>10} {:>10} {:>10} {:>10}",
+        "method", "mean µs", "p50 µs", "p99 µs", "max µs", "fallbacks"
+    );
+    for (name, t) in run_all(frames)? {
+        let [mean, p50, p99, max] = summary(&t.step_us);
+        println!(
+            "{name:<11} {mean:>10.1} {p50:>10.1} {p99:>10.1} {max:>10.1} {:>10}",
+            t.fallbacks
+        );
+        if !t.solver_us.is_empty() {
+            let [smean, s50, s99, _] = summary(&t.solver_us);
+            let [imean, _, _, _] = summary(&t.iterations);
+            println!(
+                "{:<11} QP alone: mean {smean:.1} µs, p50 {s50:.1}, p99 {s99:.1}; {imean:.1} interior-point iterations",
+                ""
+            );
+        }
+    }
+    if cfg!(debug_assertions) {
+        println!(
+            "(a debug build: physics runs 20-100x slower; use --release for the real numbers)"
         );
     }
     Ok(())

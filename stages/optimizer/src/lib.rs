@@ -14,6 +14,7 @@
 //!
 //! World: model frame M (x left, y up, z forward), floor at y = 0, gravity (0, −9.81, 0).
 
+pub mod bench;
 pub mod estimate;
 pub mod globalpose;
 pub mod integrate;

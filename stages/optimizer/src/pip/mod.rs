@@ -51,7 +51,7 @@
 //!   bounds only; `z = z_u − H⁻¹Cᵀμ`). This also covers frames without contact points, where the foot
 //!   velocity bounds (always present) constrain `v̇` alone. Strong duality holds for a feasible convex
 //!   QP, so the recovered `z` is the primal optimum (to clarabel's tolerance). About 0.7 ms a frame
-//!   against 3.8 ms for the original form (`examples/pip_timing.rs`). The original form (`[v̇, λ, τ]`
+//!   against 3.8 ms for the original form (`imuflow bench physics`). The original form (`[v̇, λ, τ]`
 //!   with the equation of motion as 75 equality rows) is kept: it is used when `H` is not numerically
 //!   positive definite (zero torque or force weights, where λ or v̇ need not be unique) and by the
 //!   tests as the reference (same optimum to ~1e-7 relative). Either way `τ` is finally computed from
