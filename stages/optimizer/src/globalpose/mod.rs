@@ -66,7 +66,7 @@ use imuflow_body::dynamics::{
 };
 use imuflow_body::kinematics::FkData;
 use imuflow_body::skeleton::CONTACT_JOINTS;
-use imuflow_body::{JointId, NUM_JOINTS, Pose};
+use imuflow_body::{JointId, Pose};
 use imuflow_contact::force::{
     ForceContactConfig, ForceContactEstimator, ForceEstimate, ForceInput, NUM_CONTACT_JOINTS,
 };
@@ -447,6 +447,12 @@ impl GlobalPose {
                 // Five points never exceed the set's capacity.
                 let _ = self.contacts.push(point);
                 out.ground_reaction_force_n[j.index()] = est.force[i];
+                // The proxy surface (GlobalPose §3.3, assumed horizontal): the height at which the
+                // contact is held, i.e. the contact target's ground point after the step-10 pull;
+                // the floor (0) for contacts near it, a step or a seat for contacts above it.
+                let height = (target[i].y - geometry.clearance(j)).max(0.0);
+                out.surface_height_m[j.index()] = height;
+                self.contacts.surface_height_m[j.index()] = height;
             }
         }
         let torque_world = root_rotation * Vector3::new(tau[3], tau[4], tau[5]);
@@ -460,7 +466,6 @@ impl GlobalPose {
         ];
         out.tau = tau;
         out.contact_mask = self.contacts.mask;
-        out.surface_height_m = [0.0; NUM_JOINTS];
         out.residual_root_force_n = Vector3::new(tau[0], tau[1], tau[2]);
         self.write_state(out);
         Some(())

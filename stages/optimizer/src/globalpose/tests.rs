@@ -1,4 +1,5 @@
 use super::*;
+use imuflow_body::NUM_JOINTS;
 use nalgebra::Rotation3;
 
 fn method() -> GlobalPose {
@@ -39,6 +40,15 @@ fn globalpose_standing_still_holds_the_root_and_carries_the_weight_on_both_feet(
     assert!(drift < 0.01, "root drift {drift} m");
     assert_eq!(out.contact_mask, FEET_MASK);
     assert_eq!(m.contacts().mask, FEET_MASK);
+    // The proxy surface under the standing feet is the floor (within a centimetre); joints not in
+    // contact have none.
+    for (j, h) in out.surface_height_m.iter().enumerate() {
+        if FEET_MASK & (1 << j) != 0 {
+            assert!(h.abs() < 0.01, "joint {j}: surface at {h} m");
+        } else {
+            assert_eq!(*h, 0.0, "joint {j}");
+        }
+    }
     // Independent expectation: standing still, the floor carries the body's weight.
     let mg = m.physics.model.total_mass_kg() * 9.81;
     let grf: f64 = out.ground_reaction_force_n.iter().map(|f| f.y).sum();
