@@ -29,6 +29,25 @@ impl Pose {
         }
     }
 
+    /// A pose from its wire form (`KinematicsFrame`/`MotionFrame`: per joint the local rotation as an
+    /// f32 quaternion `[w, x, y, z]`, and the root position in m). Errors name the field that is not a
+    /// rotation or not finite.
+    pub fn from_wire(
+        local_pose_wxyz: &[[f32; 4]; NUM_JOINTS],
+        root_in_world_m: &[f32; 3],
+    ) -> Result<Pose, WirePoseError> {
+        let mut pose = Pose::t_pose(Vector3::from(*root_in_world_m).cast());
+        if !pose.root_in_world_m.iter().all(|v| v.is_finite()) {
+            return Err(WirePoseError::Root(*root_in_world_m));
+        }
+        for (j, q) in local_pose_wxyz.iter().enumerate() {
+            let q = q.map(f64::from);
+            pose.parent_from_joint[j] = crate::rotation::rotation_from_quat_wxyz(&q)
+                .ok_or(WirePoseError::Rotation { joint: j, wxyz: q })?;
+        }
+        Ok(pose)
+    }
+
     /// Whether every number in the pose is finite.
     pub fn is_finite(&self) -> bool {
         self.root_in_world_m.iter().all(|v| v.is_finite())
@@ -43,6 +62,15 @@ impl Default for Pose {
     fn default() -> Pose {
         Pose::t_pose(Vector3::zeros())
     }
+}
+
+/// A wire pose that is not a pose ([`Pose::from_wire`]).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum WirePoseError {
+    #[error("local_pose_wxyz[{joint}] is not a rotation: {wxyz:?}")]
+    Rotation { joint: usize, wxyz: [f64; 4] },
+    #[error("root_position_m is not finite: {0:?}")]
+    Root([f32; 3]),
 }
 
 /// Output workspace of [`forward_kinematics`]; allocate once and reuse.
@@ -146,6 +174,27 @@ mod tests {
     use crate::test_util::random_rotations;
     use approx::assert_relative_eq;
     use std::f64::consts::FRAC_PI_2;
+
+    #[test]
+    fn wire_poses_decode_and_bad_fields_are_named() {
+        let mut wxyz = [[1.0f32, 0.0, 0.0, 0.0]; NUM_JOINTS];
+        let h = std::f32::consts::FRAC_1_SQRT_2;
+        wxyz[4] = [h, h, 0.0, 0.0]; // 90° about x
+        let pose = Pose::from_wire(&wxyz, &[0.1, 0.9, -0.2]).unwrap();
+        let y = pose.parent_from_joint[4] * Vector3::y();
+        assert!((y - Vector3::z()).norm() < 1e-6, "{y}");
+        assert!((pose.root_in_world_m - Vector3::new(0.1, 0.9, -0.2)).norm() < 1e-6);
+        wxyz[7] = [0.0; 4];
+        let err = Pose::from_wire(&wxyz, &[0.0; 3]).unwrap_err().to_string();
+        assert!(
+            err.starts_with("local_pose_wxyz[7] is not a rotation"),
+            "{err}"
+        );
+        let err = Pose::from_wire(&wxyz, &[f32::NAN, 0.0, 0.0])
+            .unwrap_err()
+            .to_string();
+        assert!(err.starts_with("root_position_m is not finite"), "{err}");
+    }
 
     fn body() -> BodyModel {
         BodyModel::new(&BodyParams::builtin().unwrap(), 1.741, 73.0).unwrap()

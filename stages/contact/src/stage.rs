@@ -14,7 +14,6 @@
 
 use anyhow::Context;
 use imuflow_body::kinematics::FkData;
-use imuflow_body::rotation::rotation_from_quat_wxyz;
 use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose, forward_kinematics};
 use imuflow_graph::frames::{ContactFrame, Frame, KinematicsFrame, MotionFrame, flags};
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
@@ -138,7 +137,8 @@ impl ContactEstimator {
         if state.header().flags & flags::FEEDBACK_INITIAL != 0 {
             return Err("no physics state yet".into());
         }
-        decode_pose(state, &mut self.pose)?;
+        self.pose = Pose::from_wire(&state.local_pose_wxyz, &state.root_position_m)
+            .map_err(|e| format!("state {e}"))?;
         let prob = kin.foot_contact_prob.map(f64::from);
         if !prob.iter().all(|p| (0.0..=1.0).contains(p)) {
             return Err(format!("foot_contact_prob {prob:?} is not a probability"));
@@ -151,20 +151,6 @@ impl ContactEstimator {
         }
         Ok(())
     }
-}
-
-/// A `MotionFrame`'s pose: local rotations and the root position.
-fn decode_pose(frame: &MotionFrame, pose: &mut Pose) -> Result<(), String> {
-    for j in 0..NUM_JOINTS {
-        let q = frame.local_pose_wxyz[j].map(f64::from);
-        pose.parent_from_joint[j] = rotation_from_quat_wxyz(&q)
-            .ok_or_else(|| format!("state local_pose_wxyz[{j}] is not a rotation: {q:?}"))?;
-    }
-    pose.root_in_world_m = Vector3::from(frame.root_position_m).cast();
-    if !pose.is_finite() {
-        return Err("state root_position_m is not finite".into());
-    }
-    Ok(())
 }
 
 fn config_from(params: &Params) -> PipContactConfig {

@@ -67,14 +67,14 @@ impl MotionEstimate {
     /// Read a wire frame back (the optimizer's own output arriving through a feedback edge, or a
     /// recording). Errors name the field.
     pub fn read(frame: &MotionFrame) -> Result<MotionEstimate, String> {
-        let mut e = MotionEstimate::default();
+        let mut e = MotionEstimate {
+            pose: Pose::from_wire(&frame.local_pose_wxyz, &frame.root_position_m)
+                .map_err(|e| e.to_string())?,
+            ..MotionEstimate::default()
+        };
         for j in 0..NUM_JOINTS {
-            let q = frame.local_pose_wxyz[j].map(f64::from);
-            e.pose.parent_from_joint[j] = imuflow_body::rotation::rotation_from_quat_wxyz(&q)
-                .ok_or_else(|| format!("local_pose_wxyz[{j}] is not a rotation: {q:?}"))?;
             e.ground_reaction_force_n[j] = Vector3::from(frame.ground_reaction_force_n[j]).cast();
         }
-        e.pose.root_in_world_m = Vector3::from(frame.root_position_m).cast();
         for i in 0..e.v.len() {
             e.v[i] = frame.qdot[i].into();
             e.tau[i] = frame.tau[i].into();
@@ -82,11 +82,10 @@ impl MotionEstimate {
         e.contact_mask = frame.contact_mask;
         e.surface_height_m = frame.surface_height_m.map(f64::from);
         e.residual_root_force_n = Vector3::from(frame.residual_root_force_n).cast();
-        let finite = e.pose.is_finite()
-            && e.v.iter().all(|x| x.is_finite())
-            && e.surface_height_m.iter().all(|x| x.is_finite());
+        let finite =
+            e.v.iter().all(|x| x.is_finite()) && e.surface_height_m.iter().all(|x| x.is_finite());
         if !finite {
-            return Err("root_position_m, qdot or surface_height_m is not finite".into());
+            return Err("qdot or surface_height_m is not finite".into());
         }
         Ok(e)
     }

@@ -38,11 +38,11 @@ impl Default for Reference {
 impl Reference {
     /// Decode a frame. Errors name the field that is not finite or not a rotation.
     pub fn read(frame: &KinematicsFrame) -> Result<Reference, String> {
-        let mut r = Reference::default();
+        let mut r = Reference {
+            pose: Pose::from_wire(&frame.local_pose_wxyz, &[0.0; 3]).map_err(|e| e.to_string())?,
+            ..Reference::default()
+        };
         for j in 0..NUM_JOINTS {
-            let q = frame.local_pose_wxyz[j].map(f64::from);
-            r.pose.parent_from_joint[j] = imuflow_body::rotation::rotation_from_quat_wxyz(&q)
-                .ok_or_else(|| format!("local_pose_wxyz[{j}] is not a rotation: {q:?}"))?;
             r.joint_position_rel_m[j] = finite3(&frame.joint_position_m[j], "joint_position_m", j)?;
             r.joint_velocity_mps[j] =
                 finite3(&frame.joint_velocity_mps[j], "joint_velocity_mps", j)?;

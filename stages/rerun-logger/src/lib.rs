@@ -333,7 +333,6 @@ fn params_stature(ctx: &StageContext) -> f64 {
 /// Draws skeletons: forward kinematics of the body model for MotionFrames.
 struct SkeletonDrawer {
     body: BodyModel,
-    pose: Pose,
     fk: imuflow_body::FkData,
 }
 
@@ -341,7 +340,6 @@ impl SkeletonDrawer {
     fn new(body: BodyModel) -> SkeletonDrawer {
         SkeletonDrawer {
             body,
-            pose: Pose::default(),
             fk: imuflow_body::FkData::new(),
         }
     }
@@ -353,18 +351,10 @@ impl SkeletonDrawer {
         input: &str,
         f: &MotionFrame,
     ) -> anyhow::Result<()> {
-        for j in 0..NUM_JOINTS {
-            let [w, x, y, z] = f.local_pose_wxyz[j].map(f64::from);
-            let Some(r) = imuflow_body::rotation::rotation_from_quat_wxyz(&[w, x, y, z]) else {
-                return Ok(()); // not a pose (e.g. an all-zero invalid frame): draw nothing
-            };
-            self.pose.parent_from_joint[j] = r;
-        }
-        self.pose.root_in_world_m = nalgebra::Vector3::from(f.root_position_m).cast();
-        if !self.pose.is_finite() {
-            return Ok(());
-        }
-        forward_kinematics(&self.body.skeleton, &self.pose, &mut self.fk);
+        let Ok(pose) = Pose::from_wire(&f.local_pose_wxyz, &f.root_position_m) else {
+            return Ok(()); // not a pose (e.g. an all-zero invalid frame): draw nothing
+        };
+        forward_kinematics(&self.body.skeleton, &pose, &mut self.fk);
         let joints: [[f32; 3]; NUM_JOINTS] =
             self.fk.joint_in_world_m.map(|p| p.cast::<f32>().into());
         // Torque per joint: the norm of its three generalized-force entries (the root's: virtual torque).
