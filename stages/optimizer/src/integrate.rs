@@ -84,11 +84,6 @@ impl Integrate {
         }
     }
 
-    /// The contacts of the last step: joints whose stationary weight reached 0.5 (no forces).
-    pub fn contacts(&self) -> &ContactSet {
-        &self.contacts
-    }
-
     /// Contact joints relative to the root, in world axes, of the reference pose.
     fn contact_joints_rel(
         &mut self,
@@ -99,6 +94,11 @@ impl Integrate {
 }
 
 impl Method for Integrate {
+    /// The contacts of the last step: joints whose stationary weight reached 0.5 (no forces).
+    fn contacts(&self) -> &ContactSet {
+        &self.contacts
+    }
+
     fn reset(&mut self) {
         self.previous_rel = None;
     }

@@ -68,6 +68,10 @@ pub struct StepReport {
 
 /// A physics method, stepped once per frame by the optimizer stage.
 pub trait Method {
+    /// The contacts the last `step` used, with the forces the method found (`integrate`: its
+    /// stationary joints, without forces).
+    fn contacts(&self) -> &ContactSet;
+
     /// Start over: the next `step` is a first frame (state from the reference pose, placed on the floor).
     fn reset(&mut self);
 

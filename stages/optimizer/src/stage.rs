@@ -105,41 +105,15 @@ pub const SPEC: StageSpec = StageSpec {
     ],
 };
 
-/// One of the three methods.
-enum AnyMethod {
-    Integrate(Box<Integrate>),
-    Pip(Box<Pip>),
-    GlobalPose(Box<GlobalPose>),
-}
-
-impl AnyMethod {
-    fn method(&mut self) -> &mut dyn Method {
-        match self {
-            AnyMethod::Integrate(m) => m.as_mut(),
-            AnyMethod::Pip(m) => m.as_mut(),
-            AnyMethod::GlobalPose(m) => m.as_mut(),
-        }
-    }
-
-    /// The contacts the last step used.
-    fn contacts(&self) -> &ContactSet {
-        match self {
-            AnyMethod::Integrate(m) => m.contacts(),
-            AnyMethod::Pip(m) => m.contacts(),
-            AnyMethod::GlobalPose(m) => m.contacts(),
-        }
-    }
-}
-
 /// Builds the method a stage's parameters ask for.
-fn build(stage: &str, params: &Params) -> anyhow::Result<(String, AnyMethod, PhysicsBody)> {
+fn build(stage: &str, params: &Params) -> anyhow::Result<(String, Box<dyn Method>, PhysicsBody)> {
     let name = params.str("method").unwrap_or("integrate").to_owned();
     let physics = PhysicsBody::from_body(
         subject_body(params).with_context(|| format!("stage '{stage}': body model"))?,
     );
     let for_stage = physics.clone();
-    let method = match name.as_str() {
-        "integrate" => AnyMethod::Integrate(Box::new(Integrate::new(physics))),
+    let method: Box<dyn Method> = match name.as_str() {
+        "integrate" => Box::new(Integrate::new(physics)),
         "pip" => {
             let d = PipConfig::default();
             let config = PipConfig {
@@ -150,7 +124,7 @@ fn build(stage: &str, params: &Params) -> anyhow::Result<(String, AnyMethod, Phy
                 friction: params.float("friction", d.friction),
                 ..d
             };
-            AnyMethod::Pip(Box::new(Pip::new(physics, config)?))
+            Box::new(Pip::new(physics, config)?)
         }
         "globalpose" => {
             let d = GlobalPoseConfig::default();
@@ -162,7 +136,7 @@ fn build(stage: &str, params: &Params) -> anyhow::Result<(String, AnyMethod, Phy
                 friction: params.float("friction", d.friction),
                 ..d
             };
-            AnyMethod::GlobalPose(Box::new(GlobalPose::new(physics, config)?))
+            Box::new(GlobalPose::new(physics, config)?)
         }
         other => bail!(
             "stage '{stage}': unknown method '{other}' ({})",
@@ -226,11 +200,10 @@ pub fn run() -> anyhow::Result<()> {
         match reference {
             Some(reference) if step.flags & flags::CALIBRATING == 0 => {
                 if !running {
-                    method.method().reset();
+                    method.reset();
                     running = true;
                 }
                 let report = method
-                    .method()
                     .step(&reference, contacts.as_ref(), &mut estimate)
                     .with_context(|| format!("stage '{stage}': frame {}", step.seq))?;
                 if report.fallback {

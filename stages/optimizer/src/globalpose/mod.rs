@@ -220,12 +220,6 @@ impl GlobalPose {
         })
     }
 
-    /// The contacts of the last step, one point per contact joint (at its ground point) with its
-    /// estimated force (N, world); `residual_root_wrench` = re-tracking's residual (torque in M).
-    pub fn contacts(&self) -> &ContactSet {
-        &self.contacts
-    }
-
     /// The residual root wrenches of the last step's two passes.
     pub fn pass_residuals(&self) -> &PassResiduals {
         &self.residuals
@@ -484,6 +478,12 @@ fn reference_is_finite(reference: &Reference) -> bool {
 }
 
 impl Method for GlobalPose {
+    /// The contacts of the last step, one point per contact joint (at its ground point) with its
+    /// estimated force (N, world); `residual_root_wrench` = re-tracking's residual (torque in M).
+    fn contacts(&self) -> &ContactSet {
+        &self.contacts
+    }
+
     fn reset(&mut self) {
         self.previous_rel = None;
         self.estimator.reset();

@@ -228,11 +228,6 @@ impl Pip {
         })
     }
 
-    /// The contacts the last step used, with the solved per-point forces (N, M) filled in.
-    pub fn contacts(&self) -> &ContactSet {
-        &self.contacts
-    }
-
     /// The configuration.
     pub fn config(&self) -> &PipConfig {
         &self.config
@@ -268,6 +263,11 @@ impl Pip {
 }
 
 impl Method for Pip {
+    /// The contacts the last step used, with the solved per-point forces (N, M) filled in.
+    fn contacts(&self) -> &ContactSet {
+        &self.contacts
+    }
+
     fn reset(&mut self) {
         self.started = false;
         self.v = DofVector::zeros();
