@@ -31,15 +31,14 @@ use imuflow_body::metrics::{
 };
 use imuflow_body::{JointId, NUM_JOINTS, Pose};
 use imuflow_graph::frames::KinematicsFrame;
-use imuflow_kinematics::data::{FPS, Shard, pose_of, shard_files};
-use imuflow_kinematics::eval::sequence_flags;
+use imuflow_kinematics::data::{FPS, Shard, pose_of};
+use imuflow_kinematics::eval::{Copies, for_each_test_sequence, sequence_bar};
 use imuflow_kinematics::infer::Streamer;
 use imuflow_kinematics::weights::Weights;
 use imuflow_optimizer::globalpose::{GlobalPose, GlobalPoseConfig};
 use imuflow_optimizer::integrate::Integrate;
 use imuflow_optimizer::pip::{Pip, PipConfig};
 use imuflow_optimizer::{Method, MotionEstimate, PhysicsBody, Reference};
-use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Vector3;
 
 /// Options of `imuflow eval-physics`.
@@ -126,28 +125,15 @@ pub fn run(args: EvalPhysicsArgs) -> anyhow::Result<()> {
             scores: Scores::default(),
         });
     }
-    let files = shard_files(&args.data, "test")?;
-    let bar = progress_bar(!args.no_progress);
-    let mut sequences = 0usize;
-    'files: for file in &files {
-        let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
-        let shard = Shard::parse(&bytes).with_context(|| format!("shard {}", file.display()))?;
-        let augmented = sequence_flags(&shard);
-        bar.inc_length((shard.offsets.len() - 1) as u64);
-        for s in 0..shard.offsets.len() - 1 {
-            bar.inc(1);
-            let (a, b) = (shard.offsets[s], shard.offsets[s + 1]);
-            if !augmented.get(s).copied().unwrap_or(true) || b - a < 8 {
-                continue;
-            }
-            evaluate_sequence(&shard, a, b, &mut streamer, &physics, &mut candidates)
-                .with_context(|| format!("{}: sequence {s}", file.display()))?;
-            sequences += 1;
-            if sequences >= args.limit {
-                break 'files;
-            }
-        }
-    }
+    let bar = sequence_bar("physics", !args.no_progress);
+    let sequences = for_each_test_sequence(
+        &args.data,
+        Copies::Augmented,
+        8,
+        args.limit,
+        &bar,
+        |shard, a, b| evaluate_sequence(shard, a, b, &mut streamer, &physics, &mut candidates),
+    )?;
     bar.finish_and_clear();
     println!(
         "test split of {} (augmented copies), {} kinematics, {sequences} sequences",
@@ -156,18 +142,6 @@ pub fn run(args: EvalPhysicsArgs) -> anyhow::Result<()> {
     );
     print!("{}", table(&candidates, physics.body.mass_kg));
     Ok(())
-}
-
-fn progress_bar(show: bool) -> ProgressBar {
-    if !show {
-        return ProgressBar::hidden();
-    }
-    let b = ProgressBar::new(0);
-    b.set_style(
-        ProgressStyle::with_template("physics {bar:30} {pos}/{len} sequences [{elapsed} < {eta}]")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    b
 }
 
 /// Runs every candidate over frames `a..b` of a shard and adds to its scores.

@@ -133,13 +133,13 @@ pub struct Shard<'a> {
     pose: Vec<f32>,
     root: Vec<f32>,
     joints: Vec<f32>,
-    pub offsets: Vec<usize>,
-    pub metadata: Option<serde_json::Value>,
+    pub(crate) offsets: Vec<usize>,
+    pub(crate) metadata: Option<serde_json::Value>,
     _bytes: std::marker::PhantomData<&'a [u8]>,
 }
 
 impl<'a> Shard<'a> {
-    pub fn parse(bytes: &'a [u8]) -> anyhow::Result<Shard<'a>> {
+    pub(crate) fn parse(bytes: &'a [u8]) -> anyhow::Result<Shard<'a>> {
         let (_, header) = SafeTensors::read_metadata(bytes).context("safetensors header")?;
         let metadata = header
             .metadata()

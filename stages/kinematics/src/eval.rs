@@ -7,7 +7,7 @@
 //! identity in prediction and truth; SIP and global angle error (degrees), joint position error (cm),
 //! jitter of the predicted joints (km/s³, PIP's unit), next to the truth's own jitter.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use anyhow::Context;
@@ -61,70 +61,39 @@ pub fn evaluate(
         .with_context(|| format!("loading weights {}", weights.display()))?;
     let mut streamer = Streamer::new(loaded, Pose::t_pose(Vector3::zeros()))?;
     let body = BodyModel::new(&BodyParams::builtin()?, 1.75, 70.0)?;
-    let files: Vec<PathBuf> = shard_files(data, "test")?;
-    let bar = if progress {
-        let b = ProgressBar::new(0);
-        b.set_style(
-            ProgressStyle::with_template(&format!(
-                "{} {{bar:30}} {{pos}}/{{len}} sequences [{{elapsed}} < {{eta}}]",
-                method.name()
-            ))
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        b
-    } else {
-        ProgressBar::hidden()
-    };
+    let bar = sequence_bar(method.name(), progress);
     let mut totals = Scores::default();
     let (mut fk_pred, mut fk_true) = (FkData::new(), FkData::new());
     let mut infer_s = 0.0;
-    'files: for file in &files {
-        let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
-        let shard = Shard::parse(&bytes).with_context(|| format!("shard {}", file.display()))?;
-        let augmented = sequence_flags(&shard);
-        bar.inc_length((shard.offsets.len() - 1) as u64);
-        for s in 0..shard.offsets.len() - 1 {
-            bar.inc(1);
-            let keep = match copies {
-                Copies::All => true,
-                Copies::Ideal => !augmented.get(s).copied().unwrap_or(false),
-                Copies::Augmented => augmented.get(s).copied().unwrap_or(true),
-            };
-            let (a, b) = (shard.offsets[s], shard.offsets[s + 1]);
-            if !keep || b - a < 4 {
-                continue;
-            }
-            streamer.set_start(pose_of(&shard, a));
-            let mut predicted_positions = Vec::with_capacity(b - a);
-            let mut true_positions = Vec::with_capacity(b - a);
-            for f in a..b {
-                let t0 = Instant::now();
-                let est = streamer.step(&shard.imu(f))?;
-                infer_s += t0.elapsed().as_secs_f64();
-                let mut pred = Pose::t_pose(Vector3::zeros());
-                pred.parent_from_joint = est.pose;
-                let mut truth = pose_of(&shard, f);
-                truth.root_in_world_m = Vector3::zeros();
-                apply_ignored_joints(&mut pred, &IGNORED_JOINTS);
-                apply_ignored_joints(&mut truth, &IGNORED_JOINTS);
-                forward_kinematics(&body.skeleton, &pred, &mut fk_pred);
-                forward_kinematics(&body.skeleton, &truth, &mut fk_true);
-                totals.sip_deg += sip_error_deg(&fk_pred, &fk_true);
-                totals.angle_deg += global_angle_error_deg(&fk_pred, &fk_true);
-                totals.joint_cm += 100.0 * joint_position_error_m(&fk_pred, &fk_true);
-                predicted_positions.push(positions(&fk_pred));
-                true_positions.push(positions(&fk_true));
-                totals.frames += 1;
-            }
-            let n = (b - a) as f64;
-            totals.jitter_km_s3 += jitter_km_per_s3(&predicted_positions, FPS as f64) * n;
-            totals.truth_jitter_km_s3 += jitter_km_per_s3(&true_positions, FPS as f64) * n;
-            totals.sequences += 1;
-            if totals.sequences >= limit {
-                break 'files;
-            }
+    for_each_test_sequence(data, copies, 4, limit, &bar, |shard, a, b| {
+        streamer.set_start(pose_of(shard, a));
+        let mut predicted_positions = Vec::with_capacity(b - a);
+        let mut true_positions = Vec::with_capacity(b - a);
+        for f in a..b {
+            let t0 = Instant::now();
+            let est = streamer.step(&shard.imu(f))?;
+            infer_s += t0.elapsed().as_secs_f64();
+            let mut pred = Pose::t_pose(Vector3::zeros());
+            pred.parent_from_joint = est.pose;
+            let mut truth = pose_of(shard, f);
+            truth.root_in_world_m = Vector3::zeros();
+            apply_ignored_joints(&mut pred, &IGNORED_JOINTS);
+            apply_ignored_joints(&mut truth, &IGNORED_JOINTS);
+            forward_kinematics(&body.skeleton, &pred, &mut fk_pred);
+            forward_kinematics(&body.skeleton, &truth, &mut fk_true);
+            totals.sip_deg += sip_error_deg(&fk_pred, &fk_true);
+            totals.angle_deg += global_angle_error_deg(&fk_pred, &fk_true);
+            totals.joint_cm += 100.0 * joint_position_error_m(&fk_pred, &fk_true);
+            predicted_positions.push(positions(&fk_pred));
+            true_positions.push(positions(&fk_true));
+            totals.frames += 1;
         }
-    }
+        let n = (b - a) as f64;
+        totals.jitter_km_s3 += jitter_km_per_s3(&predicted_positions, FPS as f64) * n;
+        totals.truth_jitter_km_s3 += jitter_km_per_s3(&true_positions, FPS as f64) * n;
+        totals.sequences += 1;
+        Ok(())
+    })?;
     bar.finish_and_clear();
     let n = totals.frames.max(1) as f64;
     Ok(Scores {
@@ -138,6 +107,59 @@ pub fn evaluate(
     })
 }
 
+/// The progress bar of one pass over the test split (hidden unless `show`).
+pub fn sequence_bar(label: &str, show: bool) -> ProgressBar {
+    if !show {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{label} {{bar:30}} {{pos}}/{{len}} sequences [{{elapsed}} < {{eta}}]"
+        ))
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar
+}
+
+/// Calls `f(shard, a, b)` for every sequence (frames `a..b` of its shard) of the test split in
+/// `data` with the chosen copies and at least `min_frames` frames, at most `limit` of them, advancing
+/// `bar`. Returns how many were visited; an error names the shard and the sequence.
+pub fn for_each_test_sequence(
+    data: &Path,
+    copies: Copies,
+    min_frames: usize,
+    limit: usize,
+    bar: &ProgressBar,
+    mut f: impl FnMut(&Shard, usize, usize) -> anyhow::Result<()>,
+) -> anyhow::Result<usize> {
+    let mut visited = 0;
+    for file in shard_files(data, "test")? {
+        let bytes = std::fs::read(&file).with_context(|| format!("reading {}", file.display()))?;
+        let shard = Shard::parse(&bytes).with_context(|| format!("shard {}", file.display()))?;
+        let augmented = sequence_flags(&shard);
+        bar.inc_length((shard.offsets.len() - 1) as u64);
+        for s in 0..shard.offsets.len() - 1 {
+            bar.inc(1);
+            let keep = match copies {
+                Copies::All => true,
+                Copies::Ideal => !augmented.get(s).copied().unwrap_or(false),
+                Copies::Augmented => augmented.get(s).copied().unwrap_or(true),
+            };
+            let (a, b) = (shard.offsets[s], shard.offsets[s + 1]);
+            if !keep || b - a < min_frames {
+                continue;
+            }
+            f(&shard, a, b).with_context(|| format!("{}: sequence {s}", file.display()))?;
+            visited += 1;
+            if visited >= limit {
+                return Ok(visited);
+            }
+        }
+    }
+    Ok(visited)
+}
+
 fn positions(fk: &FkData) -> [Vector3<f64>; NUM_JOINTS] {
     std::array::from_fn(|j| {
         *fk.position(imuflow_body::JointId::from_index(j).unwrap_or(imuflow_body::JointId::ROOT))
@@ -145,7 +167,7 @@ fn positions(fk: &FkData) -> [Vector3<f64>; NUM_JOINTS] {
 }
 
 /// Per sequence of a shard: whether it is an augmented copy (from the shard metadata).
-pub fn sequence_flags(shard: &Shard) -> Vec<bool> {
+fn sequence_flags(shard: &Shard) -> Vec<bool> {
     shard
         .metadata
         .as_ref()
