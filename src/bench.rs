@@ -42,6 +42,14 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 1200)]
         frames: usize,
     },
+    /// Per-frame time of the validation stage's simulation (rapier3d) in both modes, on the true
+    /// motion of a recording (default: the bundled sample, calibration prelude and walk). Build
+    /// with --release.
+    Validation {
+        /// Recording whose truth (MotionFrame channel) is tracked.
+        #[arg(long, default_value = "models/sample/walk.mcap")]
+        input: String,
+    },
     Kinematics {
         /// PIP weights ("none" to skip).
         #[arg(long, default_value = "models/pip.safetensors")]
@@ -284,6 +292,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             frames,
         } => return bench_kinematics(&pip, &globalpose, frames),
         BenchCommand::Physics { frames } => return bench_physics(frames),
+        BenchCommand::Validation { input } => return bench_validation(Path::new(&input)),
     };
     if stages < 2 {
         bail!("--stages must be at least 2 (a source and a relay)");
@@ -397,6 +406,69 @@ fn bench_physics(frames: usize) -> anyhow::Result<()> {
         println!(
             "(a debug build: physics runs 20-100x slower; use --release for the real numbers)"
         );
+    }
+    Ok(())
+}
+
+/// `imuflow bench validation`: the simulation tracking a recording's true motion, both modes.
+fn bench_validation(input: &Path) -> anyhow::Result<()> {
+    use imuflow_body::Pose;
+    use imuflow_imu_source::replay::{Recorded, Recording};
+    use imuflow_optimizer::bench::summary;
+    use imuflow_validation::{FallRule, Mode, SimConfig, SimModel, Validator};
+
+    let recording = Recording::load(input, None, None)?;
+    let poses = recording
+        .frames
+        .iter()
+        .filter_map(|f| match f {
+            Recorded::Truth(m) => Some(m),
+            Recorded::Imu(_) => None,
+        })
+        .enumerate()
+        .map(|(i, m)| {
+            Pose::from_wire(&m.local_pose_wxyz, &m.root_position_m)
+                .with_context(|| format!("{}: truth frame {i}", input.display()))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    if poses.is_empty() {
+        bail!(
+            "{}: no truth (MotionFrame) channel to track",
+            input.display()
+        );
+    }
+    let body = imuflow_body::BodyModel::new(&imuflow_body::BodyParams::builtin()?, 1.75, 70.0)?;
+    let model = SimModel::new(&body);
+    let defaults = SimConfig::default();
+    println!(
+        "validation benchmark: {} frames of {} at 60 Hz, {} substeps per frame",
+        poses.len(),
+        input.display(),
+        defaults.substeps
+    );
+    println!(
+        "{:<9} {:>10} {:>10} {:>10} {:>10}  scores",
+        "mode", "mean µs", "p50 µs", "p99 µs", "max µs"
+    );
+    for mode in [Mode::Torques, Mode::Residual] {
+        let config = SimConfig {
+            mode,
+            ..defaults.clone()
+        };
+        let mut validator = Validator::new(model.clone(), config, FallRule::default());
+        for pose in &poses {
+            validator.frame(Some(pose), 1.0 / 60.0);
+        }
+        // The first frame builds the world; time the steady state.
+        let [mean, p50, p99, max] = summary(&validator.stats.step_us[1..]);
+        println!(
+            "{:<9} {mean:>10.1} {p50:>10.1} {p99:>10.1} {max:>10.1}  {}",
+            Mode::NAMES[mode as usize],
+            validator.stats.summary_line(mode == Mode::Residual)
+        );
+    }
+    if cfg!(debug_assertions) {
+        println!("(a debug build: use --release for the real numbers)");
     }
     Ok(())
 }

@@ -16,7 +16,11 @@
 //!   test clips are short), m;
 //! - ground-reaction force during standing: on frames where the truth stands still (both feet and the
 //!   root slower than 0.1 m/s), Σ vertical GRF / body weight; and the share of those frames within 10 %;
-//! - solver fallbacks, and the method's own time per frame (µs).
+//! - solver fallbacks, and the method's own time per frame (µs);
+//! - with `--validate`: the validation stage's rapier3d simulation tracks every method's output (and
+//!   the truth, the reference floor) per sequence: falls per minute and tracking error with the
+//!   root unactuated (`torques`), and the mean residual root force / mg the body needed to follow
+//!   (`residual`). Each sequence starts a fresh simulation in the estimate's first pose.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -39,6 +43,7 @@ use imuflow_optimizer::globalpose::{GlobalPose, GlobalPoseConfig};
 use imuflow_optimizer::integrate::Integrate;
 use imuflow_optimizer::pip::{Pip, PipConfig};
 use imuflow_optimizer::{Method, MotionEstimate, PhysicsBody, Reference};
+use imuflow_validation::{FallRule, Mode, SimConfig, SimModel, Validator};
 use nalgebra::Vector3;
 
 /// Options of `imuflow eval-physics`.
@@ -63,6 +68,9 @@ pub struct EvalPhysicsArgs {
     /// Evaluate at most this many sequences.
     #[arg(long, default_value_t = usize::MAX)]
     limit: usize,
+    /// Also track every method's output (and the truth) with the validation stage's simulation.
+    #[arg(long)]
+    validate: bool,
     /// Don't show the progress bar.
     #[arg(long)]
     no_progress: bool,
@@ -83,6 +91,59 @@ struct Scores {
     standing_within_10: usize,
     fallbacks: usize,
     seconds: f64,
+    /// `--validate`: the simulation's statistics in both modes, summed over sequences.
+    validation: Option<ValidationScores>,
+}
+
+/// The validation simulation's scores of one method over the split.
+#[derive(Default, Clone, Debug)]
+struct ValidationScores {
+    simulated_s: f64,
+    falls: u64,
+    frames: u64,
+    tracking_sum_m: f64,
+    residual_sum: f64,
+    skate_sum: f64,
+    skate_frames: u64,
+}
+
+impl ValidationScores {
+    /// Tracks `poses` in both modes and adds the statistics.
+    fn add(&mut self, model: &SimModel, poses: &[Pose]) {
+        for mode in [Mode::Torques, Mode::Residual] {
+            let config = SimConfig {
+                mode,
+                ..SimConfig::default()
+            };
+            let mut v = Validator::new(model.clone(), config, FallRule::default());
+            for pose in poses {
+                v.frame(Some(pose), 1.0 / f64::from(FPS));
+            }
+            let st = &v.stats;
+            match mode {
+                Mode::Torques => {
+                    self.simulated_s += st.simulated_s;
+                    self.falls += st.falls;
+                    self.frames += st.frames;
+                    self.tracking_sum_m += st.tracking_errors_m.iter().sum::<f64>();
+                    self.skate_sum += st.skate_sum_mps;
+                    self.skate_frames += st.skate_frames;
+                }
+                Mode::Residual => self.residual_sum += st.residual_fraction_sum,
+            }
+        }
+    }
+
+    fn columns(&self) -> String {
+        let n = self.frames.max(1) as f64;
+        format!(
+            "{:>10.2} {:>10.1} {:>10.3} {:>11.3}",
+            self.falls as f64 / (self.simulated_s / 60.0).max(1e-9),
+            100.0 * self.tracking_sum_m / n,
+            self.skate_sum / self.skate_frames.max(1) as f64,
+            self.residual_sum / n,
+        )
+    }
 }
 
 /// Below this speed (m/s) a foot or the root counts as standing still.
@@ -122,9 +183,14 @@ pub fn run(args: EvalPhysicsArgs) -> anyhow::Result<()> {
         candidates.push(Candidate {
             name: name.clone(),
             method,
-            scores: Scores::default(),
+            scores: Scores {
+                validation: args.validate.then(ValidationScores::default),
+                ..Scores::default()
+            },
         });
     }
+    let sim_model = SimModel::new(&physics.body);
+    let mut truth_validation = args.validate.then(ValidationScores::default);
     let bar = sequence_bar("physics", !args.no_progress);
     let sequences = for_each_test_sequence(
         &args.data,
@@ -132,7 +198,22 @@ pub fn run(args: EvalPhysicsArgs) -> anyhow::Result<()> {
         8,
         args.limit,
         &bar,
-        |shard, a, b| evaluate_sequence(shard, a, b, &mut streamer, &physics, &mut candidates),
+        |shard, a, b| {
+            evaluate_sequence(
+                shard,
+                a,
+                b,
+                &mut streamer,
+                &physics,
+                &mut candidates,
+                &sim_model,
+            )?;
+            if let Some(v) = &mut truth_validation {
+                let truth: Vec<Pose> = (a..b).map(|f| pose_of(shard, f)).collect();
+                v.add(&sim_model, &truth);
+            }
+            Ok(())
+        },
     )?;
     bar.finish_and_clear();
     println!(
@@ -141,6 +222,21 @@ pub fn run(args: EvalPhysicsArgs) -> anyhow::Result<()> {
         net.name()
     );
     print!("{}", table(&candidates, physics.body.mass_kg));
+    if let Some(truth) = &truth_validation {
+        println!(
+            "\nvalidation (rapier3d simulation tracking each output; torques mode unless noted)\n{:<11} {:>10} {:>10} {:>10} {:>11}",
+            "motion", "falls/min", "track cm", "skate m/s", "resid. mg"
+        );
+        println!("{:<11} {}", "truth", truth.columns());
+        for c in &candidates {
+            if let Some(v) = &c.scores.validation {
+                println!("{:<11} {}", c.name, v.columns());
+            }
+        }
+        println!(
+            "track: mean joint distance simulation-estimate; skate: simulated feet in contact; resid.: residual mode's mean root force / body weight"
+        );
+    }
     Ok(())
 }
 
@@ -152,6 +248,7 @@ fn evaluate_sequence(
     streamer: &mut Streamer,
     physics: &PhysicsBody,
     candidates: &mut [Candidate],
+    sim_model: &SimModel,
 ) -> anyhow::Result<()> {
     streamer.set_start(pose_of(shard, a));
     let mut fk = FkData::new();
@@ -222,6 +319,10 @@ fn evaluate_sequence(
                 s.standing_ratio_sum += ratio;
                 s.standing_within_10 += usize::from((ratio - 1.0).abs() <= 0.1);
             }
+        }
+        if let Some(v) = &mut s.validation {
+            let poses: Vec<Pose> = out.iter().map(|e| e.pose.clone()).collect();
+            v.add(sim_model, &poses);
         }
     }
     Ok(())

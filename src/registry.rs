@@ -18,6 +18,7 @@ fn specs() -> Vec<StageSpec> {
         imuflow_kinematics::SPEC,
         imuflow_contact::SPEC,
         imuflow_optimizer::SPEC,
+        imuflow_validation::SPEC,
         bench::SOURCE_SPEC,
         bench::RELAY_SPEC,
     ]
@@ -38,6 +39,7 @@ pub fn run_stage(kind: &str) -> anyhow::Result<()> {
         k if k == imuflow_kinematics::SPEC.kind => imuflow_kinematics::run(),
         k if k == imuflow_contact::SPEC.kind => imuflow_contact::run(),
         k if k == imuflow_optimizer::SPEC.kind => imuflow_optimizer::run(),
+        k if k == imuflow_validation::SPEC.kind => imuflow_validation::run(),
         k if k == bench::SOURCE_SPEC.kind => bench::run_source(),
         k if k == bench::RELAY_SPEC.kind => bench::run_relay(),
         other => bail!("unknown stage kind '{other}' (see `imuflow stage --list`)"),

@@ -418,21 +418,33 @@ frame! {
 
 frame! {
     /// What the independent physics simulation measured while tracking the estimate.
-    ValidationFrame, "imuflow.ValidationFrame.v1", FrameType::Validation, {
-        /// Mean joint position difference between simulation and estimate, m.
+    ValidationFrame, "imuflow.ValidationFrame.v2", FrameType::Validation, {
+        /// Mean distance between the simulated and the estimated joint positions in model frame M, m.
         tracking_error_m: f32,
-        /// Horizontal speed of feet the simulation has in contact, m/s.
+        /// The same with both root positions removed (how well the joints follow), m.
+        pose_error_m: f32,
+        /// Distance between the simulated and the estimated root joint, m.
+        root_error_m: f32,
+        /// Mean horizontal speed of the simulated feet that touch the floor, m/s (0 when none does).
         foot_skate_mps: f32,
-        /// Deepest ground penetration in the simulation, m (0 when none).
+        /// Deepest ground penetration in the simulation this frame, m (0 when none).
         penetration_m: f32,
-        /// 1 when the simulated character fell over.
+        /// 1 on the frame the simulated body lost its balance (it was then reset to the estimate).
         balance_lost: u32,
+        /// Falls since the start of the stream.
+        falls: u32,
+        /// Times the simulation was re-anchored to the estimate after drifting away without falling.
+        resyncs: u32,
+        /// Bit j set when simulated joint j touches the floor.
+        sim_contact_mask: u32,
+        /// Residual force the root needed to follow the estimate, model frame M, N (0 in torques mode).
+        residual_root_force_n: [f32; 3],
+        /// Residual torque on the root, model frame M, N·m (0 in torques mode).
+        residual_root_torque_nm: [f32; 3],
         /// Simulated root position in model frame M, m.
         sim_root_position_m: [f32; 3],
-        /// Simulated contact force per joint in model frame M, N.
+        /// Floor contact force on each simulated joint in model frame M, N.
         sim_contact_force_n: [[f32; 3]; NUM_JOINTS],
-        /// Reserved, zero.
-        reserved: u32,
     }
 }
 
@@ -449,6 +461,7 @@ const _: () = assert!(std::mem::size_of::<BodyImuFrame>() == 32 + 96 + 72 + 72 +
 const _: () =
     assert!(std::mem::size_of::<KinematicsFrame>() == 32 + 384 + 288 + 288 + 8 + 20 + 24 + 4);
 const _: () = assert!(std::mem::align_of::<MotionFrame>() == 8);
+const _: () = assert!(std::mem::size_of::<ValidationFrame>() == 32 + 36 + 36 + 288);
 
 #[cfg(test)]
 mod tests {

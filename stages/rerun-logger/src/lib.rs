@@ -12,6 +12,10 @@
 //!   magnitude per joint as a bar chart under `plots/<input>/torque_norm_nm`.
 //! - KinematicsFrame: the networks' joint positions relative to the root (points and bones).
 //! - ContactFrame: contact points, and their forces as arrows.
+//! - ValidationFrame: a warning text entry under `<input>/events` at every frame where the
+//!   simulated body lost its balance (the scores are time series, as every small field). The
+//!   validation stage's simulated body is a MotionFrame: wire it to an input named `validation`
+//!   and it is drawn in its own colour with its floor forces as arrows.
 //! - Every frame type: each small field (up to 6 scalars, e.g. stationary probabilities, root
 //!   velocity) as a time series under `plots/<input>/<field>`, and the INVALID flag.
 //!
@@ -22,7 +26,7 @@ use anyhow::{Context, bail};
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose, forward_kinematics};
 use imuflow_graph::frames::{
     BodyImuFrame, ContactFrame, FrameLayout, FrameType, ImuFrame, KinematicsFrame, MotionFrame,
-    NUM_IMUS, ScalarType, flags,
+    NUM_IMUS, ScalarType, ValidationFrame, flags,
 };
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, Role, StageSpec};
 use imuflow_graph::stage::Params;
@@ -55,6 +59,20 @@ const JOINT_RADIUS_M: f32 = 0.015;
 const JOINT_RADIUS_M_PER_NM: f32 = 2e-4;
 /// Radius of drawn bones, m.
 const BONE_RADIUS_M: f32 = 0.008;
+/// Colour of the skeleton drawn from an input named `validation` (the simulated body) and of one
+/// named `truth`; other skeletons get rerun's automatic colours.
+const VALIDATION_RGB: [u8; 3] = [240, 150, 30];
+const TRUTH_RGB: [u8; 3] = [120, 200, 120];
+
+/// The fixed colour of an input's skeleton, if it has one.
+fn skeleton_colour(input: &str) -> Option<rerun::Color> {
+    let [r, g, b] = match input {
+        "validation" => VALIDATION_RGB,
+        "truth" => TRUTH_RGB,
+        _ => return None,
+    };
+    Some(rerun::Color::from_rgb(r, g, b))
+}
 
 pub const SPEC: StageSpec = StageSpec {
     kind: "rerun-logger",
@@ -250,7 +268,20 @@ fn log_frames(
                     log_contacts(rec, name, f)?;
                 }
             }
-            _ => {}
+            FrameType::Validation => {
+                if let Some(f) = frame_ref::<ValidationFrame>(held)
+                    && f.balance_lost != 0
+                {
+                    rec.log(
+                        format!("{name}/events"),
+                        &rerun::TextLog::new(format!(
+                            "frame {}: balance lost (fall {}); the simulation was reset to the estimate",
+                            header.seq, f.falls
+                        ))
+                        .with_level(rerun::TextLogLevel::WARN),
+                    )?;
+                }
+            }
         }
         log_small_fields(rec, name, frame.layout(), held)?;
     }
@@ -401,16 +432,16 @@ impl SkeletonDrawer {
         let radii: Vec<f32> = (0..NUM_JOINTS)
             .map(|j| JOINT_RADIUS_M + torque.map_or(0.0, |t| t[j] * JOINT_RADIUS_M_PER_NM))
             .collect();
-        rec.log(
-            format!("{input}/skeleton/joints"),
-            &rerun::Points3D::new(joints.iter().copied()).with_radii(radii),
-        )?;
+        let mut points = rerun::Points3D::new(joints.iter().copied()).with_radii(radii);
         let bones = JointId::all()
             .filter_map(|j| j.parent().map(|p| [joints[p.index()], joints[j.index()]]));
-        rec.log(
-            format!("{input}/skeleton/bones"),
-            &rerun::LineStrips3D::new(bones).with_radii([BONE_RADIUS_M]),
-        )?;
+        let mut lines = rerun::LineStrips3D::new(bones).with_radii([BONE_RADIUS_M]);
+        if let Some(colour) = skeleton_colour(input) {
+            points = points.with_colors([colour]);
+            lines = lines.with_colors([colour]);
+        }
+        rec.log(format!("{input}/skeleton/joints"), &points)?;
+        rec.log(format!("{input}/skeleton/bones"), &lines)?;
         Ok(())
     }
 }

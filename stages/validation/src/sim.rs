@@ -1,0 +1,610 @@
+//! The rapier3d simulation: one multibody (reduced coordinates) with spherical joints, built from
+//! a [`SimModel`], standing on a half-space floor at y = 0, driven by joint motors that track an
+//! estimated pose.
+//!
+//! Conventions that make the tracking exact to state: every link's frame is its joint's frame
+//! (`local_frame2` = identity), and the joint anchor in the parent is the skeleton's bone offset
+//! with no rotation (`local_frame1` = translation only). rapier then composes
+//! `child_in_parent = offset · joint_rot`, so a spherical joint's `joint_rot` *is* the skeleton's
+//! local rotation `parent_from_joint`, and its three generalized velocities are the child's angular
+//! velocity relative to the parent, expressed in the parent's frame.
+
+use imuflow_body::kinematics::Pose;
+use imuflow_body::skeleton::{JointId, NUM_JOINTS};
+use nalgebra::{Quaternion, Rotation3, UnitQuaternion, Vector3};
+use rapier3d::glamx::{Quat, Vec3};
+use rapier3d::prelude::*;
+
+use crate::model::{Shape, SimModel};
+
+/// Standard gravity along M's -y, m/s².
+const GRAVITY_MPS2: f64 = 9.81;
+/// The root's (pelvis) stance feedback starts only when the feet carry this share of the weight:
+/// a foot that barely touches cannot hold the pelvis up. [inferred]
+const STANCE_LOAD_FRACTION: f64 = 0.2;
+/// Gauss-Seidel sweeps per solver iteration (see `Simulation::new`).
+const PGS_SWEEPS: usize = 4;
+
+/// How the root is driven.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    /// Root unactuated: only joint torques and ground contact move the body (the honest test).
+    Torques,
+    /// A weak PD force and torque on the root keep it near the estimate; its size is reported.
+    Residual,
+}
+
+impl Mode {
+    pub const NAMES: [&'static str; 2] = ["torques", "residual"];
+
+    pub fn parse(name: &str) -> Option<Mode> {
+        match name {
+            "torques" => Some(Mode::Torques),
+            "residual" => Some(Mode::Residual),
+            _ => None,
+        }
+    }
+}
+
+/// Gains and settings of the simulation. Joint gains are per unit of the inertia a joint drives
+/// ([`crate::model::Link::driven_inertia_kgm2`]), so every joint tracks with the same natural
+/// frequency: `kp = ω²`, `kd = 2ζω`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimConfig {
+    pub mode: Mode,
+    /// Joint stiffness per unit driven inertia, 1/s² (900: ω = 30 rad/s, about 4.8 Hz).
+    pub kp: f64,
+    /// Joint damping per unit driven inertia, 1/s (60: critically damped at ω = 30 rad/s).
+    pub kd: f64,
+    /// Largest joint torque per kg of body mass, N·m/kg (a strong adult's hip or knee: about 3-4).
+    pub max_torque_nm_per_kg: f64,
+    /// Pelvis-orientation feedback through the stance hips, per unit root inertia, 1/s² and 1/s.
+    pub balance_kp: f64,
+    pub balance_kd: f64,
+    /// Residual mode: root PD per unit mass (force) and root inertia (torque), 1/s² and 1/s.
+    pub residual_kp: f64,
+    pub residual_kd: f64,
+    /// Friction coefficient between body and floor.
+    pub friction: f64,
+    /// Physics steps per input frame.
+    pub substeps: usize,
+}
+
+impl Default for SimConfig {
+    fn default() -> SimConfig {
+        SimConfig {
+            mode: Mode::Torques,
+            kp: 900.0,
+            kd: 60.0,
+            max_torque_nm_per_kg: 4.0,
+            balance_kp: 400.0,
+            balance_kd: 40.0,
+            residual_kp: 100.0,
+            residual_kd: 20.0,
+            friction: 0.8,
+            substeps: 4,
+        }
+    }
+}
+
+/// What the simulation should track this frame: the estimate's pose and its velocities.
+#[derive(Debug, Clone)]
+pub struct Target {
+    pub pose: Pose,
+    /// Per joint: angular velocity relative to the parent in the parent's frame (root: world), rad/s.
+    pub angular_velocity: [Vector3<f64>; NUM_JOINTS],
+    /// Root joint linear velocity, world, m/s.
+    pub root_velocity: Vector3<f64>,
+}
+
+impl Target {
+    /// The target at `pose`, with velocities by finite difference from the previous frame's pose
+    /// `dt` seconds earlier (zero without one).
+    pub fn from_poses(previous: Option<&Pose>, pose: &Pose, dt: f64) -> Target {
+        let mut angular_velocity = [Vector3::zeros(); NUM_JOINTS];
+        let mut root_velocity = Vector3::zeros();
+        if let Some(prev) = previous.filter(|_| dt > 0.0) {
+            for (w, (now, before)) in angular_velocity.iter_mut().zip(
+                pose.parent_from_joint
+                    .iter()
+                    .zip(prev.parent_from_joint.iter()),
+            ) {
+                // R(t) = exp([ω]dt) R(t-dt): ω in the parent's frame.
+                *w = (now * before.inverse()).scaled_axis() / dt;
+            }
+            root_velocity = (pose.root_in_world_m - prev.root_in_world_m) / dt;
+        }
+        Target {
+            pose: pose.clone(),
+            angular_velocity,
+            root_velocity,
+        }
+    }
+}
+
+/// What one frame of simulation measured.
+#[derive(Debug, Clone, Default)]
+pub struct FrameForces {
+    /// Contact force of the floor on each joint (a foot box counts for its foot joint, a hand
+    /// for its hand joint, other links for their own joint), world, N, averaged over the substeps.
+    pub contact_force_n: [Vector3<f64>; NUM_JOINTS],
+    /// Deepest penetration into the floor over the substeps, m.
+    pub penetration_m: f64,
+    /// Per foot [left, right]: horizontal speed of the foot at its contact points (weighted by
+    /// their normal forces), averaged over the substeps it touched the floor; `None` without contact.
+    pub foot_slip_mps: [Option<f64>; 2],
+    /// Residual root force and torque applied (residual mode), world, N and N·m, averaged.
+    pub residual_force_n: Vector3<f64>,
+    pub residual_torque_nm: Vector3<f64>,
+}
+
+/// The simulated body's state.
+#[derive(Debug, Clone)]
+pub struct SimState {
+    /// Local rotations (rigid leaves: identity) and root position, like an estimate's pose.
+    pub pose: Pose,
+    /// World position of every joint, m.
+    pub joint_position_m: [Vector3<f64>; NUM_JOINTS],
+    /// World linear velocity of every joint centre, m/s.
+    pub joint_velocity_mps: [Vector3<f64>; NUM_JOINTS],
+    /// World orientation of every joint's frame.
+    pub world_from_joint: [Rotation3<f64>; NUM_JOINTS],
+}
+
+/// The rapier world holding one simulated body.
+pub struct Simulation {
+    model: SimModel,
+    config: SimConfig,
+    world: PhysicsWorld,
+    multibody: MultibodyIndex,
+    /// Per model link: its rigid body and its link id in the multibody.
+    link_body: Vec<RigidBodyHandle>,
+    link_id: Vec<usize>,
+    /// Which joint each body collider's contact force is reported on.
+    collider_joint: Vec<(ColliderHandle, JointId)>,
+    ground: ColliderHandle,
+    /// Vertical floor force on each foot during the last substep, N (for the stance feedback).
+    foot_load_n: [f64; 2],
+}
+
+fn vec3(v: &Vector3<f64>) -> Vec3 {
+    Vec3::new(v.x as f32, v.y as f32, v.z as f32)
+}
+
+fn vector(v: Vec3) -> Vector3<f64> {
+    Vector3::new(v.x as f64, v.y as f64, v.z as f64)
+}
+
+fn quat(r: &Rotation3<f64>) -> Quat {
+    let q = UnitQuaternion::from_rotation_matrix(r);
+    Quat::from_xyzw(q.i as f32, q.j as f32, q.k as f32, q.w as f32).normalize()
+}
+
+fn rotation(q: Quat) -> Rotation3<f64> {
+    UnitQuaternion::from_quaternion(Quaternion::new(
+        q.w as f64, q.x as f64, q.y as f64, q.z as f64,
+    ))
+    .to_rotation_matrix()
+}
+
+const ANGULAR_AXES: [JointAxis; 3] = [JointAxis::AngX, JointAxis::AngY, JointAxis::AngZ];
+
+impl Simulation {
+    /// A world with the body in the target's pose and moving with its velocities.
+    pub fn new(model: &SimModel, config: &SimConfig, start: &Target) -> Simulation {
+        let mut world = PhysicsWorld::new();
+        world.gravity = Vec3::new(0.0, -GRAVITY_MPS2 as f32, 0.0);
+        world.integration_parameters.dt = (1.0 / 60.0 / config.substeps.max(1) as f64) as f32;
+        // Four Gauss-Seidel sweeps per solver iteration (rapier's default is one): the stiff joint
+        // motors are coupled through the whole multibody's mass matrix, and with one sweep the
+        // chain sagged (a T-pose folded at the knees within 1.5 s); with four it stands to 5 mm.
+        world.integration_parameters.num_internal_pgs_iterations = PGS_SWEEPS;
+
+        let ground_body = world.bodies.insert(RigidBodyBuilder::fixed());
+        let floor = ColliderBuilder::halfspace(rapier3d::na::Unit::new_unchecked(Vec3::Y))
+            .friction(config.friction as f32)
+            .collision_groups(InteractionGroups::new(
+                Group::GROUP_2,
+                Group::GROUP_1,
+                InteractionTestMode::And,
+            ));
+        let ground = world
+            .colliders
+            .insert_with_parent(floor, ground_body, &mut world.bodies);
+
+        let root_pose = rapier3d::math::Pose::from_parts(
+            vec3(&start.pose.root_in_world_m),
+            quat(&start.pose.parent_from_joint[0]),
+        );
+        let mut link_body = Vec::with_capacity(model.links.len());
+        let mut collider_joint = Vec::new();
+        let link_of = model.link_of_joint();
+        for link in &model.links {
+            let mass = MassProperties::new(
+                vec3(&link.com_m),
+                link.mass_kg as f32,
+                vec3(&link.inertia_kgm2),
+            );
+            let body = RigidBodyBuilder::dynamic()
+                .pose(root_pose)
+                .additional_mass_properties(mass)
+                .can_sleep(false);
+            let handle = world.bodies.insert(body);
+            for shape in &link.shapes {
+                let collider = collider(shape)
+                    .density(0.0)
+                    .friction(config.friction as f32)
+                    .collision_groups(InteractionGroups::new(
+                        Group::GROUP_1,
+                        Group::GROUP_2,
+                        InteractionTestMode::And,
+                    ));
+                let c = world
+                    .colliders
+                    .insert_with_parent(collider, handle, &mut world.bodies);
+                collider_joint.push((c, contact_joint(link.joint)));
+            }
+            if let Some(parent) = link.joint.parent() {
+                let parent_body = link_body[link_of[parent.index()].expect("parents are links")];
+                let offset = model.body.skeleton.offset_in_parent_m(link.joint);
+                let mut joint = SphericalJointBuilder::new()
+                    .local_anchor1(vec3(offset))
+                    .local_anchor2(Vec3::ZERO)
+                    .build();
+                let max_torque = (config.max_torque_nm_per_kg * model.body.mass_kg) as f32;
+                for axis in ANGULAR_AXES {
+                    joint
+                        .set_motor_model(axis, MotorModel::ForceBased)
+                        .set_motor_velocity(axis, 0.0, 0.0)
+                        .set_motor_max_force(axis, max_torque);
+                }
+                world
+                    .multibody_joints
+                    .insert(parent_body, handle, joint, true)
+                    .expect("a tree of new bodies is a valid multibody");
+            }
+            link_body.push(handle);
+        }
+        let root_link = *world
+            .multibody_joints
+            .rigid_body_link(link_body[0])
+            .expect("the root is a multibody link");
+        let link_id = link_body
+            .iter()
+            .map(|h| {
+                world
+                    .multibody_joints
+                    .rigid_body_link(*h)
+                    .expect("every body is a link")
+                    .id
+            })
+            .collect();
+        let mut sim = Simulation {
+            model: model.clone(),
+            config: config.clone(),
+            world,
+            multibody: root_link.multibody,
+            link_body,
+            link_id,
+            collider_joint,
+            ground,
+            foot_load_n: [0.0; 2],
+        };
+        sim.set_state(start);
+        sim
+    }
+
+    fn multibody(&self) -> &Multibody {
+        self.world
+            .multibody_joints
+            .get_multibody(self.multibody)
+            .expect("the body's multibody exists")
+    }
+
+    fn multibody_mut(&mut self) -> &mut Multibody {
+        self.world
+            .multibody_joints
+            .get_multibody_mut(self.multibody)
+            .expect("the body's multibody exists")
+    }
+
+    /// Puts the body in the target's pose (the root where the target has it, every joint rotated
+    /// from identity to its target) with the target's velocities.
+    fn set_state(&mut self, target: &Target) {
+        let model_links: Vec<JointId> = self.model.links.iter().map(|l| l.joint).collect();
+        let link_id = self.link_id.clone();
+        let mb = self.multibody_mut();
+        let ndofs = mb.ndofs();
+        let mut displacement = vec![0.0f32; ndofs];
+        let mut velocity = vec![0.0f32; ndofs];
+        // The free root: 3 linear then 3 angular world velocities.
+        velocity[..3].copy_from_slice(&vec3(&target.root_velocity).to_array());
+        velocity[3..6].copy_from_slice(&vec3(&target.angular_velocity[0]).to_array());
+        for (joint, id) in model_links.iter().zip(&link_id).skip(1) {
+            let first = mb.link(*id).expect("link ids are valid").assembly_id();
+            let j = joint.index();
+            displacement[first..first + 3]
+                .copy_from_slice(&vec3(&target.pose.parent_from_joint[j].scaled_axis()).to_array());
+            velocity[first..first + 3]
+                .copy_from_slice(&vec3(&target.angular_velocity[j]).to_array());
+        }
+        mb.apply_displacements(&displacement);
+        mb.generalized_velocity_mut().copy_from_slice(&velocity);
+        let world = &mut self.world;
+        let mb = world
+            .multibody_joints
+            .get_multibody_mut(self.multibody)
+            .expect("the body's multibody exists");
+        mb.forward_kinematics(&world.bodies, true);
+        mb.update_rigid_bodies(&mut world.bodies, true);
+    }
+
+    /// Advances one input frame of `dt` seconds (in `substeps` physics steps) towards `target`.
+    pub fn step(&mut self, target: &Target, dt: f64) -> FrameForces {
+        let substeps = self.config.substeps.max(1);
+        let h = dt / substeps as f64;
+        self.world.integration_parameters.dt = h as f32;
+        let mut out = FrameForces::default();
+        let mut slip = [(0.0, 0u32); 2];
+        for _ in 0..substeps {
+            self.drive_joints(target);
+            let (force, torque) = self.drive_root(target);
+            out.residual_force_n += force / substeps as f64;
+            out.residual_torque_nm += torque / substeps as f64;
+            self.world.step();
+            out.penetration_m = out.penetration_m.max(self.add_contact_forces(
+                &mut out.contact_force_n,
+                h,
+                1.0 / substeps as f64,
+            ));
+            for (foot, (sum, n)) in self.foot_slip().into_iter().zip(slip.iter_mut()) {
+                if let Some(speed) = foot {
+                    *sum += speed;
+                    *n += 1;
+                }
+            }
+        }
+        out.foot_slip_mps = slip.map(|(sum, n)| (n > 0).then(|| sum / f64::from(n)));
+        out
+    }
+
+    /// Per foot: the horizontal speed at its floor contact points, weighted by their normal
+    /// impulses (the velocity of the foot where it touches, not of the ankle, which rolls over
+    /// the toes in every step); `None` for a foot off the floor.
+    fn foot_slip(&self) -> [Option<f64>; 2] {
+        let mut out = [None; 2];
+        for pair in self.world.narrow_phase.contact_pairs_with(self.ground) {
+            let (other, body_is_first) = if pair.collider1 == self.ground {
+                (pair.collider2, false)
+            } else {
+                (pair.collider1, true)
+            };
+            let side = match self.collider_joint.iter().find(|(c, _)| *c == other) {
+                Some((_, JointId::LEFT_FOOT)) => 0,
+                Some((_, JointId::RIGHT_FOOT)) => 1,
+                _ => continue,
+            };
+            let collider = &self.world.colliders[other];
+            let Some(rb) = collider.parent().map(|h| &self.world.bodies[h]) else {
+                continue;
+            };
+            let (mut weighted, mut total) = (Vector3::zeros(), 0.0);
+            for manifold in pair.manifolds() {
+                for point in &manifold.points {
+                    let local = if body_is_first {
+                        point.local_p1
+                    } else {
+                        point.local_p2
+                    };
+                    let at = collider.position().transform_point(local);
+                    let w = f64::from(point.data.impulse.abs());
+                    weighted += w * vector(rb.velocity_at_point(at));
+                    total += w;
+                }
+            }
+            if total > 0.0 {
+                out[side] = Some((weighted / total).xz().norm());
+            }
+        }
+        out
+    }
+
+    /// Joint motors: a velocity target `ω_ref + (kp/kd)·e` with damping `kd·I`, i.e. the PD torque
+    /// `kd·I·(ω_ref − ω) + kp·I·e`, where `e` is the rotation from the current to the target local
+    /// rotation (parent frame). rapier solves the damping implicitly, so stiff gains stay stable.
+    ///
+    /// Balance: the root is unactuated, so the pelvis's orientation is steered through the stance
+    /// hips (SIMBICON, Yin et al. 2007, §4: the stance hip turns the pelvis, the floor under the
+    /// stance foot takes the reaction). The pelvis should turn at `ω_c = (kp_b/kd_b)·e_root +
+    /// (ω_ref,root − ω_root)` (world); with the thigh held by the stance leg that is a change of
+    /// `−R_pelvisᵀ·ω_c` in the hip's relative velocity, added to the loaded hips' targets in
+    /// proportion to their feet's load. Nothing acts on the root itself.
+    fn drive_joints(&mut self, target: &Target) {
+        let (kp, kd) = (self.config.kp, self.config.kd);
+        let stance = self.stance_correction(target);
+        let gains: Vec<(usize, JointId, f64)> = self
+            .model
+            .links
+            .iter()
+            .zip(&self.link_id)
+            .skip(1)
+            .map(|(l, id)| (*id, l.joint, kd * l.driven_inertia_kgm2))
+            .collect();
+        let mb = self.multibody_mut();
+        for (id, joint, damping) in gains {
+            let link = mb.link_mut(id).expect("link ids are valid");
+            let j = joint.index();
+            let current = rotation(link.joint.joint_rot());
+            let error = (target.pose.parent_from_joint[j] * current.inverse()).scaled_axis();
+            let mut velocity = target.angular_velocity[j] + error * (kp / kd.max(1e-9));
+            match joint {
+                JointId::LEFT_HIP => velocity += stance[0],
+                JointId::RIGHT_HIP => velocity += stance[1],
+                _ => {}
+            }
+            for (k, axis) in ANGULAR_AXES.into_iter().enumerate() {
+                link.joint
+                    .data
+                    .set_motor_velocity(axis, velocity[k] as f32, damping as f32);
+            }
+        }
+    }
+
+    /// The change of each hip's velocity target that steers the pelvis (see `drive_joints`); zero
+    /// while the feet carry less than [`STANCE_LOAD_FRACTION`] of the weight.
+    fn stance_correction(&self, target: &Target) -> [Vector3<f64>; 2] {
+        let weight = self.model.total_mass_kg * GRAVITY_MPS2;
+        let load: f64 = self.foot_load_n.iter().sum();
+        if load <= STANCE_LOAD_FRACTION * weight || self.config.balance_kd <= 0.0 {
+            return [Vector3::zeros(); 2];
+        }
+        let rb = &self.world.bodies[self.link_body[0]];
+        let pelvis = rotation(*rb.rotation());
+        let error = (target.pose.parent_from_joint[0] * pelvis.inverse()).scaled_axis();
+        let turn = (self.config.balance_kp / self.config.balance_kd) * error
+            + (target.angular_velocity[0] - vector(rb.angvel()));
+        let in_pelvis = -(pelvis.inverse() * turn);
+        [0, 1].map(|side| in_pelvis * (self.foot_load_n[side] / load))
+    }
+
+    /// Residual mode: a PD force and torque on the root towards the estimate (explicit: weak gains
+    /// on the heaviest link). Returns them (world); zero in torques mode.
+    fn drive_root(&mut self, target: &Target) -> (Vector3<f64>, Vector3<f64>) {
+        let root = self.link_body[0];
+        let rb = &mut self.world.bodies[root];
+        rb.reset_forces(false);
+        if self.config.mode == Mode::Torques {
+            return (Vector3::zeros(), Vector3::zeros());
+        }
+        let orientation = rotation(*rb.rotation());
+        let origin = rb.translation();
+        let orientation_error =
+            (target.pose.parent_from_joint[0] * orientation.inverse()).scaled_axis();
+        let angvel_error = target.angular_velocity[0] - vector(rb.angvel());
+        let velocity = vector(rb.velocity_at_point(origin));
+        let (kp, kd) = (self.config.residual_kp, self.config.residual_kd);
+        let force = self.model.total_mass_kg
+            * (kp * (target.pose.root_in_world_m - vector(origin))
+                + kd * (target.root_velocity - velocity));
+        let torque = self.model.root_inertia_kgm2 * (kp * orientation_error + kd * angvel_error);
+        rb.add_force_at_point(vec3(&force), origin, false);
+        rb.add_torque(vec3(&torque), false);
+        (force, torque)
+    }
+
+    /// Adds `weight` × the floor's force on each joint during the last step of `h` seconds to
+    /// `forces`; updates the feet's loads; returns the deepest penetration (m).
+    fn add_contact_forces(
+        &mut self,
+        forces: &mut [Vector3<f64>; NUM_JOINTS],
+        h: f64,
+        weight: f64,
+    ) -> f64 {
+        let mut deepest = 0.0f64;
+        let mut feet = [0.0; 2];
+        for pair in self.world.narrow_phase.contact_pairs_with(self.ground) {
+            let (other, sign) = if pair.collider1 == self.ground {
+                (pair.collider2, 1.0)
+            } else {
+                (pair.collider1, -1.0)
+            };
+            let Some(joint) = self
+                .collider_joint
+                .iter()
+                .find(|(c, _)| *c == other)
+                .map(|(_, j)| *j)
+            else {
+                continue;
+            };
+            let mut impulse = Vector3::zeros();
+            for manifold in pair.manifolds() {
+                let normal = vector(manifold.data.normal);
+                for point in &manifold.points {
+                    impulse += normal * point.data.impulse as f64
+                        + vector(point.data.warmstart_tangent_world);
+                    deepest = deepest.max(-point.dist as f64);
+                }
+            }
+            let force = sign * impulse / h;
+            forces[joint.index()] += weight * force;
+            match joint {
+                JointId::LEFT_FOOT => feet[0] += force.y.max(0.0),
+                JointId::RIGHT_FOOT => feet[1] += force.y.max(0.0),
+                _ => {}
+            }
+        }
+        self.foot_load_n = feet;
+        deepest
+    }
+
+    /// The body's current state.
+    pub fn state(&self) -> SimState {
+        let mb = self.multibody();
+        let mut pose = Pose::t_pose(Vector3::zeros());
+        let mut world_from_joint = [Rotation3::identity(); NUM_JOINTS];
+        let mut joint_position_m = [Vector3::zeros(); NUM_JOINTS];
+        let mut joint_velocity_mps = [Vector3::zeros(); NUM_JOINTS];
+        for (l, (link, id)) in self.model.links.iter().zip(&self.link_id).enumerate() {
+            let mb_link = mb.link(*id).expect("link ids are valid");
+            let to_world = mb_link.local_to_world();
+            let j = link.joint.index();
+            world_from_joint[j] = rotation(to_world.rotation);
+            joint_position_m[j] = vector(to_world.translation);
+            let rb = &self.world.bodies[self.link_body[l]];
+            joint_velocity_mps[j] = vector(rb.velocity_at_point(to_world.translation));
+            pose.parent_from_joint[j] = if l == 0 {
+                world_from_joint[j]
+            } else {
+                rotation(mb_link.joint.joint_rot())
+            };
+        }
+        pose.root_in_world_m = joint_position_m[0];
+        // The rigid leaves ride on their parent link.
+        for leaf in crate::model::RIGID_LEAVES {
+            let parent = leaf.parent().expect("leaves have parents").index();
+            let j = leaf.index();
+            world_from_joint[j] = world_from_joint[parent];
+            joint_position_m[j] = joint_position_m[parent]
+                + world_from_joint[parent] * self.model.body.skeleton.offset_in_parent_m(leaf);
+            joint_velocity_mps[j] = joint_velocity_mps[parent];
+        }
+        SimState {
+            pose,
+            joint_position_m,
+            joint_velocity_mps,
+            world_from_joint,
+        }
+    }
+}
+
+/// The joint a link's floor contact is reported on: feet and hands on the contact joints the
+/// optimizer uses (`imuflow_body::skeleton::CONTACT_JOINTS`), other links on their own joint.
+fn contact_joint(link: JointId) -> JointId {
+    match link {
+        JointId::LEFT_ANKLE => JointId::LEFT_FOOT,
+        JointId::RIGHT_ANKLE => JointId::RIGHT_FOOT,
+        JointId::LEFT_WRIST => JointId::LEFT_HAND,
+        JointId::RIGHT_WRIST => JointId::RIGHT_HAND,
+        other => other,
+    }
+}
+
+fn collider(shape: &Shape) -> ColliderBuilder {
+    match shape {
+        Shape::Capsule { a, b, radius } => {
+            ColliderBuilder::capsule_from_endpoints(vec3(a), vec3(b), *radius as f32)
+        }
+        Shape::Ball { centre, radius } => {
+            ColliderBuilder::ball(*radius as f32).translation(vec3(centre))
+        }
+        Shape::Cuboid {
+            centre,
+            half_extents,
+        } => ColliderBuilder::cuboid(
+            half_extents.x as f32,
+            half_extents.y as f32,
+            half_extents.z as f32,
+        )
+        .translation(vec3(centre)),
+    }
+}

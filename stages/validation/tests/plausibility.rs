@@ -1,0 +1,201 @@
+//! The validator on true motion (the bundled sample's truth: a calibration prelude, then 13 s of a
+//! test-split walk) and on motions built to be implausible: a floating root, sliding feet, a body
+//! leaning past its balance. Each asserts what the simulation must measure.
+
+use std::path::Path;
+
+use imuflow_body::body_model::{BodyModel, BodyParams};
+use imuflow_body::kinematics::Pose;
+use imuflow_body::skeleton::JointId;
+use imuflow_imu_source::replay::{Recorded, Recording};
+use imuflow_validation::{FallRule, Mode, SimConfig, SimModel, Stats, Validator};
+use nalgebra::{Rotation3, Vector3};
+
+const DT: f64 = 1.0 / 60.0;
+/// models/sample/README.md: 12.2 s of calibration prelude (T-pose hold, stand, one step, stand).
+const PRELUDE_FRAMES: usize = 732;
+
+fn body() -> BodyModel {
+    // The sample was synthesized on the default subject (1.75 m, 70 kg).
+    BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap()
+}
+
+fn validator(mode: Mode) -> Validator {
+    let config = SimConfig {
+        mode,
+        ..SimConfig::default()
+    };
+    Validator::new(SimModel::new(&body()), config, FallRule::default())
+}
+
+fn sample_truth() -> Vec<Pose> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/sample/walk.mcap");
+    let recording = Recording::load(&path, None, None).unwrap();
+    recording
+        .frames
+        .iter()
+        .filter_map(|f| match f {
+            Recorded::Truth(m) => {
+                Some(Pose::from_wire(&m.local_pose_wxyz, &m.root_position_m).unwrap())
+            }
+            Recorded::Imu(_) => None,
+        })
+        .collect()
+}
+
+/// Runs `poses` through a validator; returns it and each frame's (residual fraction, skate, root error).
+fn run(mode: Mode, poses: &[Pose]) -> (Validator, Vec<(f64, Option<f64>, f64)>) {
+    let mut v = validator(mode);
+    let mut per_frame = Vec::new();
+    for pose in poses {
+        let o = v.frame(Some(pose), DT).unwrap();
+        per_frame.push((
+            o.score.residual_force_fraction,
+            o.score.foot_skate_mps,
+            o.score.root_error_m,
+        ));
+    }
+    (v, per_frame)
+}
+
+fn report(name: &str, stats: &Stats) {
+    eprintln!("{name}: {}", stats.summary_line(true));
+}
+
+/// A standing pose of the prelude (the N-pose stand after the T-pose hold, 5 s in).
+fn standing(truth: &[Pose]) -> Pose {
+    truth[300].clone()
+}
+
+#[test]
+fn standing_still_carries_the_body_weight_on_the_feet_without_falling() {
+    let pose = standing(&sample_truth());
+    let mut v = validator(Mode::Torques);
+    let mut vertical = Vec::new();
+    for _ in 0..180 {
+        let o = v.frame(Some(&pose), DT).unwrap();
+        let total: f64 = o.forces.contact_force_n.iter().map(|f| f.y).sum();
+        vertical.push(total);
+        // Only the feet touch the floor.
+        let feet = (1 << JointId::LEFT_FOOT.index()) | (1 << JointId::RIGHT_FOOT.index());
+        assert_eq!(o.contact_mask & !feet, 0, "mask {:#x}", o.contact_mask);
+    }
+    report("standing", &v.stats);
+    assert_eq!(v.stats.falls, 0);
+    // After the first second: the floor carries m·g (within 3 %), the joints hold the pose.
+    let weight = v.model().total_mass_kg * 9.81;
+    let settled = &vertical[60..];
+    let mean = settled.iter().sum::<f64>() / settled.len() as f64;
+    assert!(
+        (mean / weight - 1.0).abs() < 0.03,
+        "floor force {mean:.1} N, weight {weight:.1} N"
+    );
+    assert!(
+        v.stats.pose_error_mean_m() < 0.02,
+        "{}",
+        v.stats.pose_error_mean_m()
+    );
+    assert!(
+        v.stats.foot_skate_mean_mps() < 0.02,
+        "{}",
+        v.stats.foot_skate_mean_mps()
+    );
+    assert!(v.stats.penetration_max_m < 0.02);
+}
+
+/// Issue 10's target, not met yet: on the true walk the simulated feet slip (0.44 m/s at their
+/// contact points) and the body needs 0.69 mg of residual force; with the root unactuated it falls
+/// 37 times a minute. Run with `cargo test -p imuflow-validation -- --ignored` to see the numbers.
+#[test]
+#[ignore = "the tracking controller cannot walk the true motion yet (issue 10 note)"]
+fn the_true_walk_is_tracked_without_falls_with_little_residual_help() {
+    let truth = sample_truth();
+    let walk = &truth[PRELUDE_FRAMES..];
+    let (v, _) = run(Mode::Torques, walk);
+    report("true walk, torques", &v.stats);
+    assert_eq!(v.stats.falls, 0, "{}", v.stats.summary_line(false));
+    let (r, _) = run(Mode::Residual, walk);
+    report("true walk, residual", &r.stats);
+    assert_eq!(r.stats.falls, 0);
+    // The true motion needs little help: well under a tenth of the body weight on average.
+    assert!(
+        r.stats.residual_force_mean_fraction() < 0.15,
+        "{}",
+        r.stats.summary_line(true)
+    );
+}
+
+#[test]
+fn a_floating_root_needs_the_body_weight_as_residual_force() {
+    let truth = sample_truth();
+    let stand = standing(&truth);
+    // 1 s standing, 2 s with the whole body lifted 0.3 m, 1 s standing again.
+    let mut poses = vec![stand.clone(); 240];
+    for p in &mut poses[60..180] {
+        p.root_in_world_m.y += 0.3;
+    }
+    let (v, frames) = run(Mode::Residual, &poses);
+    report("floating, residual", &v.stats);
+    let lifted: f64 = frames[90..180].iter().map(|f| f.0).sum::<f64>() / 90.0;
+    let grounded: f64 = frames[30..60].iter().map(|f| f.0).sum::<f64>() / 30.0;
+    assert!(lifted > 0.7, "residual force while floating {lifted:.2} mg");
+    assert!(
+        grounded < 0.1,
+        "residual force while standing {grounded:.2} mg"
+    );
+    // Without the residual help the body cannot follow: it stays on the floor, 0.3 m below.
+    let (t, frames) = run(Mode::Torques, &poses);
+    report("floating, torques", &t.stats);
+    let root_error: f64 = frames[90..180].iter().map(|f| f.2).sum::<f64>() / 90.0;
+    assert!(
+        root_error > 0.2,
+        "root error while floating {root_error:.2} m"
+    );
+}
+
+#[test]
+fn feet_sliding_while_standing_show_as_foot_skate() {
+    let stand = standing(&sample_truth());
+    // Standing still, then the whole standing body glides forward at 0.5 m/s for 2 s.
+    let mut poses = vec![stand.clone(); 180];
+    for (i, p) in poses.iter_mut().enumerate().skip(60) {
+        p.root_in_world_m.z += 0.5 * (i - 60) as f64 * DT;
+    }
+    let (v, frames) = run(Mode::Residual, &poses);
+    report("sliding, residual", &v.stats);
+    let skate = |range: std::ops::Range<usize>| {
+        let values: Vec<f64> = frames[range].iter().filter_map(|f| f.1).collect();
+        values.iter().sum::<f64>() / values.len().max(1) as f64
+    };
+    let still = skate(20..60);
+    let sliding = skate(90..180);
+    assert!(still < 0.02, "skate while standing {still:.3} m/s");
+    assert!(sliding > 0.3, "skate while gliding {sliding:.3} m/s");
+}
+
+#[test]
+fn leaning_past_the_feet_falls_and_the_simulation_carries_on() {
+    let stand = standing(&sample_truth());
+    // The whole standing body tipped 35° forward about the feet: the centre of mass is far ahead
+    // of the toes, which no joint torque can hold. The estimate keeps asking for it for 3 s.
+    let tilt = Rotation3::from_axis_angle(&Vector3::x_axis(), 35f64.to_radians());
+    let mut lean = stand.clone();
+    lean.parent_from_joint[0] = tilt * stand.parent_from_joint[0];
+    let feet = Vector3::new(stand.root_in_world_m.x, 0.0, stand.root_in_world_m.z);
+    lean.root_in_world_m = feet + tilt * (stand.root_in_world_m - feet);
+    let poses = vec![lean; 180];
+    let (v, _) = run(Mode::Torques, &poses);
+    report("leaning", &v.stats);
+    assert!(v.stats.falls >= 1, "{}", v.stats.summary_line(false));
+    assert_eq!(v.stats.frames, 180, "every frame is scored, falls included");
+}
+
+#[test]
+fn the_same_input_gives_the_same_output() {
+    let truth = sample_truth();
+    let clip = &truth[PRELUDE_FRAMES..PRELUDE_FRAMES + 120];
+    let (a, fa) = run(Mode::Residual, clip);
+    let (b, fb) = run(Mode::Residual, clip);
+    assert_eq!(fa, fb);
+    assert_eq!(a.stats.tracking_errors_m, b.stats.tracking_errors_m);
+}
