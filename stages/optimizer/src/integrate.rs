@@ -14,6 +14,7 @@
 //! probabilities only (pelvis and hands 0), so with PIP weights only the feet anchor the root.
 
 use imuflow_body::kinematics::FkData;
+use imuflow_body::rotation::axis_angle_from_rotation;
 use imuflow_body::skeleton::CONTACT_JOINTS;
 use imuflow_body::{NUM_JOINTS, forward_kinematics};
 use imuflow_contact::ContactSet;
@@ -133,7 +134,7 @@ impl Method for Integrate {
                 for j in 0..NUM_JOINTS {
                     let d = self.previous.pose.parent_from_joint[j].transpose()
                         * out.pose.parent_from_joint[j];
-                    let w = d.scaled_axis() / DT_S;
+                    let w = axis_angle_from_rotation(&d) / DT_S;
                     out.v.fixed_rows_mut::<3>(3 + 3 * j).copy_from(&w);
                 }
             }

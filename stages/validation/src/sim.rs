@@ -10,6 +10,7 @@
 //! velocity relative to the parent, expressed in the parent's frame.
 
 use imuflow_body::kinematics::Pose;
+use imuflow_body::rotation::axis_angle_from_rotation;
 use imuflow_body::skeleton::{JointId, NUM_JOINTS};
 use nalgebra::{Quaternion, Rotation3, UnitQuaternion, Vector3};
 use rapier3d::glamx::{Quat, Vec3};
@@ -110,7 +111,7 @@ impl Target {
                     .zip(prev.parent_from_joint.iter()),
             ) {
                 // R(t) = exp([ω]dt) R(t-dt): ω in the parent's frame.
-                *w = (now * before.inverse()).scaled_axis() / dt;
+                *w = axis_angle_from_rotation(&(now * before.inverse())) / dt;
             }
             root_velocity = (pose.root_in_world_m - prev.root_in_world_m) / dt;
         }
@@ -323,8 +324,9 @@ impl Simulation {
         for (joint, id) in model_links.iter().zip(&link_id).skip(1) {
             let first = mb.link(*id).expect("link ids are valid").assembly_id();
             let j = joint.index();
-            displacement[first..first + 3]
-                .copy_from_slice(&vec3(&target.pose.parent_from_joint[j].scaled_axis()).to_array());
+            displacement[first..first + 3].copy_from_slice(
+                &vec3(&axis_angle_from_rotation(&target.pose.parent_from_joint[j])).to_array(),
+            );
             velocity[first..first + 3]
                 .copy_from_slice(&vec3(&target.angular_velocity[j]).to_array());
         }
@@ -435,7 +437,8 @@ impl Simulation {
             let link = mb.link_mut(id).expect("link ids are valid");
             let j = joint.index();
             let current = rotation(link.joint.joint_rot());
-            let error = (target.pose.parent_from_joint[j] * current.inverse()).scaled_axis();
+            let error =
+                axis_angle_from_rotation(&(target.pose.parent_from_joint[j] * current.inverse()));
             let mut velocity = target.angular_velocity[j] + error * (kp / kd.max(1e-9));
             match joint {
                 JointId::LEFT_HIP => velocity += stance[0],
@@ -460,7 +463,8 @@ impl Simulation {
         }
         let rb = &self.world.bodies[self.link_body[0]];
         let pelvis = rotation(*rb.rotation());
-        let error = (target.pose.parent_from_joint[0] * pelvis.inverse()).scaled_axis();
+        let error =
+            axis_angle_from_rotation(&(target.pose.parent_from_joint[0] * pelvis.inverse()));
         let turn = (self.config.balance_kp / self.config.balance_kd) * error
             + (target.angular_velocity[0] - vector(rb.angvel()));
         let in_pelvis = -(pelvis.inverse() * turn);
@@ -479,7 +483,7 @@ impl Simulation {
         let orientation = rotation(*rb.rotation());
         let origin = rb.translation();
         let orientation_error =
-            (target.pose.parent_from_joint[0] * orientation.inverse()).scaled_axis();
+            axis_angle_from_rotation(&(target.pose.parent_from_joint[0] * orientation.inverse()));
         let angvel_error = target.angular_velocity[0] - vector(rb.angvel());
         let velocity = vector(rb.velocity_at_point(origin));
         let (kp, kd) = (self.config.residual_kp, self.config.residual_kd);
@@ -606,5 +610,31 @@ fn collider(shape: &Shape) -> ColliderBuilder {
             half_extents.z as f32,
         )
         .translation(vec3(centre)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn motor_errors_stay_finite_where_nalgebras_rotation_log_is_nan() {
+        // The motors' error is target · current⁻¹ with `current` read back from rapier's f32
+        // quaternion. For a target at (or within 1e-6 of) identity that product's trace can exceed
+        // 3 by rounding; Rotation3::scaled_axis takes acos((trace-1)/2) and returns NaN, which
+        // turned a whole simulated body NaN on pip's output of the bundled sample.
+        let mut nalgebra_nan = 0;
+        for i in 0..2000 {
+            let t = i as f64 * 1e-3;
+            let axis = Vector3::new(t.sin(), (1.7 * t).cos(), (0.3 * t).sin() + 0.1);
+            let target = Rotation3::new(axis.normalize() * 1e-7 * (i % 13) as f64);
+            let error = target * rotation(quat(&target)).inverse();
+            if error.scaled_axis().x.is_nan() {
+                nalgebra_nan += 1;
+            }
+            let v = axis_angle_from_rotation(&error);
+            assert!(v.iter().all(|x| x.is_finite()) && v.norm() < 1e-6, "{i}: {v:?}");
+        }
+        assert!(nalgebra_nan > 0, "the hazard this guards against did not occur");
     }
 }

@@ -199,3 +199,53 @@ fn the_same_input_gives_the_same_output() {
     assert_eq!(fa, fb);
     assert_eq!(a.stats.tracking_errors_m, b.stats.tracking_errors_m);
 }
+
+#[test]
+fn a_pose_with_near_identity_joints_simulates_without_nan() {
+    // The first frame after calibration of pip on the bundled sample (the optimizer's output of
+    // frame 125): several joints are identity to within 1e-6. The error rotation between such a
+    // target and the simulation's f32 joint rotation has a trace a rounding above 3, where
+    // nalgebra's Rotation3::scaled_axis (acos of (trace-1)/2) is NaN; that made every simulated
+    // joint NaN until the next fall. Rotation vectors now go through a quaternion.
+    let q: [[f32; 4]; 24] = [
+        [0.9990634, 0.043199483, -0.0024766321, -0.0002661218],
+        [0.98968196, -0.13199994, 0.03419672, 0.04400199],
+        [0.9926705, -0.07738614, -0.08793647, -0.029729748],
+        [0.9996478, 0.025945662, 0.0040039956, 0.0038887039],
+        [0.98735523, 0.15578167, 0.01558073, -0.024878455],
+        [0.99081874, 0.13507989, -0.00084841286, 0.005561932],
+        [0.9997639, -0.014689543, 0.0039244485, 0.015520942],
+        [0.9999627, 0.008638683, -2.0359612e-5, -1.177314e-5],
+        [0.9999878, -0.0047359103, 0.0012274733, 0.0007177822],
+        [0.99974215, -0.0002098, 0.018883338, -0.012611292],
+        [1.0, 3.5315768e-9, -2.406544e-10, -3.771027e-10],
+        [1.0, 4.60377e-9, 1.2052202e-10, 1.0522311e-10],
+        [0.99414486, -0.10677478, 0.0015884415, -0.016509935],
+        [0.99063736, 0.005316061, 0.11725205, 0.06972317],
+        [0.9968965, 0.005086949, -0.07015991, -0.03534203],
+        [0.99965733, -0.012290439, 0.008830062, -0.021357454],
+        [0.9196147, -0.34071916, -0.08114714, -0.17786081],
+        [0.93505204, -0.3296956, 0.0023844347, 0.1302796],
+        [0.9881803, 0.13567996, -0.06252948, -0.034361355],
+        [0.9977055, -0.05073629, 0.044541728, -0.0050551845],
+        [1.0, -1.7233478e-9, 7.2229756e-7, -1.4034313e-6],
+        [1.0, -9.760404e-10, -8.8722624e-7, 9.5056714e-7],
+        [1.0, 0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0, 0.0],
+    ];
+    let pose = Pose::from_wire(&q, &[0.028213738, 0.96156317, -0.05232744]).unwrap();
+    let mut v = validator(Mode::Torques);
+    for frame in 0..30 {
+        let o = v.frame(Some(&pose), DT).unwrap();
+        assert!(
+            o.state
+                .joint_position_m
+                .iter()
+                .all(|p| p.iter().all(|x| x.is_finite())),
+            "frame {frame}: {:?}",
+            o.score
+        );
+        // A held mid-stride pose is not balanced: the body may sag and slide a little.
+        assert!(o.score.tracking_error_m < 0.15, "frame {frame}: {:?}", o.score);
+    }
+}

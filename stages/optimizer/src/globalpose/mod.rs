@@ -65,6 +65,7 @@ use imuflow_body::dynamics::{
     DofVector, DynamicsData, MassMatrix, NUM_DOFS, PointJacobian, integrate, joint_dof,
 };
 use imuflow_body::kinematics::FkData;
+use imuflow_body::rotation::axis_angle_from_rotation;
 use imuflow_body::skeleton::CONTACT_JOINTS;
 use imuflow_body::{JointId, Pose};
 use imuflow_contact::force::{
@@ -292,8 +293,9 @@ impl GlobalPose {
         for j in JointId::all() {
             let i = j.index();
             let d = joint_dof(j);
-            let err =
-                (self.pose.parent_from_joint[i].transpose() * reference.rotation(i)).scaled_axis();
+            let err = axis_angle_from_rotation(
+                &(self.pose.parent_from_joint[i].transpose() * reference.rotation(i)),
+            );
             let w = self.v.fixed_rows::<3>(d).into_owned();
             theta_ddot
                 .fixed_rows_mut::<3>(d)

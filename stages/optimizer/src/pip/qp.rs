@@ -22,6 +22,7 @@
 //! Both end the same way: `τ = M·v̇ + h − Σ_k J_kᵀλ_k` from the solved `v̇`, `λ` (so the equation of
 //! motion holds to rounding), and the fallback checks on `x = [v̇, λ, τ]`.
 
+use imuflow_body::rotation::axis_angle_from_rotation;
 use std::time::Instant;
 
 use clarabel::algebra::CscMatrix;
@@ -227,7 +228,7 @@ impl Qp {
             let i = j.index();
             let d = joint_dof(j);
             let rel = pose.parent_from_joint[i].transpose() * reference.rotation(i);
-            let e = rel.scaled_axis();
+            let e = axis_angle_from_rotation(&rel);
             for r in 0..3 {
                 let want = config.kp_rotation * e[r] - config.kd_rotation * v[d + r];
                 self.paa[(d + r, d + r)] += 1.0;
