@@ -11,6 +11,9 @@
 //! inputs = { imu = "source.imu", prev = "counter.count", feedback = ["prev"] }
 //! outputs = { count = "MotionFrame" }
 //! ```
+//!
+//! `args = ["--fail-at", "N"]` makes it fail (exit code 3) after publishing frame N, for the tests
+//! of failure policies.
 
 use imuflow_graph::StageContext;
 use imuflow_graph::frames::{ImuFrame, MotionFrame, flags};
@@ -30,6 +33,11 @@ fn run() -> anyhow::Result<()> {
     let imu = ctx.input::<ImuFrame>("imu")?;
     let prev = ctx.input::<MotionFrame>("prev")?;
     let mut out = ctx.output::<MotionFrame>("count")?;
+    let fail_at: Option<u64> = match std::env::args().skip(1).collect::<Vec<_>>().as_slice() {
+        [] => None,
+        [flag, n] if flag == "--fail-at" => Some(n.parse()?),
+        other => anyhow::bail!("unknown arguments {other:?} (expected --fail-at N)"),
+    };
     if ctx.ready()? {
         while let Some(step) = ctx.next()? {
             let last = ctx.get(&prev);
@@ -43,6 +51,10 @@ fn run() -> anyhow::Result<()> {
                 m.q[0] = count;
                 m.q[1] = valid_imus;
             })?;
+            if fail_at == Some(step.seq) {
+                eprintln!("external_counter: failing at frame {} as asked", step.seq);
+                std::process::exit(3);
+            }
         }
     }
     ctx.finish(&mut [&mut out])?;

@@ -1,6 +1,6 @@
 //! The validated graph: what the launcher runs and every stage process reads.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use crate::frames::FrameType;
@@ -44,6 +44,31 @@ pub struct Reader {
     pub input: String,
 }
 
+/// What a failure of a stage does to the run (`on_failure` in the graph file).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OnFailure {
+    /// The launcher stops every stage and the run fails (the default: a crash is a bug to report).
+    #[default]
+    StopRun,
+    /// The stage's branch (it and every stage that reads only from the branch) is stopped and
+    /// reported; stages that also read from elsewhere see the branch's inputs end; the rest of the
+    /// graph runs to the end.
+    StopBranch,
+}
+
+impl OnFailure {
+    pub const NAMES: [&str; 2] = ["stop-run", "stop-branch"];
+
+    pub fn from_name(name: &str) -> Option<OnFailure> {
+        match name {
+            "stop-run" => Some(OnFailure::StopRun),
+            "stop-branch" => Some(OnFailure::StopBranch),
+            _ => None,
+        }
+    }
+}
+
 /// One stage of a validated graph.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct StageNode {
@@ -55,6 +80,8 @@ pub struct StageNode {
     /// Who reads each output (fan-out), by output name.
     pub readers: BTreeMap<String, Vec<Reader>>,
     pub params: toml::Table,
+    #[serde(default)]
+    pub on_failure: OnFailure,
 }
 
 impl StageNode {
@@ -216,6 +243,31 @@ impl Graph {
         placed
     }
 
+    /// The branch that `root` heads: `root` and every stage whose non-feedback inputs all come
+    /// from the branch (so it has nothing left to work on once the branch stops).
+    pub fn branch(&self, root: &str) -> BTreeSet<String> {
+        let mut branch = BTreeSet::from([root.to_owned()]);
+        // Topological order: a stage's forward inputs are decided before the stage itself.
+        for node in self.topological_order() {
+            let mut forward = node.inputs.values().filter(|e| !e.feedback).peekable();
+            if forward.peek().is_some() && forward.all(|e| branch.contains(&e.from_stage)) {
+                branch.insert(node.id.clone());
+            }
+        }
+        branch
+    }
+
+    /// The isolated branch a failure of `stage` stops: the smallest branch headed by a
+    /// `stop-branch` stage that contains it, or `None` when the failure stops the run.
+    pub fn isolated_branch_of(&self, stage: &str) -> Option<(String, BTreeSet<String>)> {
+        self.stages
+            .values()
+            .filter(|n| n.on_failure == OnFailure::StopBranch)
+            .map(|n| (n.id.clone(), self.branch(&n.id)))
+            .filter(|(_, branch)| branch.contains(stage))
+            .min_by_key(|(_, branch)| branch.len())
+    }
+
     /// The wiring as text, one stage per block, in flow order.
     pub fn describe(&self) -> String {
         use std::fmt::Write;
@@ -269,6 +321,14 @@ impl Graph {
                 };
                 let _ = writeln!(out, "  out {name:<12} -> {to}  {frame}");
             }
+            if node.on_failure == OnFailure::StopBranch {
+                let branch = self.branch(&node.id);
+                let _ = writeln!(
+                    out,
+                    "  on_failure = stop-branch: a failure stops {}",
+                    branch.into_iter().collect::<Vec<_>>().join(", ")
+                );
+            }
             if !node.params.is_empty() {
                 let params = node
                     .params
@@ -283,5 +343,112 @@ impl Graph {
             let _ = writeln!(out, "\nwarning: {w}");
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn node(id: &str, inputs: &[(&str, &str, bool)], on_failure: OnFailure) -> StageNode {
+        StageNode {
+            id: id.into(),
+            runner: Runner::Builtin { kind: "k".into() },
+            role: if inputs.is_empty() {
+                Role::Source
+            } else {
+                Role::Transform
+            },
+            inputs: inputs
+                .iter()
+                .map(|(name, from, feedback)| {
+                    let edge = InputEdge {
+                        from_stage: (*from).into(),
+                        from_port: "out".into(),
+                        frame: FrameType::Motion,
+                        feedback: *feedback,
+                    };
+                    ((*name).into(), edge)
+                })
+                .collect(),
+            outputs: BTreeMap::new(),
+            readers: BTreeMap::new(),
+            params: toml::Table::new(),
+            on_failure,
+        }
+    }
+
+    /// source -> calib -> {a: kin_a -> opt_a (-> contact_a, feedback), b: kin_b -> opt_b},
+    /// val <- opt_a, val_rec <- val, viz <- {source, opt_a, opt_b, val}.
+    fn ab_graph() -> Graph {
+        use OnFailure::*;
+        let nodes = [
+            node("source", &[], StopRun),
+            node("calib", &[("imu", "source", false)], StopRun),
+            node("kin_a", &[("imu", "calib", false)], StopBranch),
+            node(
+                "contact_a",
+                &[("kin", "kin_a", false), ("state", "opt_a", true)],
+                StopRun,
+            ),
+            node(
+                "opt_a",
+                &[("kin", "kin_a", false), ("contacts", "contact_a", false)],
+                StopRun,
+            ),
+            node("kin_b", &[("imu", "calib", false)], StopBranch),
+            node("opt_b", &[("kin", "kin_b", false)], StopRun),
+            node("val", &[("motion", "opt_a", false)], StopBranch),
+            node("val_rec", &[("v", "val", false)], StopRun),
+            node(
+                "viz",
+                &[
+                    ("truth", "source", false),
+                    ("a", "opt_a", false),
+                    ("b", "opt_b", false),
+                    ("v", "val", false),
+                ],
+                StopRun,
+            ),
+        ];
+        Graph {
+            name: "ab".into(),
+            file: PathBuf::from("ab.toml"),
+            rate_hz: 60.0,
+            mode: Mode::Offline,
+            ready_timeout_s: 30.0,
+            stages: nodes.into_iter().map(|n| (n.id.clone(), n)).collect(),
+            warnings: Vec::new(),
+        }
+    }
+
+    fn set(ids: &[&str]) -> BTreeSet<String> {
+        ids.iter().map(|s| (*s).to_owned()).collect()
+    }
+
+    #[test]
+    fn a_branch_is_its_root_and_what_reads_only_from_it() {
+        let g = ab_graph();
+        // The contact stage's feedback from opt_a does not keep it out of kin_a's branch; the
+        // viewer reads other stages too, so it is never part of a branch.
+        assert_eq!(
+            g.branch("kin_a"),
+            set(&["kin_a", "contact_a", "opt_a", "val", "val_rec"])
+        );
+        assert_eq!(g.branch("kin_b"), set(&["kin_b", "opt_b"]));
+        assert_eq!(g.branch("val"), set(&["val", "val_rec"]));
+        assert_eq!(g.branch("source").len(), g.stages.len());
+    }
+
+    #[test]
+    fn a_failure_stops_the_smallest_isolated_branch_holding_it() {
+        let g = ab_graph();
+        let root = |stage: &str| g.isolated_branch_of(stage).map(|(root, _)| root);
+        assert_eq!(root("val_rec").as_deref(), Some("val"));
+        assert_eq!(root("opt_a").as_deref(), Some("kin_a"));
+        assert_eq!(root("opt_b").as_deref(), Some("kin_b"));
+        // Shared stages and the viewer join the branches: their failure stops the run.
+        assert_eq!(root("calib"), None);
+        assert_eq!(root("viz"), None);
     }
 }

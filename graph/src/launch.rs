@@ -4,7 +4,11 @@
 //! Stages run in their own process groups, so a terminal's Ctrl-C reaches only the launcher, which
 //! then stops the sources; their END_OF_STREAM drains the graph and every recorder finalizes its
 //! file. If a stage crashes, the others get SIGTERM (they finalize and exit), and the launcher
-//! reports the failed stage with the last lines of its stderr.
+//! reports the failed stage with the last lines of its stderr. If the stage belongs to an isolated
+//! branch (`on_failure = "stop-branch"`), only that branch is stopped: its stages get SIGTERM, the
+//! stages that also read from elsewhere are told (`ended <stage>`) that those inputs end, iceoryx2's
+//! dead-node cleanup disconnects a killed reader so back-pressure cannot block its writers, and
+//! the run goes on; the report lists the failed branch.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::io::{BufRead, BufReader, Write};
@@ -20,6 +24,7 @@ use crate::spec::Role;
 use crate::stage::{ControlMessage, ENV_RUN_DIR, ENV_RUN_ID, ENV_STAGE_ID, GRAPH_JSON};
 use crate::stats::StageSummary;
 use crate::transport;
+use std::collections::BTreeSet;
 
 /// Size of rayon's thread pool in each stage process (1 unless the user's environment sets it).
 pub const RAYON_THREADS_ENV: &str = "RAYON_NUM_THREADS";
@@ -53,6 +58,35 @@ pub struct RunReport {
     pub wall: Duration,
     /// The user stopped the run (Ctrl-C); outputs were finalized.
     pub interrupted: bool,
+    /// Isolated branches that failed and were stopped while the rest of the graph ran on.
+    pub failed_branches: Vec<FailedBranch>,
+}
+
+/// A branch stopped because one of its stages failed (`on_failure = "stop-branch"`).
+#[derive(Debug, Clone)]
+pub struct FailedBranch {
+    /// The `stop-branch` stage that heads the branch.
+    pub root: String,
+    /// The stage that failed.
+    pub stage: String,
+    /// How it ended ("exited with code 3", "killed by signal 9").
+    pub status: String,
+    pub stderr_tail: Vec<String>,
+    /// Every stage of the branch, in id order.
+    pub stopped: Vec<String>,
+}
+
+impl std::fmt::Display for FailedBranch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "stage '{}' failed: {}; its branch ({}) was stopped, the rest of the graph ran to the end{}",
+            self.stage,
+            self.status,
+            self.stopped.join(", "),
+            tail_text(&self.stderr_tail)
+        )
+    }
 }
 
 /// Why a run failed.
@@ -123,6 +157,9 @@ struct Running {
     connected: bool,
     summary: Option<StageSummary>,
     exit: Option<ExitStatus>,
+    /// When the stage was stopped with its failed branch (SIGTERM sent); its exit no longer
+    /// matters and it owes no summary.
+    branch_stopped_at: Option<Instant>,
 }
 
 impl Running {
@@ -266,7 +303,13 @@ fn run_in(
         &tx,
         &mut stages,
     );
-    let result = spawned.and_then(|()| supervise(graph, options, &mut stages, &rx, &interrupted));
+    let mut supervisor = Supervisor {
+        graph,
+        shm_prefix,
+        failed_branches: Vec::new(),
+    };
+    let result =
+        spawned.and_then(|()| supervisor.supervise(options, &mut stages, &rx, &interrupted));
     if result.is_err() {
         stop_all(&mut stages);
     }
@@ -284,6 +327,7 @@ fn run_in(
             .collect(),
         wall,
         interrupted: was_interrupted,
+        failed_branches: supervisor.failed_branches,
     })
 }
 
@@ -299,6 +343,7 @@ fn empty_summary() -> StageSummary {
         wall_s: 0.0,
         latency_p50_us: 0.0,
         latency_p99_us: 0.0,
+        detail: String::new(),
     }
 }
 
@@ -392,126 +437,239 @@ fn spawn_all(
             connected: false,
             summary: None,
             exit: None,
+            branch_stopped_at: None,
         });
     }
     Ok(())
 }
 
-fn supervise(
-    graph: &Graph,
-    options: &LaunchOptions,
-    stages: &mut [Running],
-    rx: &Receiver<Event>,
-    interrupted: &AtomicBool,
-) -> Result<(Duration, bool), RunError> {
-    let bar = if options.progress {
-        let bar = indicatif::ProgressBar::new(0);
-        bar.set_style(
+/// What the supervision loop needs besides the stages: the graph (for branches), the run's
+/// shared-memory domain (for dead-node cleanup) and what failed so far.
+struct Supervisor<'a> {
+    graph: &'a Graph,
+    shm_prefix: &'a str,
+    failed_branches: Vec<FailedBranch>,
+}
+
+impl Supervisor<'_> {
+    fn supervise(
+        &mut self,
+        options: &LaunchOptions,
+        stages: &mut [Running],
+        rx: &Receiver<Event>,
+        interrupted: &AtomicBool,
+    ) -> Result<(Duration, bool), RunError> {
+        let graph = self.graph;
+        let bar = if options.progress {
+            let bar = indicatif::ProgressBar::new(0);
+            bar.set_style(
             indicatif::ProgressStyle::with_template(
                 "{spinner} {elapsed_precise} [{bar:40}] {pos}/{len} frames ({per_sec}, eta {eta})",
             )
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
             .progress_chars("=> "),
         );
-        bar
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    let log = |stages: &[Running], index: usize, line: &str| {
-        if options.forward_logs {
-            let id = stages.get(index).map_or("?", |s| s.id.as_str());
-            bar.suspend(|| eprintln!("[{id}] {line}"));
-        }
-    };
-
-    // Phase 1: every stage creates its ports (ready), then connects its readers (connected).
-    // Only then may frames flow: a reader that is not yet connected would miss them.
-    let ready_deadline = Instant::now() + Duration::from_secs_f64(graph.ready_timeout_s);
-    let mut connect_sent = false;
-    while stages.iter().any(|s| !s.connected) {
-        handle_events(stages, rx, &bar, &log)?;
-        reap(stages)?;
-        if interrupted.load(Ordering::Relaxed) {
-            stop_all(stages);
-            return Ok((Duration::ZERO, true));
-        }
-        if !connect_sent && stages.iter().all(|s| s.ready) {
-            for s in stages.iter_mut() {
-                s.send("connect");
+            bar
+        } else {
+            indicatif::ProgressBar::hidden()
+        };
+        let log = |stages: &[Running], index: usize, line: &str| {
+            if options.forward_logs {
+                let id = stages.get(index).map_or("?", |s| s.id.as_str());
+                bar.suspend(|| eprintln!("[{id}] {line}"));
             }
-            connect_sent = true;
+        };
+
+        // Phase 1: every stage creates its ports (ready), then connects its readers (connected).
+        // Only then may frames flow: a reader that is not yet connected would miss them.
+        let ready_deadline = Instant::now() + Duration::from_secs_f64(graph.ready_timeout_s);
+        let mut connect_sent = false;
+        let waiting = |s: &Running| !s.connected && s.branch_stopped_at.is_none();
+        while stages.iter().any(waiting) {
+            handle_events(stages, rx, &bar, &log)?;
+            self.reap(stages)?;
+            if interrupted.load(Ordering::Relaxed) {
+                stop_all(stages);
+                return Ok((Duration::ZERO, true));
+            }
+            if !connect_sent
+                && stages
+                    .iter()
+                    .all(|s| s.ready || s.branch_stopped_at.is_some())
+            {
+                for s in stages.iter_mut() {
+                    s.send("connect");
+                }
+                connect_sent = true;
+            }
+            if Instant::now() > ready_deadline
+                && let Some(s) = stages.iter_mut().find(|s| waiting(s))
+            {
+                return Err(RunError::NotReady {
+                    stage: s.id.clone(),
+                    timeout_s: graph.ready_timeout_s,
+                    stderr_tail: s
+                        .stderr_tail
+                        .lock()
+                        .map(|t| t.iter().cloned().collect())
+                        .unwrap_or_default(),
+                });
+            }
         }
-        if Instant::now() > ready_deadline
-            && let Some(s) = stages.iter_mut().find(|s| !s.connected)
+
+        // Phase 2: go, then wait for every stage to finish its stream.
+        let start = Instant::now();
+        for s in stages.iter_mut() {
+            s.send("go");
+        }
+        let mut stop_requested_at: Option<Instant> = None;
+        let mut terminated_at: Option<Instant> = None;
+        while stages.iter().any(|s| s.exit.is_none()) {
+            handle_events(stages, rx, &bar, &log)?;
+            self.reap(stages)?;
+            for s in stages.iter() {
+                if s.branch_stopped_at
+                    .is_some_and(|t| t.elapsed() > TERM_GRACE)
+                {
+                    s.signal(libc::SIGKILL);
+                }
+            }
+            if interrupted.load(Ordering::Relaxed) && stop_requested_at.is_none() {
+                bar.suspend(|| {
+                    eprintln!("stopping: ending the stream at the sources (Ctrl-C again to force)")
+                });
+                for s in stages.iter_mut().filter(|s| s.role == Role::Source) {
+                    s.send("stop");
+                }
+                stop_requested_at = Some(Instant::now());
+                interrupted.store(false, Ordering::Relaxed);
+            }
+            if let Some(t) = stop_requested_at
+                && terminated_at.is_none()
+                && (t.elapsed() > DRAIN_GRACE || interrupted.load(Ordering::Relaxed))
+            {
+                for s in stages.iter() {
+                    s.signal(libc::SIGTERM);
+                }
+                terminated_at = Some(Instant::now());
+            }
+            if let Some(t) = terminated_at
+                && t.elapsed() > TERM_GRACE
+            {
+                for s in stages.iter() {
+                    s.signal(libc::SIGKILL);
+                }
+            }
+        }
+        // Drain the remaining control lines (summaries printed just before exit).
+        for s in stages.iter_mut() {
+            for handle in s.readers.drain(..) {
+                let _ = handle.join();
+            }
+        }
+        handle_events(stages, rx, &bar, &log)?;
+        bar.finish_and_clear();
+        if stop_requested_at.is_none()
+            && let Some(s) = stages
+                .iter_mut()
+                .find(|s| s.summary.is_none() && s.branch_stopped_at.is_none())
         {
-            return Err(RunError::NotReady {
+            // A stage that exits 0 without finishing its stream would leave readers waiting forever.
+            return Err(RunError::StageFailed {
                 stage: s.id.clone(),
-                timeout_s: graph.ready_timeout_s,
-                stderr_tail: s
-                    .stderr_tail
-                    .lock()
-                    .map(|t| t.iter().cloned().collect())
-                    .unwrap_or_default(),
+                status: "exited without ending its stream (no END_OF_STREAM/summary)".into(),
+                stderr_tail: s.tail(),
             });
         }
+        Ok((start.elapsed(), stop_requested_at.is_some()))
     }
 
-    // Phase 2: go, then wait for every stage to finish its stream.
-    let start = Instant::now();
-    for s in stages.iter_mut() {
-        s.send("go");
-    }
-    let mut stop_requested_at: Option<Instant> = None;
-    let mut terminated_at: Option<Instant> = None;
-    while stages.iter().any(|s| s.exit.is_none()) {
-        handle_events(stages, rx, &bar, &log)?;
-        reap(stages)?;
-        if interrupted.load(Ordering::Relaxed) && stop_requested_at.is_none() {
-            bar.suspend(|| {
-                eprintln!("stopping: ending the stream at the sources (Ctrl-C again to force)")
-            });
-            for s in stages.iter_mut().filter(|s| s.role == Role::Source) {
-                s.send("stop");
+    /// Records exited stages. A failure stops its isolated branch, or else the run.
+    fn reap(&mut self, stages: &mut [Running]) -> Result<(), RunError> {
+        for i in 0..stages.len() {
+            if stages[i].exit.is_some() {
+                continue;
             }
-            stop_requested_at = Some(Instant::now());
-            interrupted.store(false, Ordering::Relaxed);
-        }
-        if let Some(t) = stop_requested_at
-            && terminated_at.is_none()
-            && (t.elapsed() > DRAIN_GRACE || interrupted.load(Ordering::Relaxed))
-        {
-            for s in stages.iter() {
-                s.signal(libc::SIGTERM);
+            let status = match stages[i].child.try_wait() {
+                Ok(Some(status)) => status,
+                Ok(None) => continue,
+                Err(e) => {
+                    return Err(RunError::StageFailed {
+                        stage: stages[i].id.clone(),
+                        status: format!("cannot wait for the process: {e}"),
+                        stderr_tail: Vec::new(),
+                    });
+                }
+            };
+            stages[i].exit = Some(status);
+            stages[i].stdin = None;
+            if stages[i].branch_stopped_at.is_some() {
+                // Stopped with its branch: a reader it left behind must not hold back its writers.
+                self.disconnect_dead_readers();
+                continue;
             }
-            terminated_at = Some(Instant::now());
-        }
-        if let Some(t) = terminated_at
-            && t.elapsed() > TERM_GRACE
-        {
-            for s in stages.iter() {
-                s.signal(libc::SIGKILL);
+            if status.success() {
+                continue;
+            }
+            let stage = stages[i].id.clone();
+            let stderr_tail = stages[i].tail();
+            let status = describe_status(status);
+            match self.graph.isolated_branch_of(&stage) {
+                Some((root, branch)) => {
+                    self.stop_branch(stages, &branch);
+                    self.failed_branches.push(FailedBranch {
+                        root,
+                        stage,
+                        status,
+                        stderr_tail,
+                        stopped: branch.into_iter().collect(),
+                    });
+                }
+                None => {
+                    stop_all(stages);
+                    return Err(RunError::StageFailed {
+                        stage,
+                        status,
+                        stderr_tail,
+                    });
+                }
             }
         }
+        Ok(())
     }
-    // Drain the remaining control lines (summaries printed just before exit).
-    for s in stages.iter_mut() {
-        for handle in s.readers.drain(..) {
-            let _ = handle.join();
+
+    /// Stops every stage of `branch` (SIGTERM: they finalize; SIGKILL after a grace period) and tells
+    /// each stage outside it which of its inputs will never see END_OF_STREAM.
+    fn stop_branch(&self, stages: &mut [Running], branch: &BTreeSet<String>) {
+        let now = Instant::now();
+        for s in stages.iter_mut().filter(|s| branch.contains(&s.id)) {
+            s.signal(libc::SIGTERM);
+            s.branch_stopped_at.get_or_insert(now);
+        }
+        for s in stages.iter_mut().filter(|s| !branch.contains(&s.id)) {
+            let Some(node) = self.graph.stages.get(&s.id) else {
+                continue;
+            };
+            let gone: BTreeSet<&String> = node
+                .inputs
+                .values()
+                .map(|e| &e.from_stage)
+                .filter(|from| branch.contains(*from))
+                .collect();
+            for from in gone {
+                s.send(&format!("ended {from}"));
+            }
+        }
+        self.disconnect_dead_readers();
+    }
+
+    /// iceoryx2's dead-node cleanup: the ports of a killed stage are removed, so an offline writer
+    /// retrying into its full buffer sees the reader gone and moves on.
+    fn disconnect_dead_readers(&self) {
+        if let Err(e) = transport::cleanup_dead_nodes(self.shm_prefix) {
+            tracing::warn!("cannot clean up the ports of a stopped branch: {e}");
         }
     }
-    handle_events(stages, rx, &bar, &log)?;
-    bar.finish_and_clear();
-    if stop_requested_at.is_none()
-        && let Some(s) = stages.iter_mut().find(|s| s.summary.is_none())
-    {
-        // A stage that exits 0 without finishing its stream would leave readers waiting forever.
-        return Err(RunError::StageFailed {
-            stage: s.id.clone(),
-            status: "exited without ending its stream (no END_OF_STREAM/summary)".into(),
-            stderr_tail: s.tail(),
-        });
-    }
-    Ok((start.elapsed(), stop_requested_at.is_some()))
 }
 
 fn handle_events(
@@ -551,40 +709,6 @@ fn handle_events(
         }
         timeout = Duration::ZERO;
     }
-}
-
-/// Records exited stages; a failure stops the run.
-fn reap(stages: &mut [Running]) -> Result<(), RunError> {
-    for i in 0..stages.len() {
-        if stages[i].exit.is_some() {
-            continue;
-        }
-        let status = match stages[i].child.try_wait() {
-            Ok(Some(status)) => status,
-            Ok(None) => continue,
-            Err(e) => {
-                return Err(RunError::StageFailed {
-                    stage: stages[i].id.clone(),
-                    status: format!("cannot wait for the process: {e}"),
-                    stderr_tail: Vec::new(),
-                });
-            }
-        };
-        stages[i].exit = Some(status);
-        stages[i].stdin = None;
-        if !status.success() {
-            let stage = stages[i].id.clone();
-            let stderr_tail = stages[i].tail();
-            let status = describe_status(status);
-            stop_all(stages);
-            return Err(RunError::StageFailed {
-                stage,
-                status,
-                stderr_tail,
-            });
-        }
-    }
-    Ok(())
 }
 
 fn describe_status(status: ExitStatus) -> String {

@@ -45,4 +45,8 @@ pub struct StageEntry {
     /// Kind-specific parameters.
     #[serde(default)]
     pub params: toml::Table,
+    /// `stop-run` (default): a failure of this stage stops the whole run. `stop-branch`: it stops
+    /// only this stage and what reads nothing but its outputs; the rest runs to the end.
+    #[serde(default)]
+    pub on_failure: Option<String>,
 }

@@ -24,8 +24,8 @@
 use std::io::{BufRead, Write};
 use std::marker::PhantomData;
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
@@ -98,6 +98,8 @@ pub struct InputId<T: Frame> {
 
 struct InputSlot {
     name: String,
+    /// The stage it reads.
+    from_stage: String,
     feedback: bool,
     subscriber: Box<dyn ErasedSubscriber>,
     /// Forward inputs: the frame waiting to be aligned or being processed.
@@ -105,6 +107,9 @@ struct InputSlot {
     current: Option<Box<dyn HeldFrame>>,
     last_seq: Option<u64>,
     ended: bool,
+    /// The launcher said the producer's branch was stopped: no END_OF_STREAM will come, the input
+    /// ends once what was already delivered is taken.
+    source_gone: bool,
 }
 
 /// What `next` delivers: the shared header of one aligned set of input frames.
@@ -151,6 +156,7 @@ pub struct StageContext {
     run_id: String,
     stop: Arc<AtomicBool>,
     commands: Arc<AtomicU8>,
+    ended_sources: Arc<EndedSources>,
     listener: Option<WakeListener>,
     inputs: Vec<InputSlot>,
     stats: StageStats,
@@ -191,7 +197,8 @@ impl StageContext {
         for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
             signal_hook::flag::register(signal, stop.clone())?;
         }
-        spawn_control_reader(stop.clone(), commands.clone());
+        let ended_sources = Arc::new(EndedSources::default());
+        spawn_control_reader(stop.clone(), commands.clone(), ended_sources.clone());
 
         let node = transport::create_node(stage_id)?;
         let listener = if stage.inputs.is_empty() {
@@ -217,6 +224,7 @@ impl StageContext {
             )?;
             inputs.push(InputSlot {
                 name: name.clone(),
+                from_stage: edge.from_stage.clone(),
                 feedback: edge.feedback,
                 subscriber,
                 current: edge
@@ -224,6 +232,7 @@ impl StageContext {
                     .then(|| transport::initial_feedback_frame(edge.frame)),
                 last_seq: None,
                 ended: false,
+                source_gone: false,
             });
         }
         Ok(Self {
@@ -233,6 +242,7 @@ impl StageContext {
             run_id: run_id.to_owned(),
             stop,
             commands,
+            ended_sources,
             listener,
             inputs,
             stats: StageStats::default(),
@@ -416,7 +426,17 @@ impl StageContext {
             if self.should_stop() {
                 return Ok(None);
             }
+            self.take_ended_sources();
             self.fill_inputs()?;
+            if self
+                .inputs
+                .iter()
+                .any(|s| !s.feedback && s.source_gone && s.current.is_none())
+            {
+                // A stopped branch fed this input and everything it delivered is used: no
+                // aligned step can ever be complete again, so the stream ends here.
+                return Ok(None);
+            }
             if let Some(step) = self.aligned_step() {
                 if step.flags & flags::END_OF_STREAM != 0 {
                     return Ok(None);
@@ -460,6 +480,7 @@ impl StageContext {
             if self.should_stop() || n == 0 {
                 return Ok(None);
             }
+            self.take_ended_sources();
             for k in 0..n {
                 let i = (self.any_cursor + k) % n;
                 let slot = &mut self.inputs[i];
@@ -467,6 +488,7 @@ impl StageContext {
                     continue;
                 }
                 let Some(frame) = slot.subscriber.receive()? else {
+                    slot.ended |= slot.source_gone;
                     continue;
                 };
                 let header = *frame.header();
@@ -504,6 +526,26 @@ impl StageContext {
         }
     }
 
+    /// Marks the inputs fed by stages the launcher reported stopped (`ended <stage>`).
+    fn take_ended_sources(&mut self) {
+        if !self.ended_sources.news.swap(false, Ordering::AcqRel) {
+            return;
+        }
+        let Ok(stages) = self.ended_sources.stages.lock() else {
+            return;
+        };
+        for slot in &mut self.inputs {
+            if !slot.source_gone && stages.contains(&slot.from_stage) {
+                tracing::warn!(
+                    input = %slot.name,
+                    "stage '{}' was stopped (its branch failed); this input ends here",
+                    slot.from_stage
+                );
+                slot.source_gone = true;
+            }
+        }
+    }
+
     /// Takes frames from the subscribers: one pending per forward input, the newest for feedback.
     fn fill_inputs(&mut self) -> Result<(), StageError> {
         let mode = self.graph.mode;
@@ -516,6 +558,8 @@ impl StageContext {
                         slot.current = Some(frame);
                     }
                 }
+                // Its producer was stopped: keep the last value, stop waiting for newer ones.
+                slot.ended |= slot.source_gone;
                 continue;
             }
             if slot.current.is_some() {
@@ -635,6 +679,11 @@ impl StageContext {
         }
     }
 
+    /// One line of this stage's own end-of-run result (scores, counts) for the run summary.
+    pub fn set_summary_detail(&mut self, line: impl Into<String>) {
+        self.stats.detail = line.into();
+    }
+
     /// For sources: records `n` frames as produced and `elapsed` as the time producing them took.
     pub fn record_source_step(&mut self, step: Step, elapsed: Duration) {
         self.stats.frames_in += 1;
@@ -672,9 +721,22 @@ enum Command {
     Go = 2,
 }
 
+/// Stages whose branch the launcher stopped, as told by `ended <stage>` lines.
+#[derive(Default)]
+struct EndedSources {
+    stages: Mutex<Vec<String>>,
+    /// Set when `stages` grew; the stage loop takes it.
+    news: AtomicBool,
+}
+
 /// Reads the launcher's commands from stdin: `connect`, then `go` start the stage; `stop` (or
-/// stdin closing, which means the launcher is gone) stops it.
-fn spawn_control_reader(stop: Arc<AtomicBool>, commands: Arc<AtomicU8>) {
+/// stdin closing, which means the launcher is gone) stops it; `ended <stage>` says a stage this
+/// one may read from was stopped with its branch.
+fn spawn_control_reader(
+    stop: Arc<AtomicBool>,
+    commands: Arc<AtomicU8>,
+    ended_sources: Arc<EndedSources>,
+) {
     let spawned = std::thread::Builder::new()
         .name("imuflow-control".into())
         .spawn(move || {
@@ -687,6 +749,13 @@ fn spawn_control_reader(stop: Arc<AtomicBool>, commands: Arc<AtomicU8>) {
                         commands.fetch_max(Command::Go as u8, Ordering::AcqRel);
                     }
                     Ok("stop") => stop.store(true, Ordering::Release),
+                    Ok(line) if line.starts_with("ended ") => {
+                        let stage = line["ended ".len()..].trim().to_owned();
+                        if let Ok(mut stages) = ended_sources.stages.lock() {
+                            stages.push(stage);
+                            ended_sources.news.store(true, Ordering::Release);
+                        }
+                    }
                     Ok(_) => {}
                     Err(_) => break,
                 }

@@ -13,6 +13,8 @@ pub struct StageStats {
     pub dropped: u64,
     /// Frames discarded because another input had no frame with the same `seq`.
     pub unmatched: u64,
+    /// One line of the stage's own results, shown under the run summary.
+    pub detail: String,
     processing_us: Vec<f32>,
     latency_us: Vec<f32>,
 }
@@ -53,6 +55,7 @@ impl StageStats {
             p99_us: f64::from(percentile(&sorted, 0.99)),
             max_us: f64::from(sorted.last().copied().unwrap_or(0.0)),
             wall_s: wall.as_secs_f64(),
+            detail: self.detail.clone(),
         }
     }
 }
@@ -84,6 +87,9 @@ pub struct StageSummary {
     pub latency_p50_us: f64,
     /// 99th percentile transport latency of input frames, µs.
     pub latency_p99_us: f64,
+    /// The stage's own end-of-run result in one line (e.g. the validation scores); empty if none.
+    #[serde(default)]
+    pub detail: String,
 }
 
 #[cfg(test)]

@@ -7,7 +7,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use crate::frames::FrameType;
-use crate::graph::{Graph, InputEdge, Mode, Problem, Reader, Runner, StageNode};
+use crate::graph::{Graph, InputEdge, Mode, OnFailure, Problem, Reader, Runner, StageNode};
 use crate::schema::{GraphFile, StageEntry};
 use crate::spec::{InputsSpec, Registry, Role, StageSpec};
 
@@ -48,6 +48,7 @@ struct Declared<'a> {
     inputs: BTreeMap<String, (String, String)>,
     feedback: BTreeSet<String>,
     params: toml::Table,
+    on_failure: OnFailure,
 }
 
 pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Graph, Vec<Problem>> {
@@ -160,6 +161,7 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
                 outputs: d.outputs.clone(),
                 readers: BTreeMap::new(),
                 params: d.params.clone(),
+                on_failure: d.on_failure,
             },
         );
     }
@@ -237,7 +239,7 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
     }
 
     if problems.0.is_empty() {
-        Ok(Graph {
+        let mut graph = Graph {
             name: file.name,
             file: path.to_owned(),
             rate_hz,
@@ -245,7 +247,21 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
             ready_timeout_s,
             stages,
             warnings,
-        })
+        };
+        let isolating: Vec<String> = graph
+            .stages
+            .values()
+            .filter(|n| n.on_failure == OnFailure::StopBranch)
+            .map(|n| n.id.clone())
+            .collect();
+        for id in isolating {
+            if graph.branch(&id).len() == graph.stages.len() {
+                graph.warnings.push(format!(
+                    "stage '{id}': on_failure = \"stop-branch\" isolates nothing, every stage of the graph is in its branch"
+                ));
+            }
+        }
+        Ok(graph)
     } else {
         Err(problems.0)
     }
@@ -404,6 +420,20 @@ fn declare<'a>(
             );
         }
     }
+    let on_failure = match entry.on_failure.as_deref() {
+        None => OnFailure::default(),
+        Some(name) => OnFailure::from_name(name).unwrap_or_else(|| {
+            problems.stage(
+                id,
+                Some("on_failure"),
+                format!(
+                    "must be one of {} (got \"{name}\")",
+                    OnFailure::NAMES.map(|n| format!("\"{n}\"")).join(", ")
+                ),
+            );
+            OnFailure::default()
+        }),
+    };
     Some(Declared {
         id,
         runner,
@@ -413,6 +443,7 @@ fn declare<'a>(
         inputs,
         feedback,
         params: entry.params.clone(),
+        on_failure,
     })
 }
 

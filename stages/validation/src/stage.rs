@@ -10,6 +10,7 @@
 
 use anyhow::Context;
 use imuflow_body::kinematics::Pose;
+use imuflow_body::rotation::axis_angle_from_rotation;
 use imuflow_body::skeleton::JointId;
 use imuflow_contact::stage::{MASS_PARAM, STATURE_PARAM, subject_body};
 use imuflow_graph::frames::{ContactFrame, MotionFrame, NUM_DOFS, ValidationFrame, flags};
@@ -260,7 +261,6 @@ pub fn run() -> anyhow::Result<()> {
         })?;
         sim_out.publish(header, |out| write_sim(&outcome, out))?;
     }
-    ctx.finish(&mut [&mut validation_out, &mut sim_out])?;
     let mut line = validator.stats.summary_line(residual);
     if let Some(share) = agreement.share() {
         line += &format!(
@@ -271,10 +271,11 @@ pub fn run() -> anyhow::Result<()> {
     if unusable > 0 {
         line += &format!(", {unusable} unusable motion frames");
     }
-    eprintln!(
-        "{stage}: validation ({}): {line}",
-        Mode::NAMES[residual as usize]
-    );
+    let line = format!("validation ({}): {line}", Mode::NAMES[residual as usize]);
+    eprintln!("{stage}: {line}");
+    // The same line under `imuflow run`'s summary table.
+    ctx.set_summary_detail(line);
+    ctx.finish(&mut [&mut validation_out, &mut sim_out])?;
     Ok(())
 }
 
@@ -315,7 +316,7 @@ fn write_sim(outcome: &Outcome, out: &mut MotionFrame) {
     let mut q = [0.0f32; NUM_DOFS];
     q[..3].copy_from_slice(&out.root_position_m);
     for (j, r) in state.pose.parent_from_joint.iter().enumerate() {
-        let v = r.scaled_axis();
+        let v = axis_angle_from_rotation(r);
         q[3 + 3 * j..6 + 3 * j].copy_from_slice(&[v.x as f32, v.y as f32, v.z as f32]);
     }
     out.q = q;
