@@ -12,6 +12,10 @@
 //! outputs = { count = "MotionFrame" }
 //! ```
 //!
+//! `q[2]` is a checksum of the IMU frame's bytes (FNV-1a, folded to 24 bits so an f32 holds it
+//! exactly): two copies of this stage fed the same frames write the same checksums, which is how
+//! the tests prove that `imuflow compare` gives every variant identical input.
+//!
 //! `args = ["--fail-at", "N"]` makes it fail (exit code 3) after publishing frame N, for the tests
 //! of failure policies.
 
@@ -46,10 +50,13 @@ fn run() -> anyhow::Result<()> {
             } else {
                 last.q[0] + 1.0
             };
-            let valid_imus = ctx.get(&imu).valid_mask.count_ones() as f32;
+            let frame = ctx.get(&imu);
+            let valid_imus = frame.valid_mask.count_ones() as f32;
+            let checksum = checksum_24(bytemuck::bytes_of(frame));
             out.publish(step.header(), |m| {
                 m.q[0] = count;
                 m.q[1] = valid_imus;
+                m.q[2] = checksum as f32;
             })?;
             if fail_at == Some(step.seq) {
                 eprintln!("external_counter: failing at frame {} as asked", step.seq);
@@ -59,4 +66,14 @@ fn run() -> anyhow::Result<()> {
     }
     ctx.finish(&mut [&mut out])?;
     Ok(())
+}
+
+/// FNV-1a of `bytes`, folded to 24 bits (exact in an f32).
+fn checksum_24(bytes: &[u8]) -> u32 {
+    let mut h: u32 = 0x811c_9dc5;
+    for b in bytes {
+        h ^= u32::from(*b);
+        h = h.wrapping_mul(0x0100_0193);
+    }
+    (h >> 24) ^ (h & 0x00ff_ffff)
 }

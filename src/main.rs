@@ -1,6 +1,7 @@
 //! `imuflow`: the command line. A thin dispatcher: the work lives in the crates.
 
 mod bench;
+mod compare;
 mod kinematics_cmd;
 mod physics_eval;
 mod registry;
@@ -44,6 +45,12 @@ enum Command {
         #[arg(long, value_name = "URL", num_args = 0..=1, default_missing_value = "default")]
         connect: Option<String>,
     },
+    /// Run variant graphs on identical input in one run and compare them (A/B).
+    ///
+    /// The first variant's source (or --input) and every stage the same in all variants are
+    /// shared; each variant's own stages run as an isolated branch. Writes the combined graph, one
+    /// rerun recording and one mcap with every variant, and a report under --out.
+    Compare(compare::CompareArgs),
     /// Inspect graph files.
     #[command(subcommand)]
     Graph(GraphCommand),
@@ -226,6 +233,7 @@ fn main() -> ExitCode {
             ExitCode::from(2)
         }
         Command::Clean => clean(),
+        Command::Compare(args) => compare::run(args),
         Command::EvalPhysics(args) => match physics_eval::run(args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
@@ -326,6 +334,9 @@ fn run(args: &GraphArgs, progress: bool, forward_logs: bool, connect: Option<&st
     match launch::run(&graph, &options) {
         Ok(report) => {
             print_summary(&graph, &report);
+            for branch in &report.failed_branches {
+                eprintln!("warning: {branch}");
+            }
             if report.interrupted {
                 eprintln!("stopped by the user; outputs were finalized");
                 ExitCode::from(130)
@@ -377,6 +388,21 @@ fn print_summary(graph: &Graph, report: &launch::RunReport) {
                 s.latency_p99_us
             );
         }
+    }
+    for node in graph.topological_order() {
+        if let Some((_, s)) = report.stages.get(&node.id)
+            && !s.detail.is_empty()
+        {
+            println!("{}: {}", node.id, s.detail);
+        }
+    }
+    for branch in &report.failed_branches {
+        println!(
+            "branch of '{}' stopped ({} failed): {}",
+            branch.root,
+            branch.stage,
+            branch.stopped.join(", ")
+        );
     }
 }
 

@@ -16,14 +16,23 @@
 //!   simulated body lost its balance (the scores are time series, as every small field). The
 //!   validation stage's simulated body is a MotionFrame: wire it to an input named `validation`
 //!   and it is drawn in its own colour with its floor forces as arrows.
+//! - Errors against the truth: with an input named `truth` (a MotionFrame), every other motion
+//!   input named `motion` (or `<group>__motion`) gets its root-aligned mean joint position error
+//!   (cm) and its root distance (m) per frame under `plots/error_vs_truth/<entity>/`.
 //! - Every frame type: each small field (up to 6 scalars, e.g. stationary probabilities, root
 //!   velocity) as a time series under `plots/<input>/<field>`, and the INVALID flag.
+//!
+//! Groups (A/B comparisons, `imuflow compare`): an input named `<group>__<what>` is logged under
+//! `<group>/<what>`, every group's skeletons get their own colour (its simulated body a lighter
+//! tint), and the recording carries a blueprint: one 3D view per group with the truth, or all in
+//! one view with `views = "overlaid"`, above the error and validation time series.
 //!
 //! The model frame M is x = left, y = up, z = forward (SMPL), logged as the world's view
 //! coordinates so the viewer shows "up" correctly.
 
 use anyhow::{Context, bail};
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose, forward_kinematics};
+use imuflow_graph::combine::GROUP_SEPARATOR;
 use imuflow_graph::frames::{
     BodyImuFrame, ContactFrame, FrameLayout, FrameType, ImuFrame, KinematicsFrame, MotionFrame,
     NUM_IMUS, ScalarType, ValidationFrame, flags,
@@ -60,16 +69,49 @@ const JOINT_RADIUS_M_PER_NM: f32 = 2e-4;
 /// Radius of drawn bones, m.
 const BONE_RADIUS_M: f32 = 0.008;
 /// Colour of the skeleton drawn from an input named `validation` (the simulated body) and of one
-/// named `truth`; other skeletons get rerun's automatic colours.
+/// named `truth`; other skeletons get rerun's automatic colours, or their group's.
 const VALIDATION_RGB: [u8; 3] = [240, 150, 30];
 const TRUTH_RGB: [u8; 3] = [120, 200, 120];
+/// Group colours, in the order the groups first appear among the inputs (a colour-blind-safe
+/// qualitative palette: Okabe & Ito, 2008; green left out for the truth).
+const GROUP_PALETTE: [[u8; 3]; 6] = [
+    [0, 114, 178],
+    [213, 94, 0],
+    [204, 121, 167],
+    [230, 159, 0],
+    [86, 180, 233],
+    [240, 228, 66],
+];
+/// Truth frames kept for the error series (motion arrives a pipeline's latency after its truth).
+const TRUTH_FRAMES_KEPT: usize = 1200;
 
-/// The fixed colour of an input's skeleton, if it has one.
-fn skeleton_colour(input: &str) -> Option<rerun::Color> {
-    let [r, g, b] = match input {
-        "validation" => VALIDATION_RGB,
-        "truth" => TRUTH_RGB,
-        _ => return None,
+/// The entity path of an input: `<group>__<what>` becomes `<group>/<what>`.
+pub fn entity_of(input: &str) -> String {
+    input.replace(GROUP_SEPARATOR, "/")
+}
+
+/// The group of an entity path, if it has one.
+fn group_of(entity: &str) -> Option<&str> {
+    entity.split_once('/').map(|(group, _)| group)
+}
+
+/// The colour of the skeleton at `entity`, if it has a fixed one.
+fn skeleton_colour(entity: &str, groups: &[String]) -> Option<rerun::Color> {
+    let what = entity.rsplit('/').next().unwrap_or(entity);
+    let [r, g, b] = match (group_of(entity), what) {
+        (None, "validation") => VALIDATION_RGB,
+        (None, "truth") => TRUTH_RGB,
+        (None, _) => return None,
+        (Some(group), what) => {
+            let index = groups.iter().position(|g| g == group)?;
+            let base = GROUP_PALETTE[index % GROUP_PALETTE.len()];
+            if what == "validation" {
+                // The simulated body: the group's colour halfway to white.
+                base.map(|c| c / 2 + 128)
+            } else {
+                base
+            }
+        }
     };
     Some(rerun::Color::from_rgb(r, g, b))
 }
@@ -101,6 +143,13 @@ pub const SPEC: StageSpec = StageSpec {
             required: false,
             default: "",
             doc: "stream to a running viewer: \"default\" or a URL like rerun+http://127.0.0.1:9876/proxy",
+        },
+        ParamSpec {
+            name: "views",
+            ty: ParamType::Choice(&["side-by-side", "overlaid"]),
+            required: false,
+            default: "side-by-side",
+            doc: "with grouped inputs (<group>__<what>): one 3D view per group, or all groups in one",
         },
     ],
 };
@@ -150,14 +199,27 @@ pub fn run() -> anyhow::Result<()> {
     };
     rec.log_static("/", &rerun::ViewCoordinates::LUF())?;
 
+    // Logged under their entity paths from here on.
     let inputs: Vec<(String, FrameType)> = ctx
         .input_names()
         .into_iter()
         .map(|name| {
             let frame = ctx.node().inputs[&name].frame;
-            (name, frame)
+            (entity_of(&name), frame)
         })
         .collect();
+    let mut groups: Vec<String> = Vec::new();
+    for (entity, _) in &inputs {
+        if let Some(group) = group_of(entity)
+            && !groups.iter().any(|g| g == group)
+        {
+            groups.push(group.to_owned());
+        }
+    }
+    if !groups.is_empty() {
+        let overlaid = params.str("views") == Some("overlaid");
+        send_blueprint(&rec, &groups, overlaid, &inputs)?;
+    }
     for (name, frame) in &inputs {
         if matches!(frame, FrameType::Imu | FrameType::BodyImu) {
             for (k, sensor) in SENSOR_NAMES.iter().enumerate() {
@@ -175,7 +237,10 @@ pub fn run() -> anyhow::Result<()> {
     }
 
     let body = BodyModel::new(&BodyParams::builtin()?, params_stature(&ctx), 70.0)?;
-    let mut drawer = SkeletonDrawer::new(body);
+    let has_truth = inputs
+        .iter()
+        .any(|(e, f)| e == "truth" && *f == FrameType::Motion);
+    let mut drawer = SkeletonDrawer::new(body, groups, has_truth);
     let live = ctx.mode() == Mode::Live;
     let logged = if ctx.ready()? {
         log_frames(&mut ctx, &rec, &inputs, live, &mut drawer)
@@ -365,14 +430,57 @@ fn params_stature(ctx: &StageContext) -> f64 {
 struct SkeletonDrawer {
     body: BodyModel,
     fk: imuflow_body::FkData,
+    groups: Vec<String>,
+    /// The truth's joints by seq, when there is a truth input (for the error series).
+    truth: Option<std::collections::BTreeMap<u64, [[f32; 3]; NUM_JOINTS]>>,
 }
 
 impl SkeletonDrawer {
-    fn new(body: BodyModel) -> SkeletonDrawer {
+    fn new(body: BodyModel, groups: Vec<String>, has_truth: bool) -> SkeletonDrawer {
         SkeletonDrawer {
             body,
             fk: imuflow_body::FkData::new(),
+            groups,
+            truth: has_truth.then(Default::default),
         }
+    }
+
+    /// Keeps the truth's joints, or logs this estimate's error against the truth of its frame.
+    fn track_error(
+        &mut self,
+        rec: &rerun::RecordingStream,
+        entity: &str,
+        seq: u64,
+        joints: &[[f32; 3]; NUM_JOINTS],
+    ) -> anyhow::Result<()> {
+        let Some(truth) = &mut self.truth else {
+            return Ok(());
+        };
+        if entity == "truth" {
+            truth.insert(seq, *joints);
+            while truth.len() > TRUTH_FRAMES_KEPT {
+                truth.pop_first();
+            }
+            return Ok(());
+        }
+        let is_estimate = entity == "motion" || entity.ends_with("/motion");
+        let Some(true_joints) = truth.get(&seq).filter(|_| is_estimate) else {
+            return Ok(());
+        };
+        let (joint_cm, root_m) = error_against_truth(joints, true_joints);
+        let base = format!(
+            "plots/error_vs_truth/{}",
+            group_of(entity).unwrap_or(entity)
+        );
+        rec.log(
+            format!("{base}/joint_position_cm"),
+            &rerun::Scalars::single(joint_cm),
+        )?;
+        rec.log(
+            format!("{base}/root_distance_m"),
+            &rerun::Scalars::single(root_m),
+        )?;
+        Ok(())
     }
 
     /// Skeleton at its global position, ground-reaction force arrows, torque magnitudes.
@@ -396,6 +504,7 @@ impl SkeletonDrawer {
             })
             .collect();
         self.log_joints(rec, input, &joints, Some(&torque))?;
+        self.track_error(rec, input, f.header.seq, &joints)?;
         rec.log(
             format!("plots/{input}/torque_norm_nm"),
             &rerun::BarChart::new(torque),
@@ -436,7 +545,7 @@ impl SkeletonDrawer {
         let bones = JointId::all()
             .filter_map(|j| j.parent().map(|p| [joints[p.index()], joints[j.index()]]));
         let mut lines = rerun::LineStrips3D::new(bones).with_radii([BONE_RADIUS_M]);
-        if let Some(colour) = skeleton_colour(input) {
+        if let Some(colour) = skeleton_colour(input, &self.groups) {
             points = points.with_colors([colour]);
             lines = lines.with_colors([colour]);
         }
@@ -467,4 +576,126 @@ fn log_contacts(rec: &rerun::RecordingStream, input: &str, f: &ContactFrame) -> 
         &rerun::Arrows3D::from_vectors(forces).with_origins(points.iter().copied()),
     )?;
     Ok(())
+}
+
+/// Mean joint position error after aligning the roots (cm), and the roots' distance (m).
+fn error_against_truth(
+    joints: &[[f32; 3]; NUM_JOINTS],
+    truth: &[[f32; 3]; NUM_JOINTS],
+) -> (f64, f64) {
+    let root = JointId::ROOT.index();
+    let offset: [f64; 3] = std::array::from_fn(|k| f64::from(joints[root][k] - truth[root][k]));
+    let mut sum_m = 0.0;
+    for (p, t) in joints.iter().zip(truth) {
+        let d: f64 = (0..3)
+            .map(|k| (f64::from(p[k] - t[k]) - offset[k]).powi(2))
+            .sum();
+        sum_m += d.sqrt();
+    }
+    let root_m = offset.iter().map(|x| x * x).sum::<f64>().sqrt();
+    (100.0 * sum_m / NUM_JOINTS as f64, root_m)
+}
+
+/// The layout of a grouped recording: a 3D view per group (each with the truth) or one overlaid
+/// view, above time series of the errors against the truth and of the validation scores.
+fn send_blueprint(
+    rec: &rerun::RecordingStream,
+    groups: &[String],
+    overlaid: bool,
+    inputs: &[(String, FrameType)],
+) -> anyhow::Result<()> {
+    use rerun::blueprint::{
+        Blueprint, BlueprintActivation, ContainerLike, Horizontal, Spatial3DView, TimeSeriesView,
+        Vertical,
+    };
+    let has_truth = inputs.iter().any(|(e, _)| e == "truth");
+    let shared: Vec<String> = if has_truth {
+        vec!["+ /truth/**".into()]
+    } else {
+        Vec::new()
+    };
+    let views: Vec<ContainerLike> = if overlaid {
+        let mut contents = shared.clone();
+        contents.extend(groups.iter().map(|g| format!("+ /{g}/**")));
+        vec![
+            Spatial3DView::new("all variants")
+                .with_origin("/")
+                .with_contents(contents)
+                .into(),
+        ]
+    } else {
+        groups
+            .iter()
+            .map(|g| {
+                let mut contents = shared.clone();
+                contents.push(format!("+ /{g}/**"));
+                Spatial3DView::new(g.as_str())
+                    .with_origin("/")
+                    .with_contents(contents)
+                    .into()
+            })
+            .collect()
+    };
+    let mut series: Vec<ContainerLike> = Vec::new();
+    if has_truth {
+        series.push(
+            TimeSeriesView::new("joint position error vs truth (cm)")
+                .with_contents(["+ /plots/error_vs_truth/*/joint_position_cm"])
+                .into(),
+        );
+    }
+    let validated = inputs
+        .iter()
+        .any(|(e, f)| *f == FrameType::Validation && group_of(e).is_some());
+    if validated {
+        let tracking: Vec<String> = groups
+            .iter()
+            .map(|g| format!("+ /plots/{g}/validation_scores/tracking_error_m"))
+            .collect();
+        series.push(
+            TimeSeriesView::new("validation: tracking error (m)")
+                .with_contents(tracking)
+                .into(),
+        );
+    }
+    let top: ContainerLike = Horizontal::new(views).into();
+    let root: ContainerLike = if series.is_empty() {
+        top
+    } else {
+        Vertical::new([top, Horizontal::new(series).into()]).into()
+    };
+    Blueprint::new(root).send(rec, BlueprintActivation::default())?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grouped_inputs_become_entity_paths_with_their_group_colour() {
+        assert_eq!(entity_of("pip__motion"), "pip/motion");
+        assert_eq!(entity_of("motion"), "motion");
+        let groups = vec!["pip".to_owned(), "globalpose".to_owned()];
+        let rgb = |e: &str| skeleton_colour(e, &groups).map(|c| c.to_array());
+        assert_eq!(rgb("pip/motion"), Some([0, 114, 178, 255]));
+        assert_eq!(rgb("globalpose/motion"), Some([213, 94, 0, 255]));
+        // The simulated body: halfway to white.
+        assert_eq!(rgb("pip/validation"), Some([128, 185, 217, 255]));
+        assert_eq!(rgb("truth"), Some([120, 200, 120, 255]));
+        assert_eq!(rgb("validation"), Some([240, 150, 30, 255]));
+        assert_eq!(rgb("motion"), None);
+        assert_eq!(rgb("other/motion"), None);
+    }
+
+    #[test]
+    fn error_against_truth_aligns_roots_and_reports_their_distance() {
+        let truth: [[f32; 3]; NUM_JOINTS] = std::array::from_fn(|j| [0.0, j as f32 * 0.1, 0.0]);
+        // Shifted 0.3 m sideways, one joint 0.24 m off on top: 0.24 m / 24 joints = 1 cm.
+        let mut estimate = truth.map(|[x, y, z]| [x + 0.3, y, z]);
+        estimate[5][2] += 0.24;
+        let (joint_cm, root_m) = error_against_truth(&estimate, &truth);
+        assert!((joint_cm - 1.0).abs() < 1e-4, "{joint_cm}");
+        assert!((root_m - 0.3).abs() < 1e-6, "{root_m}");
+    }
 }

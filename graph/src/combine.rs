@@ -1,0 +1,464 @@
+//! Combining variant graphs into one A/B graph (`imuflow compare`): one shared source (and every
+//! stage that is identical in all variants) fanned out to a copy of each variant's own stages,
+//! each copy an isolated branch, all read by one recorder and one rerun logger.
+//!
+//! The result is graph-file text, so what runs is exactly what `--print-graph` shows and a user
+//! can keep and edit it. Stage ids of copies are `<variant>-<id>`; the sinks read each variant's
+//! outputs through inputs named `<variant>__<what>`, which the rerun logger turns into the entity
+//! path `<variant>/<what>` (one entity root per variant).
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt::Write;
+
+use crate::frames::FrameType;
+use crate::graph::{Graph, OnFailure, Runner, StageNode};
+use crate::spec::Role;
+
+/// Separator in a sink input name between the variant and what it carries (`pip__motion`).
+pub const GROUP_SEPARATOR: &str = "__";
+
+/// Sink kinds that a comparison replaces with its own (one recorder, one logger for all).
+const REPLACED_SINKS: [&str; 2] = ["recorder", "rerun-logger"];
+
+/// One variant to compare: its name (an identifier) and its validated graph.
+pub struct Variant {
+    pub name: String,
+    pub graph: Graph,
+}
+
+/// Where the combined graph's sinks write.
+pub struct SinkPaths {
+    pub mcap: String,
+    pub rrd: String,
+}
+
+/// How a variant's outputs appear in the combined graph.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct VariantOutputs {
+    pub name: String,
+    /// `stage.port` of the variant's motion estimate in the combined graph.
+    pub motion: String,
+    pub contacts: Option<String>,
+    /// The variant's validation stage in the combined graph (ports `sim` and `validation`).
+    pub validation: Option<String>,
+    /// Every stage of the variant's own branch, in the combined graph.
+    pub stages: Vec<String>,
+    /// The first stages of the branch (they read only shared stages): where identical input
+    /// enters, and where `on_failure = "stop-branch"` isolates the variant.
+    pub roots: Vec<String>,
+}
+
+/// The combined graph.
+#[derive(Debug, Clone)]
+pub struct Combined {
+    /// Graph-file text (TOML).
+    pub text: String,
+    /// Stages shared by all variants (the source first).
+    pub shared: Vec<String>,
+    pub variants: Vec<VariantOutputs>,
+    /// The source's `truth` output, when it has one (`source.truth`).
+    pub truth: Option<String>,
+    /// Things the user should know (a later variant's source replaced, ...).
+    pub notes: Vec<String>,
+}
+
+/// Why variants cannot be compared.
+#[derive(Debug, thiserror::Error)]
+pub enum CombineError {
+    #[error("compare needs at least two variants (got {0})")]
+    TooFew(usize),
+    #[error("variant '{name}': {why}")]
+    NotComparable { name: String, why: String },
+}
+
+fn not_comparable(name: &str, why: impl Into<String>) -> CombineError {
+    CombineError::NotComparable {
+        name: name.to_owned(),
+        why: why.into(),
+    }
+}
+
+/// Combines `variants` (the first one's source feeds all) into one graph named `name`.
+pub fn combine(
+    name: &str,
+    variants: &[Variant],
+    sinks: &SinkPaths,
+) -> Result<Combined, CombineError> {
+    if variants.len() < 2 {
+        return Err(CombineError::TooFew(variants.len()));
+    }
+    let first = &variants[0];
+    let mut notes = Vec::new();
+    let sources: Vec<String> = variants
+        .iter()
+        .map(|v| single_source(v).map(|s| s.id.clone()))
+        .collect::<Result<_, _>>()?;
+    for v in variants {
+        check_comparable(first, v)?;
+    }
+    for v in variants {
+        motion_output(v)?;
+    }
+    let source = first.graph.stages[&sources[0]].clone();
+    for (v, id) in variants.iter().zip(&sources).skip(1) {
+        let other = &v.graph.stages[id];
+        if other.runner != source.runner || other.params != source.params {
+            notes.push(format!(
+                "variant '{}' has its own source '{id}'; every variant gets the source of '{}' (stage '{}')",
+                v.name, first.name, source.id
+            ));
+        }
+    }
+
+    // Shared: the source, then every non-sink stage that is the same in every variant and reads
+    // only shared stages, in flow order.
+    let mut shared: Vec<String> = vec![source.id.clone()];
+    for node in first.graph.topological_order() {
+        if node.role == Role::Source || is_replaced_sink(node) {
+            continue;
+        }
+        let same_everywhere = variants.iter().zip(&sources).all(|(v, src)| {
+            v.graph.stages.get(&node.id).is_some_and(|other| {
+                same_stage(node, other, src, &source.id)
+                    && other
+                        .inputs
+                        .values()
+                        .all(|e| e.from_stage == *src || shared.contains(&e.from_stage))
+            })
+        });
+        if same_everywhere {
+            shared.push(node.id.clone());
+        }
+    }
+
+    let mut text = String::new();
+    let _ = writeln!(
+        text,
+        "# imuflow compare: {} on identical input (generated; keep and edit it freely).\n# Shared: {}. Each variant's own stages are copied as <variant>-<stage>, isolated with\n# on_failure = \"stop-branch\" at their first stages.",
+        variants
+            .iter()
+            .map(|v| v.name.as_str())
+            .collect::<Vec<_>>()
+            .join(" vs "),
+        shared.join(", ")
+    );
+    let _ = writeln!(text, "name = {}", quote(name));
+    let _ = writeln!(text, "rate_hz = {}", float(first.graph.rate_hz));
+    if first.graph.mode == crate::Mode::Live {
+        let _ = writeln!(text, "mode = \"live\"");
+    }
+    let ready = variants
+        .iter()
+        .map(|v| v.graph.ready_timeout_s)
+        .fold(0.0, f64::max);
+    let _ = writeln!(text, "ready_timeout_s = {}", float(ready));
+
+    for id in &shared {
+        let node = if *id == source.id {
+            &source
+        } else {
+            &first.graph.stages[id]
+        };
+        write_stage(&mut text, id, node, &|from| from.to_owned(), None);
+    }
+
+    let mut outputs = Vec::new();
+    for (v, src) in variants.iter().zip(&sources) {
+        let rename = |from: &str| -> String {
+            if from == src {
+                source.id.clone()
+            } else if shared.iter().any(|s| s == from) {
+                from.to_owned()
+            } else {
+                prefixed(&v.name, from)
+            }
+        };
+        let own: Vec<&StageNode> = v
+            .graph
+            .topological_order()
+            .into_iter()
+            .filter(|n| n.id != *src && !shared.contains(&n.id) && !is_replaced_sink(n))
+            .collect();
+        let mut roots = Vec::new();
+        for node in &own {
+            let forward_from_shared = node
+                .inputs
+                .values()
+                .filter(|e| !e.feedback)
+                .all(|e| e.from_stage == *src || shared.contains(&e.from_stage));
+            if forward_from_shared {
+                roots.push(prefixed(&v.name, &node.id));
+            }
+            let isolate = forward_from_shared.then_some(OnFailure::StopBranch);
+            write_stage(
+                &mut text,
+                &prefixed(&v.name, &node.id),
+                node,
+                &rename,
+                isolate,
+            );
+        }
+        let (motion_stage, motion_port) = motion_output(v)?;
+        if shared.contains(&motion_stage) {
+            return Err(not_comparable(
+                &v.name,
+                format!(
+                    "its motion comes from '{motion_stage}', which is the same in every variant: there is nothing to compare"
+                ),
+            ));
+        }
+        let motion_node = &v.graph.stages[&motion_stage];
+        let contacts = (motion_node.outputs.get("contacts") == Some(&FrameType::Contact))
+            .then(|| format!("{}.contacts", rename(&motion_stage)));
+        let validation = v
+            .graph
+            .stages
+            .values()
+            .find(|n| {
+                n.runner
+                    == Runner::Builtin {
+                        kind: "validation".into(),
+                    }
+                    && n.inputs
+                        .get("motion")
+                        .is_some_and(|e| e.from_stage == motion_stage && e.from_port == motion_port)
+            })
+            .map(|n| rename(&n.id));
+        outputs.push(VariantOutputs {
+            name: v.name.clone(),
+            motion: format!("{}.{motion_port}", rename(&motion_stage)),
+            contacts,
+            validation,
+            stages: own.iter().map(|n| prefixed(&v.name, &n.id)).collect(),
+            roots,
+        });
+    }
+
+    let truth = (source.outputs.get("truth") == Some(&FrameType::Motion))
+        .then(|| format!("{}.truth", source.id));
+    let mut sink_inputs: Vec<(String, String)> = Vec::new();
+    if let Some(t) = &truth {
+        sink_inputs.push(("truth".into(), t.clone()));
+    }
+    for o in &outputs {
+        let group = |what: &str| format!("{}{GROUP_SEPARATOR}{what}", o.name);
+        sink_inputs.push((group("motion"), o.motion.clone()));
+        if let Some(c) = &o.contacts {
+            sink_inputs.push((group("contacts"), c.clone()));
+        }
+        if let Some(val) = &o.validation {
+            sink_inputs.push((group("validation"), format!("{val}.sim")));
+            sink_inputs.push((group("validation_scores"), format!("{val}.validation")));
+        }
+    }
+    let inline_inputs = sink_inputs
+        .iter()
+        .map(|(k, v)| format!("{k} = {}", quote(v)))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let _ = writeln!(
+        text,
+        "\n[stages.viz]\nkind = \"rerun-logger\"\ninputs = {{ {inline_inputs} }}\nparams = {{ path = {} }}",
+        quote(&sinks.rrd)
+    );
+    let _ = writeln!(
+        text,
+        "\n[stages.record]\nkind = \"recorder\"\ninputs = {{ {inline_inputs} }}\nparams = {{ path = {} }}",
+        quote(&sinks.mcap)
+    );
+    Ok(Combined {
+        text,
+        shared,
+        variants: outputs,
+        truth,
+        notes,
+    })
+}
+
+fn prefixed(variant: &str, stage: &str) -> String {
+    format!("{variant}-{stage}")
+}
+
+fn is_replaced_sink(node: &StageNode) -> bool {
+    matches!(&node.runner, Runner::Builtin { kind } if REPLACED_SINKS.contains(&kind.as_str()))
+}
+
+fn single_source(v: &Variant) -> Result<&StageNode, CombineError> {
+    let sources: Vec<&StageNode> = v
+        .graph
+        .stages
+        .values()
+        .filter(|n| n.role == Role::Source)
+        .collect();
+    match sources.as_slice() {
+        [one] => Ok(one),
+        _ => Err(not_comparable(
+            &v.name,
+            format!(
+                "has {} sources ({}); compare feeds every variant from one source",
+                sources.len(),
+                sources
+                    .iter()
+                    .map(|s| s.id.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )),
+    }
+}
+
+fn check_comparable(first: &Variant, v: &Variant) -> Result<(), CombineError> {
+    if (v.graph.rate_hz - first.graph.rate_hz).abs() > 1e-9 {
+        return Err(not_comparable(
+            &v.name,
+            format!(
+                "runs at {} Hz, '{}' at {} Hz; variants must share a rate to see the same frames",
+                v.graph.rate_hz, first.name, first.graph.rate_hz
+            ),
+        ));
+    }
+    if v.graph.mode != first.graph.mode {
+        return Err(not_comparable(
+            &v.name,
+            format!("its mode differs from '{}' (offline vs live)", first.name),
+        ));
+    }
+    Ok(())
+}
+
+/// The variant's motion estimate: what its sinks read as `motion`, else the single `motion`
+/// output of an optimizer stage.
+fn motion_output(v: &Variant) -> Result<(String, String), CombineError> {
+    let read_by_sinks: BTreeSet<(String, String)> = v
+        .graph
+        .stages
+        .values()
+        .filter(|n| is_replaced_sink(n))
+        .filter_map(|n| n.inputs.get("motion"))
+        .filter(|e| e.frame == FrameType::Motion)
+        .map(|e| (e.from_stage.clone(), e.from_port.clone()))
+        .collect();
+    if read_by_sinks.len() == 1 {
+        return Ok(read_by_sinks.into_iter().next().expect("one"));
+    }
+    let optimizers: Vec<(String, String)> = v
+        .graph
+        .stages
+        .values()
+        .filter(|n| {
+            n.runner
+                == Runner::Builtin {
+                    kind: "optimizer".into(),
+                }
+        })
+        .map(|n| (n.id.clone(), "motion".to_owned()))
+        .collect();
+    match optimizers.as_slice() {
+        [one] => Ok(one.clone()),
+        _ => Err(not_comparable(
+            &v.name,
+            "has no single motion output to compare: wire it to a recorder or rerun-logger input named `motion` (or use one optimizer stage)",
+        )),
+    }
+}
+
+/// Same stage in two variants: same runner, parameters, policy and wiring (the variants'
+/// sources count as the same stage).
+fn same_stage(a: &StageNode, b: &StageNode, b_source: &str, source: &str) -> bool {
+    let map = |from: &str| {
+        if from == b_source {
+            source.to_owned()
+        } else {
+            from.to_owned()
+        }
+    };
+    a.runner == b.runner
+        && a.params == b.params
+        && a.on_failure == b.on_failure
+        && a.outputs == b.outputs
+        && a.inputs.len() == b.inputs.len()
+        && a.inputs.iter().all(|(name, ea)| {
+            b.inputs.get(name).is_some_and(|eb| {
+                ea.from_port == eb.from_port
+                    && ea.feedback == eb.feedback
+                    && ea.from_stage == map(&eb.from_stage)
+            })
+        })
+}
+
+/// Writes one `[stages.<id>]` table with inline `inputs` and `params`.
+fn write_stage(
+    text: &mut String,
+    id: &str,
+    node: &StageNode,
+    rename: &dyn Fn(&str) -> String,
+    on_failure: Option<OnFailure>,
+) {
+    let _ = writeln!(text, "\n[stages.{id}]");
+    match &node.runner {
+        Runner::Builtin { kind } => {
+            let _ = writeln!(text, "kind = {}", quote(kind));
+        }
+        Runner::Exec { path, args } => {
+            let _ = writeln!(text, "exec = {}", quote(&path.display().to_string()));
+            if !args.is_empty() {
+                let args = args.iter().map(|a| quote(a)).collect::<Vec<_>>().join(", ");
+                let _ = writeln!(text, "args = [{args}]");
+            }
+            let outputs = node
+                .outputs
+                .iter()
+                .map(|(port, frame)| format!("{port} = {}", quote(frame.name())))
+                .collect::<Vec<_>>()
+                .join(", ");
+            let _ = writeln!(text, "outputs = {{ {outputs} }}");
+        }
+    }
+    if !node.inputs.is_empty() {
+        let mut parts: Vec<String> = node
+            .inputs
+            .iter()
+            .map(|(name, e)| {
+                let from = format!("{}.{}", rename(&e.from_stage), e.from_port);
+                format!("{name} = {}", quote(&from))
+            })
+            .collect();
+        let feedback: BTreeMap<&String, ()> = node
+            .inputs
+            .iter()
+            .filter(|(_, e)| e.feedback)
+            .map(|(n, _)| (n, ()))
+            .collect();
+        if !feedback.is_empty() {
+            let names = feedback
+                .keys()
+                .map(|n| quote(n))
+                .collect::<Vec<_>>()
+                .join(", ");
+            parts.push(format!("feedback = [{names}]"));
+        }
+        let _ = writeln!(text, "inputs = {{ {} }}", parts.join(", "));
+    }
+    if !node.params.is_empty() {
+        let params = node
+            .params
+            .iter()
+            .map(|(k, v)| format!("{k} = {v}"))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let _ = writeln!(text, "params = {{ {params} }}");
+    }
+    if on_failure.unwrap_or(node.on_failure) == OnFailure::StopBranch {
+        let _ = writeln!(text, "on_failure = \"stop-branch\"");
+    }
+}
+
+/// A TOML basic string.
+fn quote(s: &str) -> String {
+    toml::Value::String(s.to_owned()).to_string()
+}
+
+/// A TOML float (always with a decimal point).
+fn float(x: f64) -> String {
+    toml::Value::Float(x).to_string()
+}
