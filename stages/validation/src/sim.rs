@@ -633,8 +633,14 @@ mod tests {
                 nalgebra_nan += 1;
             }
             let v = axis_angle_from_rotation(&error);
-            assert!(v.iter().all(|x| x.is_finite()) && v.norm() < 1e-6, "{i}: {v:?}");
+            assert!(
+                v.iter().all(|x| x.is_finite()) && v.norm() < 1e-6,
+                "{i}: {v:?}"
+            );
         }
-        assert!(nalgebra_nan > 0, "the hazard this guards against did not occur");
+        assert!(
+            nalgebra_nan > 0,
+            "the hazard this guards against did not occur"
+        );
     }
 }

@@ -246,6 +246,10 @@ fn a_pose_with_near_identity_joints_simulates_without_nan() {
             o.score
         );
         // A held mid-stride pose is not balanced: the body may sag and slide a little.
-        assert!(o.score.tracking_error_m < 0.15, "frame {frame}: {:?}", o.score);
+        assert!(
+            o.score.tracking_error_m < 0.15,
+            "frame {frame}: {:?}",
+            o.score
+        );
     }
 }
