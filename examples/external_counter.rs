@@ -54,6 +54,11 @@ fn run() -> anyhow::Result<()> {
             let valid_imus = frame.valid_mask.count_ones() as f32;
             let checksum = checksum_24(bytemuck::bytes_of(frame));
             out.publish(step.header(), |m| {
+                // A valid pose (every joint at identity, the root at the origin), so the frames
+                // are motion a recorder, viewer or comparison can read.
+                for q in &mut m.local_pose_wxyz {
+                    q[0] = 1.0;
+                }
                 m.q[0] = count;
                 m.q[1] = valid_imus;
                 m.q[2] = checksum as f32;

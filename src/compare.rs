@@ -38,6 +38,9 @@ pub struct CompareArgs {
     /// Print the combined graph (TOML) and exit without running it.
     #[arg(long)]
     print_graph: bool,
+    /// In the rerun recording, draw every variant in one 3D view (default: one view each).
+    #[arg(long)]
+    overlaid: bool,
     /// Don't show the progress bar.
     #[arg(long)]
     no_progress: bool,
@@ -77,6 +80,7 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
     let sinks = SinkPaths {
         mcap: stem.with_extension("mcap").display().to_string(),
         rrd: stem.with_extension("rrd").display().to_string(),
+        overlaid: args.overlaid,
     };
     let combined = match combine::combine(&args.name, &variants, &sinks) {
         Ok(c) => c,
@@ -134,6 +138,16 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
         eprintln!("stopped by the user; outputs were finalized");
         return Ok(ExitCode::from(130));
     }
+    let written = imuflow_eval::compare::write(
+        &args.name,
+        &args.out,
+        Path::new(&sinks.mcap),
+        &combined,
+        &report,
+        graph.rate_hz,
+    )
+    .context("cannot write the report")?;
+    println!("report: {}", written.display());
     Ok(ExitCode::SUCCESS)
 }
 

@@ -1,11 +1,10 @@
-//! `imuflow train` and `imuflow eval`: the kinematics nets' command lines (the work is in
-//! imuflow-kinematics).
+//! `imuflow train` and `imuflow import-checkpoint`: the kinematics nets' command lines (the work
+//! is in imuflow-kinematics; `imuflow eval` is in `eval_cmd`).
 
 use std::path::PathBuf;
 
 use clap::Args;
 use imuflow_kinematics::Method;
-use imuflow_kinematics::eval::{Copies, evaluate, table};
 use imuflow_kinematics::train::{TrainOptions, train};
 
 /// Options of `imuflow train`.
@@ -90,66 +89,6 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         progress: !args.no_progress,
     };
     train(&options)?;
-    Ok(())
-}
-
-/// Options of `imuflow eval`.
-#[derive(Args)]
-pub struct EvalArgs {
-    /// The dataset folder (`imuflow dataset build --out`); its test shards are used.
-    #[arg(long, value_name = "DIR")]
-    data: PathBuf,
-    /// PIP weights ("none" to skip).
-    #[arg(long, value_name = "FILE", default_value = "models/pip.safetensors")]
-    pip: String,
-    /// GlobalPose weights ("none" to skip).
-    #[arg(
-        long,
-        value_name = "FILE",
-        default_value = "models/globalpose.safetensors"
-    )]
-    globalpose: String,
-    /// Which copies of each test clip: ideal, augmented (sensor noise and mounting errors) or all.
-    #[arg(long, default_value = "augmented", value_parser = ["ideal", "augmented", "all"])]
-    copies: String,
-    /// Evaluate at most this many sequences per method.
-    #[arg(long, default_value_t = usize::MAX)]
-    limit: usize,
-    /// Don't show progress bars.
-    #[arg(long)]
-    no_progress: bool,
-}
-
-pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
-    let copies = match args.copies.as_str() {
-        "ideal" => Copies::Ideal,
-        "all" => Copies::All,
-        _ => Copies::Augmented,
-    };
-    let mut rows = Vec::new();
-    for (method, weights) in [
-        (Method::Pip, &args.pip),
-        (Method::GlobalPose, &args.globalpose),
-    ] {
-        if weights == "none" {
-            continue;
-        }
-        let scores = evaluate(
-            method,
-            std::path::Path::new(weights),
-            &args.data,
-            copies,
-            args.limit,
-            !args.no_progress,
-        )?;
-        rows.push((method, scores));
-    }
-    println!(
-        "test split of {} ({} copies; reduced protocol, reference §6)",
-        args.data.display(),
-        args.copies
-    );
-    print!("{}", table(&rows));
     Ok(())
 }
 

@@ -2,8 +2,8 @@
 
 mod bench;
 mod compare;
+mod eval_cmd;
 mod kinematics_cmd;
-mod physics_eval;
 mod registry;
 
 use std::path::PathBuf;
@@ -75,7 +75,7 @@ enum Command {
     /// Train a method's kinematics networks on the dataset shards (CPU, resumable).
     Train(kinematics_cmd::TrainArgs),
     /// Score the kinematics nets on the dataset's test split (SIP, angle, joint position error, jitter).
-    Eval(kinematics_cmd::EvalArgs),
+    Eval(eval_cmd::EvalArgs),
     /// Convert the authors' PyTorch checkpoint (PIP or GlobalPose) to an imuflow weight file.
     ImportCheckpoint(kinematics_cmd::ImportArgs),
     /// The body model.
@@ -83,7 +83,7 @@ enum Command {
     Body(BodyCommand),
     /// Score the physics methods (integrate, pip, globalpose) on the dataset's test split with the
     /// same kinematics: jitter, foot skating, penetration, translation, standing ground forces.
-    EvalPhysics(physics_eval::EvalPhysicsArgs),
+    EvalPhysics(eval_cmd::EvalPhysicsArgs),
 }
 
 #[derive(Subcommand)]
@@ -234,7 +234,7 @@ fn main() -> ExitCode {
         }
         Command::Clean => clean(),
         Command::Compare(args) => compare::run(args),
-        Command::EvalPhysics(args) => match physics_eval::run(args) {
+        Command::EvalPhysics(args) => match eval_cmd::eval_physics(args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
                 eprintln!("error: {e:#}");
@@ -260,7 +260,7 @@ fn main() -> ExitCode {
                 ExitCode::FAILURE
             }
         },
-        Command::Eval(args) => match kinematics_cmd::eval(args) {
+        Command::Eval(args) => match eval_cmd::eval(args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
                 eprintln!("error: {e:#}");

@@ -167,6 +167,26 @@ params = {{ path = "{{dir}}/{name}.mcap" }}
     }
     assert!(distinct.len() > 390, "checksums vary with the frames");
     assert!(out_dir.join("compare.toml").is_file());
+    // The report: no truth in a test source, so the variants are compared with each other.
+    let report = std::fs::read_to_string(out_dir.join("report.md")).expect("report.md");
+    assert!(
+        report.contains("| metric | mine | theirs | best |"),
+        "{report}"
+    );
+    assert!(report.contains("| angle vs mine (deg) |"), "{report}");
+    let results: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out_dir.join("results.json")).expect("results.json"),
+    )
+    .expect("results.json is JSON");
+    let frames = results["metrics"]
+        .as_array()
+        .expect("metrics")
+        .iter()
+        .find(|m| m["metric"] == "frames scored")
+        .expect("a frames row");
+    // 400 frames, every 50th flagged INVALID by the source: 392 scored, the same for both.
+    assert_eq!(frames["values"]["mine"], 392.0);
+    assert_eq!(frames["values"]["theirs"], 392.0);
     assert!(std::fs::metadata(out_dir.join("compare.rrd")).is_ok_and(|m| m.len() > 0));
     let left = sb.leftovers();
     assert!(left.is_empty(), "{left:?}");

@@ -26,10 +26,12 @@ pub struct Variant {
     pub graph: Graph,
 }
 
-/// Where the combined graph's sinks write.
+/// The combined graph's sinks: where they write and how the viewer lays the variants out.
 pub struct SinkPaths {
     pub mcap: String,
     pub rrd: String,
+    /// All variants in one 3D view instead of one view each.
+    pub overlaid: bool,
 }
 
 /// How a variant's outputs appear in the combined graph.
@@ -258,8 +260,13 @@ pub fn combine(
         .join(", ");
     let _ = writeln!(
         text,
-        "\n[stages.viz]\nkind = \"rerun-logger\"\ninputs = {{ {inline_inputs} }}\nparams = {{ path = {} }}",
-        quote(&sinks.rrd)
+        "\n[stages.viz]\nkind = \"rerun-logger\"\ninputs = {{ {inline_inputs} }}\nparams = {{ path = {}, views = {} }}",
+        quote(&sinks.rrd),
+        quote(if sinks.overlaid {
+            "overlaid"
+        } else {
+            "side-by-side"
+        })
     );
     let _ = writeln!(
         text,

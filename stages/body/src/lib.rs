@@ -11,7 +11,6 @@
 //! - [`imu_synthesis`]: synthetic IMU signals (orientation, acceleration, angular velocity) with a seeded
 //!   augmentation model, for training and the imu-source stage.
 //! - [`npz`]: AMASS-style `.npz` motion import and export (Z-up SMPL `trans` ↔ Y-up root position).
-//! - [`metrics`]: evaluation metrics (SIP, angle and position errors, jitter, foot contact).
 //! - [`dynamics`]: floating-base rigid-body dynamics (mass matrix, bias forces, inverse/forward dynamics,
 //!   point Jacobians) in GlobalPose's singularity-free coordinates; [`urdf`]: the same model as URDF.
 
@@ -26,7 +25,6 @@ pub mod bvh;
 pub mod dynamics;
 pub mod imu_synthesis;
 pub mod kinematics;
-pub mod metrics;
 pub mod npz;
 pub mod retarget;
 pub mod rotation;

@@ -139,7 +139,8 @@ pub struct Shard<'a> {
 }
 
 impl<'a> Shard<'a> {
-    pub(crate) fn parse(bytes: &'a [u8]) -> anyhow::Result<Shard<'a>> {
+    /// Parses one shard file's bytes (safetensors, as `imuflow dataset build` writes them).
+    pub fn parse(bytes: &'a [u8]) -> anyhow::Result<Shard<'a>> {
         let (_, header) = SafeTensors::read_metadata(bytes).context("safetensors header")?;
         let metadata = header
             .metadata()
@@ -187,6 +188,17 @@ impl<'a> Shard<'a> {
             bail!("clip_offsets do not span the shard's {frames} frames");
         }
         Ok(shard)
+    }
+
+    /// Where each sequence starts, and the frame count last: sequence `s` is frames
+    /// `offsets[s]..offsets[s + 1]` (checked on parsing to span the shard).
+    pub fn offsets(&self) -> &[usize] {
+        &self.offsets
+    }
+
+    /// The shard's `imuflow` metadata (clip names, augmentation per sequence), when present.
+    pub fn metadata(&self) -> Option<&serde_json::Value> {
+        self.metadata.as_ref()
     }
 
     pub fn imu(&self, f: usize) -> ImuInput {

@@ -10,7 +10,6 @@
 pub mod bench;
 pub mod data;
 pub mod error;
-pub mod eval;
 pub mod features;
 pub mod import;
 pub mod infer;

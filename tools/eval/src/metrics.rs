@@ -11,11 +11,11 @@
 
 use nalgebra::{Rotation3, Vector3};
 
-use crate::kinematics::{FkData, Pose};
-use crate::rotation::angle_between;
-use crate::skeleton::{JointId, NUM_JOINTS, SIP_JOINTS};
+use imuflow_body::kinematics::{FkData, Pose};
+use imuflow_body::rotation::angle_between;
+use imuflow_body::skeleton::{JointId, NUM_JOINTS, SIP_JOINTS};
 
-pub use crate::skeleton::IGNORED_JOINTS;
+pub use imuflow_body::skeleton::IGNORED_JOINTS;
 
 /// GlobalPose's ignored mask: the reduced protocol's without the root (reference §6).
 pub const GLOBALPOSE_IGNORED_JOINTS: [JointId; 8] = [
@@ -81,6 +81,23 @@ pub fn joint_position_error_m(predicted: &FkData, truth: &FkData) -> f64 {
         .map(|j| (predicted.position(j) + shift - truth.position(j)).norm())
         .sum();
     sum / NUM_JOINTS as f64
+}
+
+/// Per joint (m): ‖p_pred + (root_truth − root_pred) − p_truth‖, the terms [`joint_position_error_m`]
+/// averages (root-position aligned: the root's entry is 0).
+pub fn per_joint_position_error_m(predicted: &FkData, truth: &FkData) -> [f64; NUM_JOINTS] {
+    let shift = truth.position(JointId::ROOT) - predicted.position(JointId::ROOT);
+    std::array::from_fn(|j| {
+        (predicted.joint_in_world_m[j] + shift - truth.joint_in_world_m[j]).norm()
+    })
+}
+
+/// Per joint (degrees): the geodesic angle between the predicted and true global rotations, the terms
+/// [`global_angle_error_deg`] averages.
+pub fn per_joint_angle_error_deg(predicted: &FkData, truth: &FkData) -> [f64; NUM_JOINTS] {
+    std::array::from_fn(|j| {
+        angle_between(&predicted.world_from_joint[j], &truth.world_from_joint[j]).to_degrees()
+    })
 }
 
 /// Jitter (km/s³): mean over frames t ∈ [0, N−4] and all joints of the finite-difference jerk
@@ -220,10 +237,10 @@ pub fn ground_penetration_m(positions: &[[Vector3<f64>; NUM_JOINTS]], floor_y_m:
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::body_model::{BodyModel, BodyParams};
-    use crate::kinematics::forward_kinematics;
-    use crate::rotation::Axis;
     use approx::assert_relative_eq;
+    use imuflow_body::kinematics::forward_kinematics;
+    use imuflow_body::rotation::Axis;
+    use imuflow_body::{BodyModel, BodyParams};
 
     #[test]
     fn root_jitter_of_a_cubic_is_its_third_derivative() {
@@ -325,6 +342,37 @@ mod tests {
             joint_position_error_m(&fk(&body, &pred), &fk(&body, &truth)),
             2.0 * f / 24.0,
             epsilon = 1e-12
+        );
+    }
+
+    #[test]
+    fn per_joint_errors_average_to_the_frame_errors() {
+        let body = body();
+        let truth = Pose::t_pose(Vector3::new(0.0, 1.0, 0.0));
+        let mut pred = truth.clone();
+        pred.root_in_world_m += Vector3::new(0.3, 0.0, -0.2);
+        pred.parent_from_joint[JointId::RIGHT_KNEE.index()] = Axis::X.rotation(0.5);
+        pred.parent_from_joint[JointId::SPINE1.index()] = Axis::Z.rotation(-0.2);
+        let (p, t) = (fk(&body, &pred), fk(&body, &truth));
+        let position = per_joint_position_error_m(&p, &t);
+        let angle = per_joint_angle_error_deg(&p, &t);
+        assert_eq!(position[JointId::ROOT.index()], 0.0);
+        assert!(position[JointId::RIGHT_ANKLE.index()] > 0.1);
+        assert_relative_eq!(position[JointId::LEFT_ANKLE.index()], 0.0, epsilon = 1e-12);
+        assert_relative_eq!(
+            position.iter().sum::<f64>() / 24.0,
+            joint_position_error_m(&p, &t),
+            epsilon = 1e-12
+        );
+        assert_relative_eq!(
+            angle.iter().sum::<f64>() / 24.0,
+            global_angle_error_deg(&p, &t),
+            epsilon = 1e-9
+        );
+        assert_relative_eq!(
+            angle[JointId::RIGHT_KNEE.index()],
+            0.5f64.to_degrees(),
+            epsilon = 1e-9
         );
     }
 

@@ -7,32 +7,78 @@
 //! identity in prediction and truth; SIP and global angle error (degrees), joint position error (cm),
 //! jitter of the predicted joints (km/s³, PIP's unit), next to the truth's own jitter.
 
-use std::path::Path;
+use std::fmt;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
 use imuflow_body::kinematics::{FkData, forward_kinematics};
-use imuflow_body::metrics::{
+use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
+use imuflow_kinematics::Method;
+use imuflow_kinematics::data::{FPS, pose_of};
+use imuflow_kinematics::infer::Streamer;
+use imuflow_kinematics::weights::Weights;
+use nalgebra::Vector3;
+
+use crate::metrics::{
     IGNORED_JOINTS, apply_ignored_joints, global_angle_error_deg, jitter_km_per_s3,
     joint_position_error_m, sip_error_deg,
 };
-use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
-use indicatif::{ProgressBar, ProgressStyle};
-use nalgebra::Vector3;
+use crate::test_split::{Copies, for_each_test_sequence, sequence_bar};
 
-use crate::data::{FPS, Shard, pose_of, shard_files};
-use crate::infer::Streamer;
-use crate::method::Method;
-use crate::weights::Weights;
+/// What `imuflow eval` evaluates.
+#[derive(Clone, Debug)]
+pub struct NetsEval {
+    /// The dataset folder (`imuflow dataset build --out`); its test shards are used.
+    pub data: PathBuf,
+    /// The methods to evaluate with their weight files, in table order.
+    pub weights: Vec<(Method, PathBuf)>,
+    pub copies: Copies,
+    /// At most this many sequences per method.
+    pub limit: usize,
+    /// Show a progress bar per method.
+    pub progress: bool,
+}
 
-/// Which copies of each test clip to evaluate.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Copies {
-    /// The noise-free synthesis.
-    Ideal,
-    /// With the reference augmentation (mounting error, noise, bias walks, heading drift).
-    Augmented,
-    All,
+/// Every method's scores on the test split, as `imuflow eval` prints them ([`fmt::Display`]).
+#[derive(Clone, Debug)]
+pub struct NetsReport {
+    pub data: PathBuf,
+    pub copies: Copies,
+    pub rows: Vec<(Method, Scores)>,
+}
+
+/// Evaluates every method of `options` in turn.
+pub fn run(options: &NetsEval) -> anyhow::Result<NetsReport> {
+    let mut rows = Vec::with_capacity(options.weights.len());
+    for (method, weights) in &options.weights {
+        let scores = evaluate(
+            *method,
+            weights,
+            &options.data,
+            options.copies,
+            options.limit,
+            options.progress,
+        )?;
+        rows.push((*method, scores));
+    }
+    Ok(NetsReport {
+        data: options.data.clone(),
+        copies: options.copies,
+        rows,
+    })
+}
+
+impl fmt::Display for NetsReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "test split of {} ({} copies; reduced protocol, reference §6)",
+            self.data.display(),
+            self.copies.name()
+        )?;
+        f.write_str(&table(&self.rows))
+    }
 }
 
 /// Scores of one method.
@@ -107,82 +153,10 @@ pub fn evaluate(
     })
 }
 
-/// The progress bar of one pass over the test split (hidden unless `show`).
-pub fn sequence_bar(label: &str, show: bool) -> ProgressBar {
-    if !show {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(0);
-    bar.set_style(
-        ProgressStyle::with_template(&format!(
-            "{label} {{bar:30}} {{pos}}/{{len}} sequences [{{elapsed}} < {{eta}}]"
-        ))
-        .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    bar
-}
-
-/// Calls `f(shard, a, b)` for every sequence (frames `a..b` of its shard) of the test split in
-/// `data` with the chosen copies and at least `min_frames` frames, at most `limit` of them, advancing
-/// `bar`. Returns how many were visited; an error names the shard and the sequence.
-pub fn for_each_test_sequence(
-    data: &Path,
-    copies: Copies,
-    min_frames: usize,
-    limit: usize,
-    bar: &ProgressBar,
-    mut f: impl FnMut(&Shard, usize, usize) -> anyhow::Result<()>,
-) -> anyhow::Result<usize> {
-    let mut visited = 0;
-    for file in shard_files(data, "test")? {
-        let bytes = std::fs::read(&file).with_context(|| format!("reading {}", file.display()))?;
-        let shard = Shard::parse(&bytes).with_context(|| format!("shard {}", file.display()))?;
-        let augmented = sequence_flags(&shard);
-        bar.inc_length((shard.offsets.len() - 1) as u64);
-        for s in 0..shard.offsets.len() - 1 {
-            bar.inc(1);
-            let keep = match copies {
-                Copies::All => true,
-                Copies::Ideal => !augmented.get(s).copied().unwrap_or(false),
-                Copies::Augmented => augmented.get(s).copied().unwrap_or(true),
-            };
-            let (a, b) = (shard.offsets[s], shard.offsets[s + 1]);
-            if !keep || b - a < min_frames {
-                continue;
-            }
-            f(&shard, a, b).with_context(|| format!("{}: sequence {s}", file.display()))?;
-            visited += 1;
-            if visited >= limit {
-                return Ok(visited);
-            }
-        }
-    }
-    Ok(visited)
-}
-
 fn positions(fk: &FkData) -> [Vector3<f64>; NUM_JOINTS] {
     std::array::from_fn(|j| {
         *fk.position(imuflow_body::JointId::from_index(j).unwrap_or(imuflow_body::JointId::ROOT))
     })
-}
-
-/// Per sequence of a shard: whether it is an augmented copy (from the shard metadata).
-fn sequence_flags(shard: &Shard) -> Vec<bool> {
-    shard
-        .metadata
-        .as_ref()
-        .and_then(|m| m.get("sequences"))
-        .and_then(|s| s.as_array())
-        .map(|seqs| {
-            seqs.iter()
-                .map(|s| {
-                    s.get("augmented")
-                        .and_then(|a| a.as_bool())
-                        .unwrap_or(false)
-                })
-                .collect()
-        })
-        .unwrap_or_default()
 }
 
 /// The table `imuflow eval` prints.

@@ -1,0 +1,100 @@
+//! `imuflow eval` and `imuflow eval-physics`: their command lines (the work is in imuflow-eval).
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+use imuflow_eval::nets::{self, NetsEval};
+use imuflow_eval::physics::{self, PhysicsEval};
+use imuflow_eval::test_split::Copies;
+use imuflow_kinematics::Method;
+
+/// Options of `imuflow eval`.
+#[derive(Args)]
+pub struct EvalArgs {
+    /// The dataset folder (`imuflow dataset build --out`); its test shards are used.
+    #[arg(long, value_name = "DIR")]
+    data: PathBuf,
+    /// PIP weights ("none" to skip).
+    #[arg(long, value_name = "FILE", default_value = "models/pip.safetensors")]
+    pip: String,
+    /// GlobalPose weights ("none" to skip).
+    #[arg(
+        long,
+        value_name = "FILE",
+        default_value = "models/globalpose.safetensors"
+    )]
+    globalpose: String,
+    /// Which copies of each test clip: ideal, augmented (sensor noise and mounting errors) or all.
+    #[arg(long, default_value = "augmented", value_parser = Copies::NAMES)]
+    copies: String,
+    /// Evaluate at most this many sequences per method.
+    #[arg(long, default_value_t = usize::MAX)]
+    limit: usize,
+    /// Don't show progress bars.
+    #[arg(long)]
+    no_progress: bool,
+}
+
+pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
+    let options = NetsEval {
+        data: args.data,
+        weights: [
+            (Method::Pip, &args.pip),
+            (Method::GlobalPose, &args.globalpose),
+        ]
+        .into_iter()
+        .filter(|(_, weights)| *weights != "none")
+        .map(|(method, weights)| (method, PathBuf::from(weights)))
+        .collect(),
+        copies: Copies::parse(&args.copies).unwrap_or(Copies::Augmented),
+        limit: args.limit,
+        progress: !args.no_progress,
+    };
+    print!("{}", nets::run(&options)?);
+    Ok(())
+}
+
+/// Options of `imuflow eval-physics`.
+#[derive(Args)]
+pub struct EvalPhysicsArgs {
+    /// The dataset folder (`imuflow dataset build --out`); its test shards are used.
+    #[arg(long, value_name = "DIR")]
+    data: PathBuf,
+    /// Which kinematics networks feed the physics: pip or globalpose.
+    #[arg(long, default_value = "globalpose", value_parser = ["pip", "globalpose"])]
+    net: String,
+    /// Their weights (default: models/<net>.safetensors).
+    #[arg(long, value_name = "FILE")]
+    weights: Option<PathBuf>,
+    /// Methods to compare (comma-separated): integrate, pip, globalpose.
+    #[arg(
+        long,
+        default_value = "integrate,pip,globalpose",
+        value_delimiter = ','
+    )]
+    methods: Vec<String>,
+    /// Evaluate at most this many sequences.
+    #[arg(long, default_value_t = usize::MAX)]
+    limit: usize,
+    /// Also track every method's output (and the truth) with the validation stage's simulation.
+    #[arg(long)]
+    validate: bool,
+    /// Don't show the progress bar.
+    #[arg(long)]
+    no_progress: bool,
+}
+
+pub fn eval_physics(args: EvalPhysicsArgs) -> anyhow::Result<()> {
+    let options = PhysicsEval {
+        data: args.data,
+        net: Method::parse(&args.net).context("unknown net")?,
+        weights: args.weights,
+        methods: args.methods,
+        limit: args.limit,
+        validate: args.validate,
+        progress: !args.no_progress,
+    };
+    print!("{}", physics::evaluate(&options)?);
+    Ok(())
+}

@@ -1,0 +1,17 @@
+//! imuflow-eval: evaluation in one place (a library, no process). See `README.md` in this crate.
+//!
+//! - [`metrics`]: the pose and motion metrics and their protocols (reference §6): SIP, angle and
+//!   joint position errors, jitter, translation error and drift, foot skating, ground penetration.
+//! - [`test_split`]: the dataset's test split, sequence by sequence.
+//! - [`nets`]: `imuflow eval`, the kinematics nets on the test split.
+//! - [`physics`]: `imuflow eval-physics`, the physics methods on the test split.
+//! - [`compare`]: the report of `imuflow compare` (tables, results.json, plots).
+//! - [`score`]: scores of recorded streams (motion against truth, without truth, two estimates
+//!   against each other, validation), and a paired bootstrap for A/B differences.
+
+pub mod compare;
+pub mod metrics;
+pub mod nets;
+pub mod physics;
+pub mod score;
+pub mod test_split;
