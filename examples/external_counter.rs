@@ -17,7 +17,9 @@
 //! the tests prove that `imuflow compare` gives every variant identical input.
 //!
 //! `args = ["--fail-at", "N"]` makes it fail (exit code 3) after publishing frame N, for the tests
-//! of failure policies.
+//! of failure policies. `args = ["--bend-knee-deg", "D"]` bends the left knee of its pose by D
+//! degrees (about the knee's x axis), a variant that is worse by construction for the comparison
+//! tests.
 
 use imuflow_graph::StageContext;
 use imuflow_graph::frames::{ImuFrame, MotionFrame, flags};
@@ -37,11 +39,22 @@ fn run() -> anyhow::Result<()> {
     let imu = ctx.input::<ImuFrame>("imu")?;
     let prev = ctx.input::<MotionFrame>("prev")?;
     let mut out = ctx.output::<MotionFrame>("count")?;
-    let fail_at: Option<u64> = match std::env::args().skip(1).collect::<Vec<_>>().as_slice() {
-        [] => None,
-        [flag, n] if flag == "--fail-at" => Some(n.parse()?),
-        other => anyhow::bail!("unknown arguments {other:?} (expected --fail-at N)"),
-    };
+    let mut fail_at: Option<u64> = None;
+    let mut bend_knee_deg = 0.0f32;
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    for pair in args.chunks(2) {
+        match pair {
+            [flag, n] if flag == "--fail-at" => fail_at = Some(n.parse()?),
+            [flag, d] if flag == "--bend-knee-deg" => bend_knee_deg = d.parse()?,
+            other => anyhow::bail!(
+                "unknown arguments {other:?} (expected --fail-at N, --bend-knee-deg D)"
+            ),
+        }
+    }
+    // SMPL joint 4: the left knee.
+    const LEFT_KNEE: usize = 4;
+    let half = bend_knee_deg.to_radians() / 2.0;
+    let knee = [half.cos(), half.sin(), 0.0, 0.0];
     if ctx.ready()? {
         while let Some(step) = ctx.next()? {
             let last = ctx.get(&prev);
@@ -59,6 +72,7 @@ fn run() -> anyhow::Result<()> {
                 for q in &mut m.local_pose_wxyz {
                     q[0] = 1.0;
                 }
+                m.local_pose_wxyz[LEFT_KNEE] = knee;
                 m.q[0] = count;
                 m.q[1] = valid_imus;
                 m.q[2] = checksum as f32;

@@ -10,6 +10,8 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::Args;
+use imuflow_dataset::Split;
+use imuflow_eval::compare::batch::{self, BatchOptions};
 use imuflow_graph::Graph;
 use imuflow_graph::combine::{self, Combined, SinkPaths, Variant};
 use imuflow_graph::launch::{self, LaunchOptions};
@@ -18,23 +20,43 @@ use crate::registry;
 
 #[derive(Args)]
 pub struct CompareArgs {
-    /// Variant graph files (two or more), e.g. configs/pip.toml configs/globalpose.toml.
-    #[arg(required = true, num_args = 2..)]
+    /// Variant graph files (two or more), e.g. configs/pip.toml configs/globalpose.toml, or
+    /// ablation files listing variants (configs/ab/physics.toml).
+    #[arg(required = true, num_args = 1..)]
     variants: Vec<PathBuf>,
+    /// Batch mode: every .bvh clip of a dataset split under DIR (the directory `imuflow dataset
+    /// build --bvh-dir` reads, split the same way) through all variants; reports means over clips
+    /// and paired differences with 95 % bootstrap intervals. Resumes an interrupted batch in --out.
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["input", "print_graph", "overlaid"])]
+    data: Option<PathBuf>,
+    /// Batch mode: which split of --data.
+    #[arg(long, default_value = "test", value_parser = ["train", "validation", "test"], requires = "data")]
+    split: String,
+    /// Batch mode: at most N clips, spread evenly over the split's sorted clips.
+    #[arg(long, value_name = "N", requires = "data")]
+    limit: Option<usize>,
+    /// Batch mode: discard the results of an earlier batch in --out instead of resuming it.
+    #[arg(long, requires = "data")]
+    fresh: bool,
+    /// Batch mode: keep every clip's recording (--out/recordings/); deleted once scored otherwise.
+    #[arg(long, requires = "data")]
+    keep_recordings: bool,
     /// Replace the source: an .mcap recording (replayed) or a .bvh motion (six IMUs synthesized
     /// with the reference sensor errors, a T-pose + walk calibration prelude and the true pose).
     /// Default: the first variant's source (the bundled sample in configs/).
     #[arg(long, value_name = "FILE")]
     input: Option<PathBuf>,
-    /// With a .bvh --input: the joint-mapping TOML of its skeleton (default: Bandai Namco).
-    #[arg(long, value_name = "FILE", requires = "input")]
+    /// With a .bvh --input or --data: the joint-mapping TOML of the skeleton (default: Bandai Namco).
+    #[arg(long, value_name = "FILE")]
     mapping: Option<PathBuf>,
-    /// Name of the comparison (the graph's name and its files' stem).
-    #[arg(long, default_value = "compare")]
-    name: String,
-    /// Where the combined graph, recording, report and plots go.
-    #[arg(long, value_name = "DIR", default_value = "out/compare")]
-    out: PathBuf,
+    /// Name of the comparison (the graph's name and its files' stem; default: the ablation
+    /// file's name, or "compare").
+    #[arg(long)]
+    name: Option<String>,
+    /// Where the combined graph, recording, report and plots go (default: out/<name>, or
+    /// out/<name>-<split> in batch mode).
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
     /// Print the combined graph (TOML) and exit without running it.
     #[arg(long)]
     print_graph: bool,
@@ -59,30 +81,85 @@ pub fn run(args: CompareArgs) -> ExitCode {
     }
 }
 
+/// A variant to load: its name, graph file and overrides.
+struct VariantSource {
+    name: String,
+    graph: PathBuf,
+    sets: Vec<String>,
+}
+
+/// The command line's files as variants: a graph file is one variant, an ablation file
+/// (configs/ab/) its `[[variant]]`s. Also returns the single ablation file's name, if that is all.
+fn variant_sources(files: &[PathBuf]) -> anyhow::Result<(Vec<VariantSource>, Option<String>)> {
+    let mut sources: Vec<VariantSource> = Vec::new();
+    let mut ablation_names = Vec::new();
+    for path in files {
+        match combine::read_ablation(path)? {
+            Some(ablation) => {
+                ablation_names.push(ablation.name);
+                for v in ablation.variants {
+                    sources.push(VariantSource {
+                        name: v.name,
+                        graph: v.graph,
+                        sets: v.set,
+                    });
+                }
+            }
+            None => sources.push(VariantSource {
+                name: variant_name(path),
+                graph: path.clone(),
+                sets: Vec::new(),
+            }),
+        }
+    }
+    if sources.len() < 2 {
+        anyhow::bail!(
+            "compare needs two or more variants: graph files, or an ablation file (configs/ab/) that lists them"
+        );
+    }
+    let name = (files.len() == 1).then(|| ablation_names.pop()).flatten();
+    Ok((sources, name))
+}
+
 fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
     let registry = registry::registry();
+    let (sources, ablation_name) = variant_sources(&args.variants)?;
     let mut variants = Vec::new();
-    for path in &args.variants {
-        let graph = match Graph::load(path, &[], &registry) {
+    for source in &sources {
+        let graph = match Graph::load(&source.graph, &source.sets, &registry) {
             Ok(g) => g,
             Err(e) => {
                 eprintln!("error: {e}");
                 return Ok(ExitCode::from(2));
             }
         };
-        let name = unique_name(&variant_name(path), &variants);
+        let name = unique_name(&source.name, &variants);
         variants.push(Variant { name, graph });
     }
-    if let Some(input) = &args.input {
-        replace_source(&mut variants[0].graph, input, args.mapping.as_deref())?;
+    let name = args
+        .name
+        .clone()
+        .or(ablation_name)
+        .unwrap_or_else(|| "compare".to_owned());
+
+    if let Some(data) = &args.data {
+        return batch(args, &name, &sources, data, &variants, &registry);
     }
-    let stem = args.out.join(&args.name);
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("out/{name}")));
+    if let Some(input) = &args.input {
+        combine::replace_source(&mut variants[0].graph, input, args.mapping.as_deref())
+            .context("--input")?;
+    }
+    let stem = out.join(&name);
     let sinks = SinkPaths {
         mcap: stem.with_extension("mcap").display().to_string(),
-        rrd: stem.with_extension("rrd").display().to_string(),
+        rrd: Some(stem.with_extension("rrd").display().to_string()),
         overlaid: args.overlaid,
     };
-    let combined = match combine::combine(&args.name, &variants, &sinks) {
+    let combined = match combine::combine(&name, &variants, &sinks) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("error: cannot compare: {e}");
@@ -96,8 +173,7 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
     for note in &combined.notes {
         eprintln!("note: {note}");
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let graph_path = stem.with_extension("toml");
     std::fs::write(&graph_path, &combined.text)
         .with_context(|| format!("cannot write {}", graph_path.display()))?;
@@ -131,7 +207,7 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
     println!(
         "wrote {} (graph), {} and {}",
         graph_path.display(),
-        sinks.rrd,
+        sinks.rrd.as_deref().unwrap_or_default(),
         sinks.mcap
     );
     if report.interrupted {
@@ -139,8 +215,8 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::from(130));
     }
     let written = imuflow_eval::compare::write(
-        &args.name,
-        &args.out,
+        &name,
+        &out,
         Path::new(&sinks.mcap),
         &combined,
         &report,
@@ -148,6 +224,89 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
     )
     .context("cannot write the report")?;
     println!("report: {}", written.display());
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Batch mode: the variants over every clip of a dataset split (imuflow_eval::compare::batch).
+fn batch(
+    args: &CompareArgs,
+    name: &str,
+    sources: &[VariantSource],
+    data: &Path,
+    variants: &[Variant],
+    registry: &imuflow_graph::spec::Registry,
+) -> anyhow::Result<ExitCode> {
+    let split = match args.split.as_str() {
+        "train" => Split::Train,
+        "validation" => Split::Validation,
+        _ => Split::Test,
+    };
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("out/{name}-{split}")));
+    // Refuse incomparable variants before the first clip, as a single comparison does.
+    let probe = SinkPaths {
+        mcap: String::new(),
+        rrd: None,
+        overlaid: false,
+    };
+    if let Err(e) = combine::combine(name, variants, &probe) {
+        eprintln!("error: cannot compare: {e}");
+        return Ok(ExitCode::from(2));
+    }
+    // The variants' files identify the comparison: a resumed batch must run the same graphs.
+    let mut fingerprint = String::new();
+    for source in sources {
+        let path = &source.graph;
+        let mut text =
+            std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+        text.extend(source.sets.join("\n").bytes());
+        fingerprint.push_str(&format!("{:016x}", imuflow_dataset::fnv1a64(&text)));
+    }
+    if let Some(m) = &args.mapping {
+        let text = std::fs::read(m).with_context(|| format!("cannot read {}", m.display()))?;
+        fingerprint.push_str(&format!("{:016x}", imuflow_dataset::fnv1a64(&text)));
+    }
+    let options = BatchOptions {
+        name: name.to_owned(),
+        out: out.clone(),
+        data: data.to_owned(),
+        split,
+        limit: args.limit,
+        mapping: args.mapping.clone(),
+        imuflow_exe: std::env::current_exe().context("cannot find the imuflow executable")?,
+        progress: !args.no_progress,
+        keep_recordings: args.keep_recordings,
+        fresh: args.fresh,
+        fingerprint,
+        command: std::env::args()
+            .enumerate()
+            .map(|(i, a)| if i == 0 { "imuflow".to_owned() } else { a })
+            .collect::<Vec<_>>()
+            .join(" "),
+    };
+    let outcome = batch::run(variants, registry, &options)?;
+    println!(
+        "{} clips scored, {} not scored; report: {}",
+        outcome.scored,
+        outcome.failed,
+        outcome.report.display()
+    );
+    if outcome.remaining > 0 {
+        eprintln!(
+            "stopped by the user with {} clips not run; run the same command again to resume",
+            outcome.remaining
+        );
+        return Ok(ExitCode::from(130));
+    }
+    if outcome.scored == 0 {
+        eprintln!(
+            "error: no clip could be scored (reasons in {})",
+            outcome.report.display()
+        );
+        return Ok(ExitCode::FAILURE);
+    }
     Ok(ExitCode::SUCCESS)
 }
 
@@ -200,60 +359,4 @@ fn unique_name(name: &str, earlier: &[Variant]) -> String {
         .map(|i| format!("{name}-{i}"))
         .find(|n| !taken(n))
         .expect("some suffix is free")
-}
-
-/// Points the first variant's source at `input`: an mcap replay, or IMUs synthesized from a BVH.
-fn replace_source(graph: &mut Graph, input: &Path, mapping: Option<&Path>) -> anyhow::Result<()> {
-    if !input.is_file() {
-        anyhow::bail!("--input {}: no such file", input.display());
-    }
-    let source = graph
-        .stages
-        .values_mut()
-        .find(|n| n.role == imuflow_graph::spec::Role::Source)
-        .context("the first variant has no source")?;
-    if source.runner
-        != (imuflow_graph::graph::Runner::Builtin {
-            kind: "imu-source".into(),
-        })
-    {
-        anyhow::bail!(
-            "--input replaces an imu-source, but the first variant's source '{}' is {}",
-            source.id,
-            source.kind_label()
-        );
-    }
-    let path = toml::Value::String(input.display().to_string());
-    let extension = input
-        .extension()
-        .map(|e| e.to_string_lossy().to_lowercase())
-        .unwrap_or_default();
-    let mut params = toml::Table::new();
-    match extension.as_str() {
-        "mcap" => {
-            params.insert("mode".into(), "replay".into());
-            params.insert("path".into(), path);
-        }
-        "bvh" => {
-            // What a real session looks like to the calibrations: a T-pose hold and a few steps
-            // first, sensors mounted at random, the reference noise, a z-up inertial frame.
-            params.insert("mode".into(), "synthesize".into());
-            params.insert("path".into(), path);
-            params.insert("prelude".into(), "tpose+walk".into());
-            params.insert("augment".into(), true.into());
-            params.insert("mounting".into(), "random".into());
-            params.insert("frame".into(), "z-up".into());
-            // The facing the shipped graphs' T-pose calibration assumes (`heading_deg = 30.0`).
-            params.insert("frame_heading_deg".into(), 30.0.into());
-            if let Some(m) = mapping {
-                params.insert("mapping".into(), m.display().to_string().into());
-            }
-        }
-        other => anyhow::bail!(
-            "--input {}: expected an .mcap recording or a .bvh motion (got '.{other}')",
-            input.display()
-        ),
-    }
-    source.params = params;
-    Ok(())
 }

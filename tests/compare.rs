@@ -191,3 +191,208 @@ params = {{ path = "{{dir}}/{name}.mcap" }}
     let left = sb.leftovers();
     assert!(left.is_empty(), "{left:?}");
 }
+
+/// `n` file names whose clip keys fall in `split` (the dataset's hash rule).
+fn names_in_split(n: usize, split: imuflow_dataset::Split) -> Vec<String> {
+    (0..)
+        .map(|i| format!("clip_{i:03}.bvh"))
+        .filter(|name| imuflow_dataset::split_of(name) == split)
+        .take(n)
+        .collect()
+}
+
+#[test]
+fn batch_mode_scores_every_clip_pairs_the_variants_and_resumes() {
+    let sb = Sandbox::new("compare-batch");
+    let root = env!("CARGO_MANIFEST_DIR");
+    let counter = example_exe("external_counter");
+    // Five clips of the test split (a real Bandai walk, enough clips for an interval) and one
+    // malformed clip in it.
+    let data = sb.path("clips");
+    std::fs::create_dir_all(&data).expect("clips dir");
+    let names = names_in_split(6, imuflow_dataset::Split::Test);
+    let walk = format!("{root}/stages/body/tests/fixtures/bandai-walk-normal-trimmed.bvh");
+    for name in &names[..5] {
+        std::fs::copy(&walk, data.join(name)).expect("copy clip");
+    }
+    let broken = &names[5];
+    std::fs::write(data.join(broken), "HIERARCHY\nROOT broken {\n").expect("write clip");
+    // A training clip the test split must not pick up.
+    let train = names_in_split(1, imuflow_dataset::Split::Train);
+    std::fs::write(data.join(&train[0]), "not read").expect("write clip");
+    let variant = |name: &str, args: &str| {
+        sb.graph(
+            &format!("{name}.toml"),
+            &format!(
+                r#"
+name = "{name}"
+[stages.source]
+kind = "imu-source"
+params = {{ mode = "replay", path = "{root}/models/sample/walk.mcap" }}
+[stages.counter]
+exec = "{}"
+args = {args}
+inputs = {{ imu = "source.imu", prev = "counter.count", feedback = ["prev"] }}
+outputs = {{ count = "MotionFrame" }}
+[stages.record]
+kind = "recorder"
+inputs = {{ motion = "counter.count", truth = "source.truth" }}
+params = {{ path = "{{dir}}/{name}.mcap" }}
+"#,
+                counter.display()
+            ),
+        )
+    };
+    // The same user stage, once with its left knee bent 90°: worse on every clip by construction.
+    let straight = variant("straight", "[]");
+    let bent = variant("bent", r#"["--bend-knee-deg", "90"]"#);
+    let out_dir = sb.path("batch");
+    let args = [
+        "compare",
+        straight.to_str().expect("utf8"),
+        bent.to_str().expect("utf8"),
+        "--data",
+        data.to_str().expect("utf8"),
+        "--out",
+        out_dir.to_str().expect("utf8"),
+        "--no-progress",
+    ];
+    let out = sb.run(&args);
+    let stderr = text(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        text(&out.stdout).contains("5 clips scored, 1 not scored"),
+        "{}",
+        text(&out.stdout)
+    );
+    assert!(
+        stderr.contains(&format!("clip {broken} not scored")),
+        "{stderr}"
+    );
+
+    let results: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out_dir.join("results.json")).expect("results.json"),
+    )
+    .expect("results.json is JSON");
+    assert_eq!(results["clips_scored"], 5);
+    assert_eq!(results["clips_failed"][0]["clip"], broken.as_str());
+    let error = results["metrics"]
+        .as_array()
+        .expect("metrics")
+        .iter()
+        .find(|m| m["metric"] == "joint position error")
+        .expect("joint position error");
+    let straight_mean = error["stats"][0]["mean"].as_f64().expect("mean");
+    let bent_mean = error["stats"][1]["mean"].as_f64().expect("mean");
+    assert_eq!(error["stats"][0]["n"], 5);
+    // Identical clips and input: each variant scores the same on both, so the spread is 0.
+    assert!(error["stats"][0]["std"].as_f64().expect("std") < 1e-9);
+    let pair = &error["pairs"][0];
+    let diff = pair["difference"]["mean_diff"].as_f64().expect("diff");
+    assert!(
+        (diff - (bent_mean - straight_mean)).abs() < 1e-9,
+        "the pair is bent − straight"
+    );
+    assert!(diff > 1.0, "a 90° knee bend costs more than 1 cm: {diff}");
+    assert!(pair["difference"]["ci95_low"].as_f64().expect("low") > 0.0);
+    let report = std::fs::read_to_string(out_dir.join("report.md")).expect("report.md");
+    assert!(
+        report.contains("| metric | straight | bent | clips |"),
+        "{report}"
+    );
+    assert!(report.contains("| metric | bent − straight |"), "{report}");
+    assert!(report.contains(&format!("`{broken}`")), "{report}");
+    assert!(out_dir.join("clip_errors.png").is_file());
+    // The recordings were scored and deleted; clips.jsonl holds a header and the three clips.
+    let log = std::fs::read_to_string(out_dir.join("clips.jsonl")).expect("clips.jsonl");
+    assert_eq!(log.lines().count(), 7, "{log}");
+    assert_eq!(
+        std::fs::read_dir(out_dir.join("recordings"))
+            .expect("recordings")
+            .count(),
+        0
+    );
+
+    // Run again: every clip is done, nothing runs, the same report comes out.
+    let again = sb.run(&args);
+    let stderr = text(&again.stderr);
+    assert!(again.status.success(), "{stderr}");
+    assert!(stderr.contains("resuming: 6 of 6 clips"), "{stderr}");
+    let report_again = std::fs::read_to_string(out_dir.join("report.md")).expect("report.md");
+    assert_eq!(report, report_again);
+
+    // Other variants into the same folder are refused rather than mixed.
+    let mut swapped = args;
+    swapped.swap(1, 2);
+    let refused = sb.run(&swapped);
+    assert!(!refused.status.success());
+    assert!(
+        text(&refused.stderr).contains("holds the results of another comparison"),
+        "{}",
+        text(&refused.stderr)
+    );
+    let left = sb.leftovers();
+    assert!(left.is_empty(), "{left:?}");
+}
+
+#[test]
+fn ablation_files_expand_into_variants_and_bad_ones_are_named() {
+    let sb = Sandbox::new("compare-ablation");
+    let root = env!("CARGO_MANIFEST_DIR");
+    for (file, variants) in [
+        (
+            "physics",
+            &["integrate", "pip-physics", "globalpose-physics"][..],
+        ),
+        ("nets", &["pip-nets", "globalpose-nets"][..]),
+        ("calibration", &["tpose", "walking"][..]),
+        ("full", &["pip", "globalpose", "no-physics"][..]),
+    ] {
+        let path = format!("{root}/configs/ab/{file}.toml");
+        let out = sb.run(&["compare", &path, "--print-graph"]);
+        assert!(out.status.success(), "{file}: {}", text(&out.stderr));
+        let combined = text(&out.stdout);
+        for v in variants {
+            assert!(
+                combined.contains(&format!("[stages.{v}-opt]")),
+                "{file}: {v}"
+            );
+        }
+        let graph = sb.graph(&format!("{file}.toml"), &combined);
+        let show = sb.run(&["graph", "show", graph.to_str().expect("utf8")]);
+        assert!(show.status.success(), "{file}: {}", text(&show.stderr));
+    }
+    // The nets ablation shares the calibration but not the networks; the overrides took effect.
+    let nets = text(
+        &sb.run(&[
+            "compare",
+            &format!("{root}/configs/ab/nets.toml"),
+            "--print-graph",
+        ])
+        .stdout,
+    );
+    assert!(nets.contains("[stages.calib]"), "{nets}");
+    assert!(nets.contains("[stages.pip-nets-kin]") && nets.contains("models/pip.safetensors"));
+
+    let bad = sb.graph(
+        "bad.toml",
+        "name = \"bad\"\n[[variant]]\nname = \"a b\"\ngraph = \"x.toml\"\n[[variant]]\nname = \"c\"\ngraph = \"y.toml\"\n",
+    );
+    let out = sb.run(&["compare", bad.to_str().expect("utf8"), "--print-graph"]);
+    assert!(!out.status.success());
+    let stderr = text(&out.stderr);
+    assert!(
+        stderr.contains("bad.toml") && stderr.contains("'a b'"),
+        "{stderr}"
+    );
+    let one = sb.graph(
+        "one.toml",
+        "name = \"one\"\n[[variant]]\nname = \"a\"\ngraph = \"x.toml\"\nsurprise = 1\n",
+    );
+    let out = sb.run(&["compare", one.to_str().expect("utf8"), "--print-graph"]);
+    let stderr = text(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("one.toml") && stderr.contains("surprise"),
+        "{stderr}"
+    );
+}

@@ -9,6 +9,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write;
+use std::path::Path;
 
 use crate::frames::FrameType;
 use crate::graph::{Graph, OnFailure, Runner, StageNode};
@@ -21,6 +22,7 @@ pub const GROUP_SEPARATOR: &str = "__";
 const REPLACED_SINKS: [&str; 2] = ["recorder", "rerun-logger"];
 
 /// One variant to compare: its name (an identifier) and its validated graph.
+#[derive(Clone)]
 pub struct Variant {
     pub name: String,
     pub graph: Graph,
@@ -29,7 +31,8 @@ pub struct Variant {
 /// The combined graph's sinks: where they write and how the viewer lays the variants out.
 pub struct SinkPaths {
     pub mcap: String,
-    pub rrd: String,
+    /// The rerun recording; `None` leaves the rerun logger out (batch runs score the mcap only).
+    pub rrd: Option<String>,
     /// All variants in one 3D view instead of one view each.
     pub overlaid: bool,
 }
@@ -258,16 +261,18 @@ pub fn combine(
         .map(|(k, v)| format!("{k} = {}", quote(v)))
         .collect::<Vec<_>>()
         .join(", ");
-    let _ = writeln!(
-        text,
-        "\n[stages.viz]\nkind = \"rerun-logger\"\ninputs = {{ {inline_inputs} }}\nparams = {{ path = {}, views = {} }}",
-        quote(&sinks.rrd),
-        quote(if sinks.overlaid {
-            "overlaid"
-        } else {
-            "side-by-side"
-        })
-    );
+    if let Some(rrd) = &sinks.rrd {
+        let _ = writeln!(
+            text,
+            "\n[stages.viz]\nkind = \"rerun-logger\"\ninputs = {{ {inline_inputs} }}\nparams = {{ path = {}, views = {} }}",
+            quote(rrd),
+            quote(if sinks.overlaid {
+                "overlaid"
+            } else {
+                "side-by-side"
+            })
+        );
+    }
     let _ = writeln!(
         text,
         "\n[stages.record]\nkind = \"recorder\"\ninputs = {{ {inline_inputs} }}\nparams = {{ path = {} }}",
@@ -280,6 +285,169 @@ pub fn combine(
         truth,
         notes,
     })
+}
+
+/// An ablation file (`configs/ab/*.toml`): a comparison as data. Each variant is a graph file
+/// (relative to the ablation file) plus `--set` overrides, so "GlobalPose with PIP's networks" is
+/// two lines, not a copy of a graph that drifts from the original.
+///
+/// ```toml
+/// name = "nets"
+/// description = "PIP's against GlobalPose's networks under GlobalPose's physics"
+///
+/// [[variant]]
+/// name = "pip-nets"
+/// graph = "../globalpose.toml"
+/// set = ["stages.kin.params.net=pip", "stages.kin.params.weights=models/pip.safetensors"]
+/// ```
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AblationFile {
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+    #[serde(rename = "variant")]
+    pub variants: Vec<AblationVariant>,
+}
+
+/// One variant of an ablation file.
+#[derive(Debug, Clone, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AblationVariant {
+    pub name: String,
+    /// The graph file; relative paths are resolved against the ablation file's folder.
+    pub graph: std::path::PathBuf,
+    /// Overrides in `--set` syntax (`stages.<id>.params.<key>=<value>`).
+    #[serde(default)]
+    pub set: Vec<String>,
+}
+
+/// Why an ablation file cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum AblationError {
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Invalid { path: String, message: String },
+}
+
+/// Reads `path` as an ablation file: `Ok(None)` when it is a graph file instead (no `[[variant]]`).
+pub fn read_ablation(path: &Path) -> Result<Option<AblationFile>, AblationError> {
+    let shown = path.display().to_string();
+    let invalid = |message: String| AblationError::Invalid {
+        path: shown.clone(),
+        message,
+    };
+    let text = std::fs::read_to_string(path).map_err(|source| AblationError::Io {
+        path: shown.clone(),
+        source,
+    })?;
+    // A graph file that does not parse is the graph loader's to report, with its own context.
+    let Ok(table) = text.parse::<toml::Table>() else {
+        return Ok(None);
+    };
+    if !table.contains_key("variant") {
+        return Ok(None);
+    }
+    let mut file: AblationFile = toml::from_str(&text).map_err(|e| invalid(e.to_string()))?;
+    if file.variants.len() < 2 {
+        return Err(invalid(format!(
+            "an ablation needs at least two [[variant]]s (got {})",
+            file.variants.len()
+        )));
+    }
+    let base = path.parent().unwrap_or(Path::new(""));
+    let mut seen = BTreeSet::new();
+    for v in &mut file.variants {
+        let valid = !v.name.is_empty()
+            && v.name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+        if !valid {
+            return Err(invalid(format!(
+                "variant name '{}' must be letters, digits, '_' or '-'",
+                v.name
+            )));
+        }
+        if !seen.insert(v.name.clone()) {
+            return Err(invalid(format!("variant '{}' is named twice", v.name)));
+        }
+        if v.graph.is_relative() {
+            v.graph = base.join(&v.graph);
+        }
+    }
+    Ok(Some(file))
+}
+
+/// Why an input cannot replace the source.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct InputError(String);
+
+/// Points the first variant's source at `input`: an mcap replay, or IMUs synthesized from a BVH.
+pub fn replace_source(
+    graph: &mut Graph,
+    input: &Path,
+    mapping: Option<&Path>,
+) -> Result<(), InputError> {
+    if !input.is_file() {
+        return Err(InputError(format!("{}: no such file", input.display())));
+    }
+    let source = graph
+        .stages
+        .values_mut()
+        .find(|n| n.role == Role::Source)
+        .ok_or_else(|| InputError("the first variant has no source".into()))?;
+    if source.runner
+        != (Runner::Builtin {
+            kind: "imu-source".into(),
+        })
+    {
+        return Err(InputError(format!(
+            "an input replaces an imu-source, but the first variant's source '{}' is {}",
+            source.id,
+            source.kind_label()
+        )));
+    }
+    let path = toml::Value::String(input.display().to_string());
+    let extension = input
+        .extension()
+        .map(|e| e.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    let mut params = toml::Table::new();
+    match extension.as_str() {
+        "mcap" => {
+            params.insert("mode".into(), "replay".into());
+            params.insert("path".into(), path);
+        }
+        "bvh" => {
+            // What a real session looks like to the calibrations: a T-pose hold and a few steps
+            // first, sensors mounted at random, the reference noise, a z-up inertial frame.
+            params.insert("mode".into(), "synthesize".into());
+            params.insert("path".into(), path);
+            params.insert("prelude".into(), "tpose+walk".into());
+            params.insert("augment".into(), true.into());
+            params.insert("mounting".into(), "random".into());
+            params.insert("frame".into(), "z-up".into());
+            // The facing the shipped graphs' T-pose calibration assumes (`heading_deg = 30.0`).
+            params.insert("frame_heading_deg".into(), 30.0.into());
+            if let Some(m) = mapping {
+                params.insert("mapping".into(), m.display().to_string().into());
+            }
+        }
+        other => {
+            return Err(InputError(format!(
+                "{}: expected an .mcap recording or a .bvh motion (got '.{other}')",
+                input.display()
+            )));
+        }
+    }
+    source.params = params;
+    Ok(())
 }
 
 fn prefixed(variant: &str, stage: &str) -> String {

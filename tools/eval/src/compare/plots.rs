@@ -278,3 +278,61 @@ fn latency(path: &Path, series: &[Series]) -> anyhow::Result<()> {
     root.present()?;
     Ok(())
 }
+
+/// The batch report's plot: each variant's per-clip values of one metric, sorted, against the
+/// fraction of clips (a quantile plot: a curve lower everywhere is better on every kind of clip,
+/// crossing curves mean each variant wins on some clips). Returns the file.
+pub fn clip_quantiles(
+    out: &Path,
+    file: &str,
+    metric: &str,
+    unit: &str,
+    per_variant: &[(String, Vec<f64>)],
+) -> anyhow::Result<PathBuf> {
+    register_font()?;
+    let path = out.join(file);
+    let root = BitMapBackend::new(&path, SIZE).into_drawing_area();
+    root.fill(&WHITE)?;
+    let v_max = per_variant
+        .iter()
+        .flat_map(|(_, v)| v.iter().copied())
+        .filter(|v| v.is_finite())
+        .fold(f64::MIN_POSITIVE, f64::max);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(format!("{metric} per clip, sorted"), ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(56)
+        .build_cartesian_2d(0.0..1.0, 0.0..v_max * 1.05)?;
+    chart
+        .configure_mesh()
+        .x_desc("fraction of clips")
+        .y_desc(unit)
+        .draw()?;
+    for (k, (name, values)) in per_variant.iter().enumerate() {
+        let mut sorted: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+        sorted.sort_by(f64::total_cmp);
+        let n = sorted.len().max(1) as f64;
+        let c = colour(k);
+        chart
+            .draw_series(LineSeries::new(
+                sorted
+                    .iter()
+                    .enumerate()
+                    .map(|(i, v)| ((i as f64 + 0.5) / n, *v)),
+                c.stroke_width(2),
+            ))?
+            .label(name.as_str())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(3)));
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()?;
+    drop(chart);
+    drop(root);
+    Ok(path)
+}

@@ -22,11 +22,27 @@ use crate::score::{
 };
 
 /// One row of the table: a metric, its unit, whether lower is better, one value per variant.
-struct Row {
-    name: String,
-    unit: &'static str,
-    lower_is_better: bool,
-    values: Vec<Option<f64>>,
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Row {
+    pub name: String,
+    pub unit: String,
+    pub lower_is_better: bool,
+    /// Per variant, in the variants' order; `None` where the metric does not apply (a clip too
+    /// short for 7 m of travel, a variant without validation).
+    pub values: Vec<Option<f64>>,
+}
+
+/// A comparison run scored: the table's rows and the per-frame series behind the plots.
+pub struct Scored {
+    /// The variants, in order.
+    pub names: Vec<String>,
+    pub rows: Vec<Row>,
+    pub series: Vec<Series>,
+    /// The truth's root path (x, z), empty without truth.
+    pub truth_trajectory: Vec<(f64, f64)>,
+    /// Frames every variant was scored on.
+    pub frames: usize,
+    pub with_truth: bool,
 }
 
 /// A variant's decoded streams.
@@ -58,6 +74,30 @@ pub fn write(
     run: &RunReport,
     rate_hz: f64,
 ) -> anyhow::Result<PathBuf> {
+    let scored = score_recording(mcap, combined, rate_hz)?;
+    let plots = super::plots::draw(out, &scored.series, &scored.truth_trajectory)?;
+    let names: Vec<&str> = scored.names.iter().map(String::as_str).collect();
+    let report = markdown(
+        name,
+        combined,
+        run,
+        &names,
+        &scored.rows,
+        &plots,
+        scored.with_truth,
+        scored.frames,
+    );
+    let path = out.join("report.md");
+    std::fs::write(&path, report).with_context(|| format!("cannot write {}", path.display()))?;
+    let json = results_json(combined, run, &names, &scored.rows);
+    let json_path = out.join("results.json");
+    std::fs::write(&json_path, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("cannot write {}", json_path.display()))?;
+    Ok(path)
+}
+
+/// Scores every variant of a finished comparison from its recording, on the frames they share.
+pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow::Result<Scored> {
     let bytes = std::fs::read(mcap).with_context(|| format!("cannot read {}", mcap.display()))?;
     let topics = read_topics(&bytes).with_context(|| format!("{}", mcap.display()))?;
     let motion_of = |topic: &str| -> anyhow::Result<BTreeMap<u32, MotionFrame>> {
@@ -225,26 +265,14 @@ pub fn write(
             }
         }
     }
-    let plots = super::plots::draw(out, &series, &truth_trajectory)?;
-
-    let names: Vec<&str> = variants.iter().map(|v| v.name.as_str()).collect();
-    let report = markdown(
-        name,
-        combined,
-        run,
-        &names,
-        &rows,
-        &plots,
-        truth.is_some(),
-        common.len(),
-    );
-    let path = out.join("report.md");
-    std::fs::write(&path, report).with_context(|| format!("cannot write {}", path.display()))?;
-    let json = results_json(combined, run, &names, &rows);
-    let json_path = out.join("results.json");
-    std::fs::write(&json_path, serde_json::to_string_pretty(&json)?)
-        .with_context(|| format!("cannot write {}", json_path.display()))?;
-    Ok(path)
+    Ok(Scored {
+        names: variants.into_iter().map(|v| v.name).collect(),
+        rows,
+        series,
+        truth_trajectory,
+        frames: common.len(),
+        with_truth: truth.is_some(),
+    })
 }
 
 /// Messages per topic, in file order.
@@ -275,20 +303,13 @@ impl Table {
     }
 
     /// Sets variant `k`'s value of row `name` (created on first use).
-    fn set(
-        &mut self,
-        name: &str,
-        unit: &'static str,
-        lower_is_better: bool,
-        k: usize,
-        value: Option<f64>,
-    ) {
+    fn set(&mut self, name: &str, unit: &str, lower_is_better: bool, k: usize, value: Option<f64>) {
         let row = match self.rows.iter().position(|r| r.name == name) {
             Some(i) => &mut self.rows[i],
             None => {
                 self.rows.push(Row {
                     name: name.to_owned(),
-                    unit,
+                    unit: unit.to_owned(),
                     lower_is_better,
                     values: vec![None; self.variants],
                 });
@@ -367,7 +388,7 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[rank.clamp(1, sorted.len()) - 1]
 }
 
-fn fmt_value(v: Option<f64>) -> String {
+pub(super) fn fmt_value(v: Option<f64>) -> String {
     match v {
         None => "–".into(),
         Some(x) if x.abs() >= 100.0 => format!("{x:.0}"),
