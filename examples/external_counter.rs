@@ -19,7 +19,8 @@
 //! `args = ["--fail-at", "N"]` makes it fail (exit code 3) after publishing frame N, for the tests
 //! of failure policies. `args = ["--bend-knee-deg", "D"]` bends the left knee of its pose by D
 //! degrees (about the knee's x axis), a variant that is worse by construction for the comparison
-//! tests.
+//! tests. `args = ["--hang-at", "N"]` makes it hang after publishing frame N: alive, taking no
+//! more frames, deaf to SIGTERM (a stage stuck in its own code), for the stall watchdog's tests.
 
 use imuflow_graph::StageContext;
 use imuflow_graph::frames::{ImuFrame, MotionFrame, flags};
@@ -40,14 +41,16 @@ fn run() -> anyhow::Result<()> {
     let prev = ctx.input::<MotionFrame>("prev")?;
     let mut out = ctx.output::<MotionFrame>("count")?;
     let mut fail_at: Option<u64> = None;
+    let mut hang_at: Option<u64> = None;
     let mut bend_knee_deg = 0.0f32;
     let args: Vec<String> = std::env::args().skip(1).collect();
     for pair in args.chunks(2) {
         match pair {
             [flag, n] if flag == "--fail-at" => fail_at = Some(n.parse()?),
+            [flag, n] if flag == "--hang-at" => hang_at = Some(n.parse()?),
             [flag, d] if flag == "--bend-knee-deg" => bend_knee_deg = d.parse()?,
             other => anyhow::bail!(
-                "unknown arguments {other:?} (expected --fail-at N, --bend-knee-deg D)"
+                "unknown arguments {other:?} (expected --fail-at N, --hang-at N, --bend-knee-deg D)"
             ),
         }
     }
@@ -77,6 +80,12 @@ fn run() -> anyhow::Result<()> {
                 m.q[1] = valid_imus;
                 m.q[2] = checksum as f32;
             })?;
+            if hang_at == Some(step.seq) {
+                eprintln!("external_counter: hanging at frame {} as asked", step.seq);
+                loop {
+                    std::thread::sleep(std::time::Duration::from_secs(1));
+                }
+            }
             if fail_at == Some(step.seq) {
                 eprintln!("external_counter: failing at frame {} as asked", step.seq);
                 std::process::exit(3);

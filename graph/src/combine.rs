@@ -157,6 +157,11 @@ pub fn combine(
         .map(|v| v.graph.ready_timeout_s)
         .fold(0.0, f64::max);
     let _ = writeln!(text, "ready_timeout_s = {}", float(ready));
+    let stall = variants
+        .iter()
+        .map(|v| v.graph.stall_timeout_s)
+        .fold(0.0, f64::max);
+    let _ = writeln!(text, "stall_timeout_s = {}", float(stall));
 
     for id in &shared {
         let node = if *id == source.id {
@@ -550,6 +555,7 @@ fn same_stage(a: &StageNode, b: &StageNode, b_source: &str, source: &str) -> boo
     a.runner == b.runner
         && a.params == b.params
         && a.on_failure == b.on_failure
+        && a.stall_timeout_s == b.stall_timeout_s
         && a.outputs == b.outputs
         && a.inputs.len() == b.inputs.len()
         && a.inputs.iter().all(|(name, ea)| {
@@ -622,6 +628,9 @@ fn write_stage(
             .collect::<Vec<_>>()
             .join(", ");
         let _ = writeln!(text, "params = {{ {params} }}");
+    }
+    if let Some(stall) = node.stall_timeout_s {
+        let _ = writeln!(text, "stall_timeout_s = {}", float(stall));
     }
     if on_failure.unwrap_or(node.on_failure) == OnFailure::StopBranch {
         let _ = writeln!(text, "on_failure = \"stop-branch\"");

@@ -82,9 +82,27 @@ pub struct StageNode {
     pub params: toml::Table,
     #[serde(default)]
     pub on_failure: OnFailure,
+    /// Overrides the graph's `stall_timeout_s` for this stage.
+    #[serde(default)]
+    pub stall_timeout_s: Option<f64>,
+}
+
+/// The watchdog's default for offline graphs (live: [`DEFAULT_LIVE_STALL_TIMEOUT_S`]). Generous:
+/// a slow stage is not a hung one, and an offline run has no deadline.
+pub const DEFAULT_OFFLINE_STALL_TIMEOUT_S: f64 = 30.0;
+/// Live: a stage that takes nothing for 5 s (300 frames at 60 Hz) has lost the session already.
+pub const DEFAULT_LIVE_STALL_TIMEOUT_S: f64 = 5.0;
+
+fn default_stall_timeout_s() -> f64 {
+    DEFAULT_OFFLINE_STALL_TIMEOUT_S
 }
 
 impl StageNode {
+    /// How long this stage may sit on unconsumed input before the watchdog stops it.
+    pub fn stall_timeout_s(&self, graph: &Graph) -> f64 {
+        self.stall_timeout_s.unwrap_or(graph.stall_timeout_s)
+    }
+
     /// The kind for built-ins, the executable's file name for external stages.
     pub fn kind_label(&self) -> String {
         match &self.runner {
@@ -103,6 +121,10 @@ pub struct Graph {
     pub rate_hz: f64,
     pub mode: Mode,
     pub ready_timeout_s: f64,
+    /// The launcher's stall watchdog: seconds a stage may hold unconsumed input without taking
+    /// any of it (per stage: [`StageNode::stall_timeout_s`]).
+    #[serde(default = "default_stall_timeout_s")]
+    pub stall_timeout_s: f64,
     /// Stages by id, in id order.
     pub stages: BTreeMap<String, StageNode>,
     /// Non-fatal findings (e.g. a stage whose outputs nobody reads).
@@ -375,6 +397,7 @@ mod tests {
             readers: BTreeMap::new(),
             params: toml::Table::new(),
             on_failure,
+            stall_timeout_s: None,
         }
     }
 
@@ -417,6 +440,7 @@ mod tests {
             rate_hz: 60.0,
             mode: Mode::Offline,
             ready_timeout_s: 30.0,
+            stall_timeout_s: DEFAULT_OFFLINE_STALL_TIMEOUT_S,
             stages: nodes.into_iter().map(|n| (n.id.clone(), n)).collect(),
             warnings: Vec::new(),
         }

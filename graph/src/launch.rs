@@ -121,6 +121,13 @@ pub enum RunError {
         timeout_s: f64,
         stderr_tail: Vec<String>,
     },
+    /// The stall watchdog: inputs waiting, nothing taken for the stage's stall timeout.
+    #[error("stage '{stage}' stalled: {detail}{}", tail_text(stderr_tail))]
+    Stalled {
+        stage: String,
+        detail: String,
+        stderr_tail: Vec<String>,
+    },
     #[error(transparent)]
     Transport(#[from] transport::TransportError),
 }
@@ -160,6 +167,11 @@ struct Running {
     /// When the stage was stopped with its failed branch (SIGTERM sent); its exit no longer
     /// matters and it owes no summary.
     branch_stopped_at: Option<Instant>,
+    /// The stall watchdog's view: the seq after the newest frame the stage took (its heartbeat),
+    /// when that last changed, and when the stage was last heard from.
+    position: u64,
+    moved_at: Instant,
+    heard_at: Instant,
 }
 
 impl Running {
@@ -178,6 +190,14 @@ impl Running {
                 libc::kill(self.child.id() as i32, signal);
             }
         }
+    }
+
+    /// The last stderr lines so far, without waiting for the process to end (it may be hung).
+    fn tail_now(&self) -> Vec<String> {
+        self.stderr_tail
+            .lock()
+            .map(|t| t.iter().cloned().collect())
+            .unwrap_or_default()
     }
 
     fn tail(&mut self) -> Vec<String> {
@@ -307,6 +327,7 @@ fn run_in(
         graph,
         shm_prefix,
         failed_branches: Vec::new(),
+        stopping: false,
     };
     let result =
         spawned.and_then(|()| supervisor.supervise(options, &mut stages, &rx, &interrupted));
@@ -438,6 +459,9 @@ fn spawn_all(
             summary: None,
             exit: None,
             branch_stopped_at: None,
+            position: 0,
+            moved_at: Instant::now(),
+            heard_at: Instant::now(),
         });
     }
     Ok(())
@@ -449,6 +473,8 @@ struct Supervisor<'a> {
     graph: &'a Graph,
     shm_prefix: &'a str,
     failed_branches: Vec<FailedBranch>,
+    /// The user asked the run to stop (Ctrl-C): stages ending with errors are part of stopping.
+    stopping: bool,
 }
 
 impl Supervisor<'_> {
@@ -521,12 +547,17 @@ impl Supervisor<'_> {
         let start = Instant::now();
         for s in stages.iter_mut() {
             s.send("go");
+            s.moved_at = start;
+            s.heard_at = start;
         }
         let mut stop_requested_at: Option<Instant> = None;
         let mut terminated_at: Option<Instant> = None;
         while stages.iter().any(|s| s.exit.is_none()) {
             handle_events(stages, rx, &bar, &log)?;
             self.reap(stages)?;
+            if stop_requested_at.is_none() {
+                self.watch_for_stalls(stages)?;
+            }
             for s in stages.iter() {
                 if s.branch_stopped_at
                     .is_some_and(|t| t.elapsed() > TERM_GRACE)
@@ -542,6 +573,7 @@ impl Supervisor<'_> {
                     s.send("stop");
                 }
                 stop_requested_at = Some(Instant::now());
+                self.stopping = true;
                 interrupted.store(false, Ordering::Relaxed);
             }
             if let Some(t) = stop_requested_at
@@ -611,6 +643,16 @@ impl Supervisor<'_> {
             if status.success() {
                 continue;
             }
+            if self.stopping {
+                // The user stopped the run: a stage that was waiting for room when SIGTERM came
+                // ends with the stop as its error. That is the stop, not a failure of the run.
+                tracing::info!(
+                    "stage '{}' ended with {} while the run was stopping",
+                    stages[i].id,
+                    describe_status(status)
+                );
+                continue;
+            }
             let stage = stages[i].id.clone();
             let stderr_tail = stages[i].tail();
             let status = describe_status(status);
@@ -638,11 +680,93 @@ impl Supervisor<'_> {
         Ok(())
     }
 
+    /// The stall watchdog. A stage whose every forward input holds frames it has not taken (its
+    /// least advanced producer is ahead of it) and whose position has not moved for its
+    /// `stall_timeout_s` is hung or frozen: it is handled like a failed stage (its branch stops,
+    /// or the run). Positions come from the stages' heartbeats, not from their logs. Sources have
+    /// no inputs and are never stalled; a stage waiting on a slow producer is not behind it.
+    fn watch_for_stalls(&mut self, stages: &mut [Running]) -> Result<(), RunError> {
+        for i in 0..stages.len() {
+            let s = &stages[i];
+            if s.exit.is_some() || s.branch_stopped_at.is_some() || s.summary.is_some() {
+                continue;
+            }
+            let Some(node) = self.graph.stages.get(&s.id) else {
+                continue;
+            };
+            let timeout_s = node.stall_timeout_s(self.graph);
+            let still = s.moved_at.elapsed();
+            if still.as_secs_f64() < timeout_s {
+                continue;
+            }
+            let least_ahead = node
+                .inputs
+                .values()
+                .filter(|e| !e.feedback)
+                .filter_map(|e| stages.iter().find(|r| r.id == e.from_stage))
+                .map(|r| (r.id.clone(), r.position))
+                .min_by_key(|(_, position)| *position);
+            let Some((from, waiting)) = least_ahead else {
+                continue;
+            };
+            if waiting <= s.position {
+                continue;
+            }
+            // A stage busy in its own code keeps sending heartbeats while it stands still; a
+            // stopped or frozen process went quiet when it stopped moving.
+            let quiet = s.heard_at.elapsed();
+            let process = if quiet + crate::stage::HEARTBEAT * 2 >= still {
+                format!(
+                    "no heartbeat for {:.0} s: the process is not running (stopped or frozen)",
+                    quiet.as_secs_f64()
+                )
+            } else {
+                "the process is alive: stuck in its own code or waiting on something outside the graph"
+                    .to_owned()
+            };
+            let taken = match s.position {
+                0 => "no frame yet".to_owned(),
+                p => format!("frames up to {}", p - 1),
+            };
+            let detail = format!(
+                "took no frame for {:.0} s (stall_timeout_s = {timeout_s}) while its inputs held frames up to {} (from '{from}'); it took {taken}; {process}",
+                still.as_secs_f64(),
+                waiting - 1
+            );
+            let stage = s.id.clone();
+            let stderr_tail = s.tail_now();
+            match self.graph.isolated_branch_of(&stage) {
+                Some((root, branch)) => {
+                    tracing::warn!("stage '{stage}' stalled: {detail}");
+                    self.stop_branch(stages, &branch);
+                    self.failed_branches.push(FailedBranch {
+                        root,
+                        stage,
+                        status: format!("stalled: {detail}"),
+                        stderr_tail,
+                        stopped: branch.into_iter().collect(),
+                    });
+                }
+                None => {
+                    stop_all(stages);
+                    return Err(RunError::Stalled {
+                        stage,
+                        detail,
+                        stderr_tail,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Stops every stage of `branch` (SIGTERM: they finalize; SIGKILL after a grace period) and tells
     /// each stage outside it which of its inputs will never see END_OF_STREAM.
     fn stop_branch(&self, stages: &mut [Running], branch: &BTreeSet<String>) {
         let now = Instant::now();
         for s in stages.iter_mut().filter(|s| branch.contains(&s.id)) {
+            // A stopped (SIGSTOP) process handles SIGTERM only once it runs again.
+            s.signal(libc::SIGCONT);
             s.signal(libc::SIGTERM);
             s.branch_stopped_at.get_or_insert(now);
         }
@@ -703,6 +827,16 @@ fn handle_events(
                         s.summary = Some(summary);
                     }
                 }
+                ControlMessage::Alive { position } => {
+                    if let Some(s) = stages.get_mut(i) {
+                        let now = Instant::now();
+                        s.heard_at = now;
+                        if position != s.position {
+                            s.position = position;
+                            s.moved_at = now;
+                        }
+                    }
+                }
             },
             Ok(Event::Log(i, line)) => log(stages, i, &line),
             Err(RecvTimeoutError::Timeout) | Err(RecvTimeoutError::Disconnected) => return Ok(()),
@@ -723,6 +857,8 @@ fn describe_status(status: ExitStatus) -> String {
 /// SIGTERM to every running stage (they finalize their outputs), SIGKILL after a grace period.
 fn stop_all(stages: &mut [Running]) {
     for s in stages.iter() {
+        // A stopped (SIGSTOP) process handles SIGTERM only once it runs again.
+        s.signal(libc::SIGCONT);
         s.signal(libc::SIGTERM);
     }
     let deadline = Instant::now() + TERM_GRACE;

@@ -19,6 +19,10 @@ pub struct GraphFile {
     /// Seconds to wait for every stage to report ready. Default 30.
     #[serde(default)]
     pub ready_timeout_s: Option<toml::Value>,
+    /// Seconds a stage may hold unconsumed input without consuming any before the watchdog
+    /// treats it as failed. Default 30 offline, 5 live.
+    #[serde(default)]
+    pub stall_timeout_s: Option<toml::Value>,
     /// The stages, by id.
     #[serde(default)]
     pub stages: BTreeMap<String, StageEntry>,
@@ -49,4 +53,7 @@ pub struct StageEntry {
     /// only this stage and what reads nothing but its outputs; the rest runs to the end.
     #[serde(default)]
     pub on_failure: Option<String>,
+    /// This stage's stall timeout (overrides the graph's `stall_timeout_s`).
+    #[serde(default)]
+    pub stall_timeout_s: Option<toml::Value>,
 }

@@ -24,7 +24,7 @@
 use std::io::{BufRead, Write};
 use std::marker::PhantomData;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -165,6 +165,9 @@ pub struct StageContext {
     started: Instant,
     any_cursor: usize,
     waiter: ArrivalWaiter,
+    /// The frames taken so far, as the seq after the newest one (0: none). The heartbeat thread
+    /// reports it to the launcher's stall watchdog.
+    position: Arc<AtomicU64>,
 }
 
 impl StageContext {
@@ -251,6 +254,7 @@ impl StageContext {
             started: Instant::now(),
             any_cursor: 0,
             waiter: ArrivalWaiter::default(),
+            position: Arc::new(AtomicU64::new(0)),
         })
     }
 
@@ -390,7 +394,13 @@ impl StageContext {
             return Ok(false);
         }
         self.started = Instant::now();
+        spawn_heartbeat(self.position.clone());
         Ok(true)
+    }
+
+    /// Records that the frames up to `seq` were taken (never moves back).
+    fn advance(&self, seq: u64) {
+        self.position.fetch_max(seq + 1, Ordering::Relaxed);
     }
 
     /// Waits until the launcher sent `command` (or a later one); `false` on stop.
@@ -452,6 +462,7 @@ impl StageContext {
                 self.stats.record_latency(published, transport::now_ns());
                 self.waiter.arrived(Instant::now());
                 self.last_step = Some(step);
+                self.advance(step.seq);
                 self.step_started = Some(Instant::now());
                 return Ok(Some(Step {
                     flags: step.flags & (flags::INVALID | flags::CALIBRATING),
@@ -503,6 +514,7 @@ impl StageContext {
                     .record_latency(header.publish_ns, transport::now_ns());
                 self.any_cursor = i + 1;
                 self.stats.frames_in += 1;
+                self.position.fetch_max(header.seq + 1, Ordering::Relaxed);
                 self.step_started = Some(Instant::now());
                 if self.last_step.is_none_or(|s| s.seq <= header.seq) {
                     self.last_step = Some(Step {
@@ -689,6 +701,32 @@ impl StageContext {
         self.stats.frames_in += 1;
         self.stats.record_processing(elapsed);
         self.last_step = Some(step);
+        self.advance(step.seq);
+    }
+}
+
+/// How often a running stage tells the launcher how far it got (`alive <position>`).
+pub const HEARTBEAT: Duration = Duration::from_millis(250);
+
+/// Reports the stage's position to the launcher every [`HEARTBEAT`] from a thread of its own, so
+/// a stage stuck in its own code still reports (its position stands still), and a process that
+/// is not running at all (stopped, frozen) goes quiet. Ends when the launcher is gone.
+fn spawn_heartbeat(position: Arc<AtomicU64>) {
+    let spawned = std::thread::Builder::new()
+        .name("imuflow-heartbeat".into())
+        .spawn(move || {
+            loop {
+                let at = position.load(Ordering::Relaxed);
+                if control_line(&format!("alive {at}")).is_err() {
+                    break;
+                }
+                std::thread::sleep(HEARTBEAT);
+            }
+        });
+    if spawned.is_err() {
+        tracing::warn!(
+            "cannot start the heartbeat thread; the stall watchdog cannot see this stage"
+        );
     }
 }
 
@@ -779,6 +817,10 @@ pub enum ControlMessage {
         total: u64,
     },
     Summary(StageSummary),
+    /// Heartbeat: the seq after the newest frame the stage took (0: none yet).
+    Alive {
+        position: u64,
+    },
 }
 
 impl ControlMessage {
@@ -788,6 +830,11 @@ impl ControlMessage {
         let (word, args) = rest.split_once(' ').unwrap_or((rest, ""));
         match word {
             "ready" => Some(ControlMessage::Ready),
+            "alive" => args
+                .trim()
+                .parse()
+                .ok()
+                .map(|position| ControlMessage::Alive { position }),
             "connected" => Some(ControlMessage::Connected),
             "progress" => {
                 let mut it = args.split_whitespace().map(str::parse::<u64>);

@@ -49,6 +49,7 @@ struct Declared<'a> {
     feedback: BTreeSet<String>,
     params: toml::Table,
     on_failure: OnFailure,
+    stall_timeout_s: Option<f64>,
 }
 
 pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Graph, Vec<Problem>> {
@@ -84,6 +85,20 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
             );
             Mode::Offline
         }
+    };
+    let default_stall = match mode {
+        Mode::Offline => crate::graph::DEFAULT_OFFLINE_STALL_TIMEOUT_S,
+        Mode::Live => crate::graph::DEFAULT_LIVE_STALL_TIMEOUT_S,
+    };
+    let stall_timeout_s = match &file.stall_timeout_s {
+        None => default_stall,
+        Some(v) => positive_number(v).unwrap_or_else(|| {
+            problems.file(
+                "stall_timeout_s",
+                format!("must be a positive number of seconds (got {v})"),
+            );
+            default_stall
+        }),
     };
     if file.name.trim().is_empty() {
         problems.file("name", "must not be empty");
@@ -162,6 +177,7 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
                 readers: BTreeMap::new(),
                 params: d.params.clone(),
                 on_failure: d.on_failure,
+                stall_timeout_s: d.stall_timeout_s,
             },
         );
     }
@@ -245,6 +261,7 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
             rate_hz,
             mode,
             ready_timeout_s,
+            stall_timeout_s,
             stages,
             warnings,
         };
@@ -434,6 +451,17 @@ fn declare<'a>(
             OnFailure::default()
         }),
     };
+    let stall_timeout_s = entry.stall_timeout_s.as_ref().and_then(|v| {
+        let s = positive_number(v);
+        if s.is_none() {
+            problems.stage(
+                id,
+                Some("stall_timeout_s"),
+                format!("must be a positive number of seconds (got {v})"),
+            );
+        }
+        s
+    });
     Some(Declared {
         id,
         runner,
@@ -444,6 +472,7 @@ fn declare<'a>(
         feedback,
         params: entry.params.clone(),
         on_failure,
+        stall_timeout_s,
     })
 }
 

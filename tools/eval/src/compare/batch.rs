@@ -181,7 +181,7 @@ pub fn run(
             break;
         }
         bar.set_message(key.clone());
-        let Some(record) = run_clip(variants, registry, options, key, path)? else {
+        let Some(record) = run_clip(variants, registry, options, key, path, &stop)? else {
             break; // interrupted: the clip is not recorded, a resume runs it again
         };
         if let Some(error) = &record.error {
@@ -331,6 +331,7 @@ fn run_clip(
     options: &BatchOptions,
     key: &str,
     path: &Path,
+    stop: &AtomicBool,
 ) -> anyhow::Result<Option<ClipRecord>> {
     let start = Instant::now();
     let failed = |error: String| ClipRecord {
@@ -367,7 +368,10 @@ fn run_clip(
         progress: false,
         forward_logs: false,
     };
-    let record = match launch::run(&graph, &launch_options) {
+    let result = launch::run(&graph, &launch_options);
+    let record = match result {
+        // Stopped by the user: whatever the run says, the clip is not done (a resume runs it).
+        _ if stop.load(Ordering::Relaxed) => None,
         Err(e) => Some(failed(e.to_string())),
         Ok(run) if run.interrupted => None,
         Ok(run) => Some(match run.failed_branches.first() {
