@@ -55,6 +55,11 @@ impl Sandbox {
     /// Runs imuflow to completion; a run that takes over a minute is killed and fails the test
     /// (a hang is a bug, never an answer).
     pub fn run(&self, args: &[&str]) -> Output {
+        self.run_within(args, 60)
+    }
+
+    /// [`Sandbox::run`] with a limit of `seconds` (whole graphs in a debug build under load).
+    pub fn run_within(&self, args: &[&str], seconds: u64) -> Output {
         let child = self
             .command(args)
             .stdout(std::process::Stdio::piped())
@@ -66,7 +71,7 @@ impl Sandbox {
         std::thread::spawn(move || {
             let _ = tx.send(child.wait_with_output());
         });
-        match rx.recv_timeout(std::time::Duration::from_secs(60)) {
+        match rx.recv_timeout(std::time::Duration::from_secs(seconds)) {
             Ok(output) => output.expect("wait for imuflow"),
             Err(_) => {
                 // SAFETY: kill(2) on the launcher we started; its stages stop when its pipes close.
@@ -74,7 +79,7 @@ impl Sandbox {
                 unsafe {
                     libc::kill(id as i32, libc::SIGKILL);
                 }
-                panic!("imuflow {args:?} did not finish within 60 s");
+                panic!("imuflow {args:?} did not finish within {seconds} s");
             }
         }
     }

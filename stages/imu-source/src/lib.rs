@@ -224,7 +224,7 @@ pub const SPEC: StageSpec = StageSpec {
             },
             required: false,
             default: "0",
-            doc: "udp: end the stream after this many packets (0 = only on timeout or stop)",
+            doc: "udp: end the stream after this many packets (0 = only on timeout or stop); replay: after this many frames (0 = all)",
         },
     ],
 };
@@ -272,7 +272,8 @@ pub fn run() -> anyhow::Result<()> {
                 params.str("truth_topic").filter(|t| !t.is_empty()),
             )
             .with_context(|| format!("stage '{stage}': cannot replay"))?;
-            replay::run(ctx, &recording, realtime)
+            let limit = params.int("frames", 0).max(0) as u64;
+            replay::run(ctx, &recording, realtime, limit)
         }
         "udp" => {
             let options = udp::Options {

@@ -200,11 +200,22 @@ fn describe(channels: &BTreeMap<u16, Channel>) -> String {
 }
 
 /// Publishes the recording (paced by the recorded capture times when `realtime`).
-pub fn run(ctx: StageContext, recording: &Recording, realtime: bool) -> anyhow::Result<()> {
+/// Replays `recording`; `limit` > 0 ends the stream after that many IMU frames.
+pub fn run(
+    ctx: StageContext,
+    recording: &Recording,
+    realtime: bool,
+    limit: u64,
+) -> anyhow::Result<()> {
     if let Some(t) = &recording.truth_topic {
         tracing::debug!(imu = %recording.imu_topic, truth = %t, "replaying");
     }
-    let Some(mut out) = Publisher::start(ctx, recording.imu_frames)? else {
+    let total = match limit {
+        0 => recording.imu_frames,
+        n => n.min(recording.imu_frames),
+    };
+    let mut imu_published = 0u64;
+    let Some(mut out) = Publisher::start(ctx, total)? else {
         return Ok(());
     };
     let first_capture = recording.frames.iter().find_map(|f| match f {
@@ -212,11 +223,12 @@ pub fn run(ctx: StageContext, recording: &Recording, realtime: bool) -> anyhow::
         Recorded::Truth(_) => None,
     });
     for frame in &recording.frames {
-        if out.ctx.should_stop() {
+        if out.ctx.should_stop() || imu_published == total {
             break;
         }
         match frame {
             Recorded::Imu(f) => {
+                imu_published += 1;
                 if realtime && let Some(first) = first_capture {
                     out.pace(Duration::from_nanos(
                         f.header.capture_ns.saturating_sub(first),
