@@ -269,13 +269,20 @@ pub fn combine(
     if let Some(rrd) = &sinks.rrd {
         let _ = writeln!(
             text,
-            "\n[stages.viz]\nkind = \"rerun-logger\"\ninputs = {{ {inline_inputs} }}\nparams = {{ path = {}, views = {} }}",
+            "\n[stages.viz]\nkind = \"rerun-logger\"\ninputs = {{ {inline_inputs} }}\nparams = {{ path = {}, views = {}, group_order = {} }}",
             quote(rrd),
             quote(if sinks.overlaid {
                 "overlaid"
             } else {
                 "side-by-side"
-            })
+            }),
+            quote(
+                &outputs
+                    .iter()
+                    .map(|o| o.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(",")
+            )
         );
     }
     let _ = writeln!(

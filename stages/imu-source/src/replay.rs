@@ -236,7 +236,16 @@ pub fn run(
                 }
                 out.publish_imu(f, Instant::now())?;
             }
-            Recorded::Truth(f) => out.publish_truth(f)?,
+            Recorded::Truth(f) => {
+                // Paced like its IMU frame (the same capture time), so that truth and estimate
+                // of one sample leave together instead of the truth a frame early.
+                if realtime && let Some(first) = first_capture {
+                    out.pace(Duration::from_nanos(
+                        f.header.capture_ns.saturating_sub(first),
+                    ));
+                }
+                out.publish_truth(f)?
+            }
         }
     }
     out.finish()

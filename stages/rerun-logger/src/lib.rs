@@ -18,7 +18,10 @@
 //!   and it is drawn in its own colour with its floor forces as arrows.
 //! - Errors against the truth: with an input named `truth` (a MotionFrame), every other motion
 //!   input named `motion` (or `<group>__motion`) gets its root-aligned mean joint position error
-//!   (cm) and its root distance (m) per frame under `plots/error_vs_truth/<entity>/`.
+//!   (cm) and its root distance (m) per frame under `plots/error_vs_truth/<entity>/`. Without a
+//!   truth, a comparison's variants get the same against the first variant, under
+//!   `plots/disagreement_vs_<first>/<group>/`. With a truth, each variant's latency from the
+//!   source publishing a frame to the variant publishing its motion: `plots/latency_ms/<group>`.
 //! - Every frame type: each small field (up to 6 scalars, e.g. stationary probabilities, root
 //!   velocity) as a time series under `plots/<input>/<field>`, and the INVALID flag.
 //!
@@ -151,6 +154,13 @@ pub const SPEC: StageSpec = StageSpec {
             default: "side-by-side",
             doc: "with grouped inputs (<group>__<what>): one 3D view per group, or all groups in one",
         },
+        ParamSpec {
+            name: "group_order",
+            ty: ParamType::String,
+            required: false,
+            default: "",
+            doc: "with grouped inputs: the groups in order, comma-separated (colours, views; the first is the reference without truth); default: by name",
+        },
     ],
 };
 
@@ -216,6 +226,15 @@ pub fn run() -> anyhow::Result<()> {
             groups.push(group.to_owned());
         }
     }
+    // `imuflow compare` names its variants' order, so colours match its report's plots.
+    let order: Vec<&str> = params
+        .str("group_order")
+        .unwrap_or_default()
+        .split(',')
+        .map(str::trim)
+        .filter(|g| !g.is_empty())
+        .collect();
+    groups.sort_by_key(|g| order.iter().position(|o| o == g).unwrap_or(order.len()));
     if !groups.is_empty() {
         let overlaid = params.str("views") == Some("overlaid");
         send_blueprint(&rec, &groups, overlaid, &inputs)?;
@@ -431,56 +450,117 @@ struct SkeletonDrawer {
     body: BodyModel,
     fk: imuflow_body::FkData,
     groups: Vec<String>,
-    /// The truth's joints by seq, when there is a truth input (for the error series).
-    truth: Option<std::collections::BTreeMap<u64, [[f32; 3]; NUM_JOINTS]>>,
+    /// What estimates are measured against, by seq: the truth's joints when there is a truth
+    /// input, else (in a comparison) the first group's estimate.
+    reference: Option<Reference>,
+    /// The source's publish time of each seq (the truth's frames), for the latency series.
+    source_publish_ns: std::collections::BTreeMap<u64, u64>,
+}
+
+/// World positions of the 24 joints, m.
+type Joints = [[f32; 3]; NUM_JOINTS];
+
+/// The stream estimates are compared with, and its joints by seq.
+struct Reference {
+    /// `truth`, or the first group's `<group>/motion`.
+    entity: String,
+    /// Where the series go: `plots/error_vs_truth` or `plots/disagreement_vs_<group>`.
+    plots: String,
+    joints: std::collections::BTreeMap<u64, [[f32; 3]; NUM_JOINTS]>,
+    /// Estimates that arrived before the reference's frame of their seq (variants finish frames
+    /// in any order), logged when it comes.
+    pending: std::collections::BTreeMap<u64, Vec<(String, Joints)>>,
 }
 
 impl SkeletonDrawer {
     fn new(body: BodyModel, groups: Vec<String>, has_truth: bool) -> SkeletonDrawer {
+        let reference = if has_truth {
+            Some(Reference {
+                entity: "truth".into(),
+                plots: "plots/error_vs_truth".into(),
+                joints: Default::default(),
+                pending: Default::default(),
+            })
+        } else {
+            // Without truth, a comparison shows how far each variant is from the first.
+            groups
+                .first()
+                .filter(|_| groups.len() > 1)
+                .map(|g| Reference {
+                    entity: format!("{g}/motion"),
+                    plots: format!("plots/disagreement_vs_{g}"),
+                    joints: Default::default(),
+                    pending: Default::default(),
+                })
+        };
         SkeletonDrawer {
             body,
             fk: imuflow_body::FkData::new(),
             groups,
-            truth: has_truth.then(Default::default),
+            reference,
+            source_publish_ns: Default::default(),
         }
     }
 
-    /// Keeps the truth's joints, or logs this estimate's error against the truth of its frame.
+    /// Keeps the reference's joints, or logs this estimate's error against the reference's frame
+    /// of the same seq (and, in a comparison, its latency from the source).
     fn track_error(
         &mut self,
         rec: &rerun::RecordingStream,
         entity: &str,
-        seq: u64,
+        header: &imuflow_graph::frames::FrameHeader,
         joints: &[[f32; 3]; NUM_JOINTS],
     ) -> anyhow::Result<()> {
-        let Some(truth) = &mut self.truth else {
+        let seq = header.seq;
+        if entity == "truth" {
+            self.source_publish_ns.insert(seq, header.publish_ns);
+            while self.source_publish_ns.len() > TRUTH_FRAMES_KEPT {
+                self.source_publish_ns.pop_first();
+            }
+        }
+        let is_estimate = entity == "motion" || entity.ends_with("/motion");
+        if is_estimate
+            && let Some(group) = group_of(entity)
+            && let Some(published) = self.source_publish_ns.get(&seq)
+            && header.publish_ns >= *published
+        {
+            // Source publish to this variant's motion publish: the variant's whole pipeline.
+            let ms = (header.publish_ns - published) as f64 * 1e-6;
+            rec.log(
+                format!("plots/latency_ms/{group}"),
+                &rerun::Scalars::single(ms),
+            )?;
+        }
+        let Some(reference) = &mut self.reference else {
             return Ok(());
         };
-        if entity == "truth" {
-            truth.insert(seq, *joints);
-            while truth.len() > TRUTH_FRAMES_KEPT {
-                truth.pop_first();
+        if entity == reference.entity {
+            reference.joints.insert(seq, *joints);
+            while reference.joints.len() > TRUTH_FRAMES_KEPT {
+                reference.joints.pop_first();
+            }
+            for (waiting, estimate) in reference.pending.remove(&seq).unwrap_or_default() {
+                log_difference(rec, &reference.plots, &waiting, &estimate, joints)?;
             }
             return Ok(());
         }
-        let is_estimate = entity == "motion" || entity.ends_with("/motion");
-        let Some(true_joints) = truth.get(&seq).filter(|_| is_estimate) else {
+        if !is_estimate {
             return Ok(());
-        };
-        let (joint_cm, root_m) = error_against_truth(joints, true_joints);
-        let base = format!(
-            "plots/error_vs_truth/{}",
-            group_of(entity).unwrap_or(entity)
-        );
-        rec.log(
-            format!("{base}/joint_position_cm"),
-            &rerun::Scalars::single(joint_cm),
-        )?;
-        rec.log(
-            format!("{base}/root_distance_m"),
-            &rerun::Scalars::single(root_m),
-        )?;
-        Ok(())
+        }
+        match reference.joints.get(&seq) {
+            Some(true_joints) => log_difference(rec, &reference.plots, entity, joints, true_joints),
+            None => {
+                reference
+                    .pending
+                    .entry(seq)
+                    .or_default()
+                    .push((entity.to_owned(), *joints));
+                while reference.pending.len() > TRUTH_FRAMES_KEPT {
+                    reference.pending.pop_first();
+                }
+                Ok(())
+            }
+        }
     }
 
     /// Skeleton at its global position, ground-reaction force arrows, torque magnitudes.
@@ -504,7 +584,7 @@ impl SkeletonDrawer {
             })
             .collect();
         self.log_joints(rec, input, &joints, Some(&torque))?;
-        self.track_error(rec, input, f.header.seq, &joints)?;
+        self.track_error(rec, input, &f.header, &joints)?;
         rec.log(
             format!("plots/{input}/torque_norm_nm"),
             &rerun::BarChart::new(torque),
@@ -579,6 +659,28 @@ fn log_contacts(rec: &rerun::RecordingStream, input: &str, f: &ContactFrame) -> 
 }
 
 /// Mean joint position error after aligning the roots (cm), and the roots' distance (m).
+/// Logs an estimate's root-aligned mean joint distance (cm) and root distance (m) from the
+/// reference's joints under `<plots>/<group>/`.
+fn log_difference(
+    rec: &rerun::RecordingStream,
+    plots: &str,
+    entity: &str,
+    joints: &[[f32; 3]; NUM_JOINTS],
+    reference: &[[f32; 3]; NUM_JOINTS],
+) -> anyhow::Result<()> {
+    let (joint_cm, root_m) = error_against_truth(joints, reference);
+    let base = format!("{plots}/{}", group_of(entity).unwrap_or(entity));
+    rec.log(
+        format!("{base}/joint_position_cm"),
+        &rerun::Scalars::single(joint_cm),
+    )?;
+    rec.log(
+        format!("{base}/root_distance_m"),
+        &rerun::Scalars::single(root_m),
+    )?;
+    Ok(())
+}
+
 fn error_against_truth(
     joints: &[[f32; 3]; NUM_JOINTS],
     truth: &[[f32; 3]; NUM_JOINTS],
@@ -641,6 +743,19 @@ fn send_blueprint(
         series.push(
             TimeSeriesView::new("joint position error vs truth (cm)")
                 .with_contents(["+ /plots/error_vs_truth/*/joint_position_cm"])
+                .into(),
+        );
+        series.push(
+            TimeSeriesView::new("latency, source to motion (ms)")
+                .with_contents(["+ /plots/latency_ms/**"])
+                .into(),
+        );
+    } else if let Some(first) = groups.first().filter(|_| groups.len() > 1) {
+        series.push(
+            TimeSeriesView::new(format!("joint position difference vs {first} (cm)"))
+                .with_contents([format!(
+                    "+ /plots/disagreement_vs_{first}/*/joint_position_cm"
+                )])
                 .into(),
         );
     }

@@ -110,46 +110,50 @@ fn error_over_time(path: &Path, series: &[Series]) -> anyhow::Result<()> {
 }
 
 fn error_per_joint(path: &Path, series: &[Series]) -> anyhow::Result<()> {
-    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
+    // Horizontal bars: 24 joint names stay readable on the y axis, joint 0 at the top.
+    let root = BitMapBackend::new(path, (SIZE.0, 760)).into_drawing_area();
     root.fill(&WHITE)?;
     let e_max = series
         .iter()
         .flat_map(|s| s.per_joint_cm.iter().copied())
         .fold(1.0, f64::max);
+    let n = NUM_JOINTS as f64;
     let mut chart = ChartBuilder::on(&root)
         .caption("mean error per joint (roots aligned)", ("sans-serif", 22))
         .margin(12)
-        .x_label_area_size(70)
-        .y_label_area_size(56)
-        .build_cartesian_2d(0.0..NUM_JOINTS as f64, 0.0..e_max * 1.05)?;
+        .x_label_area_size(40)
+        .y_label_area_size(130)
+        .build_cartesian_2d(0.0..e_max * 1.25, 0.0..n)?;
     chart
         .configure_mesh()
-        .disable_x_mesh()
-        .x_labels(NUM_JOINTS + 1)
-        .x_label_formatter(&|x| {
-            // Labels sit at integer x: name the bar group to their right.
-            JointId::from_index(*x as usize).map_or_else(String::new, |j| j.name().to_owned())
+        .disable_y_mesh()
+        .y_labels(NUM_JOINTS * 2 + 1)
+        .y_label_formatter(&|y| {
+            // Label the middle of each joint's row (rows run top-down from joint 0).
+            let row = y.floor();
+            if (y - row - 0.5).abs() > 1e-6 {
+                return String::new();
+            }
+            JointId::from_index((n - 1.0 - row) as usize)
+                .map_or_else(String::new, |j| j.name().to_owned())
         })
-        .x_label_style(
-            ("sans-serif", 11)
-                .into_font()
-                .transform(FontTransform::Rotate90),
-        )
-        .y_desc("cm")
+        .x_desc("cm")
         .draw()?;
-    let width = 0.8 / series.len().max(1) as f64;
+    let height = 0.8 / series.len().max(1) as f64;
     for (k, s) in series.iter().enumerate() {
         let c = colour(k);
         chart
             .draw_series(s.per_joint_cm.iter().enumerate().map(|(j, e)| {
-                let x0 = j as f64 + 0.1 + k as f64 * width;
-                Rectangle::new([(x0, 0.0), (x0 + width, *e)], c.filled())
+                let row = n - 1.0 - j as f64;
+                let y1 = row + 0.9 - k as f64 * height;
+                Rectangle::new([(0.0, y1 - height), (*e, y1)], c.filled())
             }))?
             .label(s.name.as_str())
             .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], c.filled()));
     }
     chart
         .configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .draw()?;
