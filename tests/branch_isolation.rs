@@ -5,27 +5,8 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{Sandbox, mcap_messages, text};
+use common::{Sandbox, assert_clean, count, example_exe, mcap_messages, text};
 use imuflow_graph::frames::{MotionFrame, frame_from_bytes};
-
-fn assert_clean(sandbox: &Sandbox) {
-    let left = sandbox.leftovers();
-    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
-    let stray = sandbox.stray_processes();
-    assert!(stray.is_empty(), "stray stage processes: {stray:?}");
-}
-
-fn example_exe(name: &str) -> std::path::PathBuf {
-    let bin = std::path::Path::new(common::IMUFLOW);
-    bin.parent()
-        .expect("target dir")
-        .join("examples")
-        .join(name)
-}
-
-fn count(messages: &[(String, u32, Vec<u8>)], topic: &str) -> usize {
-    messages.iter().filter(|m| m.0 == topic).count()
-}
 
 #[test]
 fn a_failing_isolated_stage_stops_its_branch_and_the_rest_finishes() {

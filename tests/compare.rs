@@ -5,16 +5,8 @@ mod common;
 
 use std::collections::BTreeMap;
 
-use common::{Sandbox, mcap_messages, text};
+use common::{Sandbox, example_exe, mcap_messages, text};
 use imuflow_graph::frames::{MotionFrame, frame_from_bytes};
-
-fn example_exe(name: &str) -> std::path::PathBuf {
-    let bin = std::path::Path::new(common::IMUFLOW);
-    bin.parent()
-        .expect("target dir")
-        .join("examples")
-        .join(name)
-}
 
 #[test]
 fn the_three_variants_combine_into_one_valid_graph_with_isolated_branches() {

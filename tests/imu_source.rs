@@ -5,20 +5,13 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{Sandbox, mcap_messages, text};
+use common::{Sandbox, assert_clean, mcap_messages, text};
 use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, flags, frame_from_bytes};
 use imuflow_imu_source::udp;
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("stages/body/tests/fixtures/bandai-walk-normal-trimmed.bvh")
-}
-
-fn assert_clean(sandbox: &Sandbox) {
-    let left = sandbox.leftovers();
-    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
-    let stray = sandbox.stray_processes();
-    assert!(stray.is_empty(), "stray stage processes: {stray:?}");
 }
 
 /// Frames at 60 Hz over the fixture's duration, from its header (independent of the body crate):
@@ -185,6 +178,23 @@ params = { path = "{dir}/b.mcap" }
         truth_a == truth_b,
         "replayed truth differs from the recording"
     );
+
+    // `frames = 40`: the first 40 samples, each with its truth, nothing after them.
+    let limited = sb.graph(
+        "limited.toml",
+        &std::fs::read_to_string(&replay)
+            .expect("graph")
+            .replace("/a.mcap\" }", "/a.mcap\", frames = 40 }")
+            .replace("b.mcap", "c.mcap"),
+    );
+    run_ok(&sb, &limited);
+    let c = mcap_messages(&sb.path("c.mcap"));
+    let (imu_c, truth_c) = (
+        strip(frames_of(&c, "player.imu")),
+        strip(frames_of(&c, "player.truth")),
+    );
+    assert_eq!(imu_c.as_slice(), &imu_a[..40]);
+    assert_eq!(truth_c.as_slice(), &truth_a[..40]);
     assert_clean(&sb);
 }
 

@@ -5,7 +5,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{Sandbox, mcap_messages, text};
+use common::{Sandbox, assert_clean, example_exe, mcap_messages, text};
 use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, flags, frame_from_bytes};
 
 const SMOKE: &str = r#"
@@ -22,13 +22,6 @@ kind = "rerun-logger"
 inputs = { imu = "source.imu" }
 params = { path = "{dir}/out.rrd" }
 "#;
-
-fn assert_clean(sandbox: &Sandbox) {
-    let left = sandbox.leftovers();
-    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
-    let stray = sandbox.stray_processes();
-    assert!(stray.is_empty(), "stray stage processes: {stray:?}");
-}
 
 #[test]
 fn smoke_graph_records_every_frame_to_mcap_and_rrd() {
@@ -216,14 +209,6 @@ fn sigint_stops_the_graph_cleanly_with_valid_files() {
             > 1000
     );
     assert_clean(&sb);
-}
-
-fn example_exe(name: &str) -> std::path::PathBuf {
-    let bin = std::path::Path::new(common::IMUFLOW);
-    bin.parent()
-        .expect("target dir")
-        .join("examples")
-        .join(name)
 }
 
 #[test]

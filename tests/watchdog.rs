@@ -6,26 +6,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{Sandbox, mcap_messages, text};
-
-fn example_exe(name: &str) -> std::path::PathBuf {
-    let bin = std::path::Path::new(common::IMUFLOW);
-    bin.parent()
-        .expect("target dir")
-        .join("examples")
-        .join(name)
-}
-
-fn count(messages: &[(String, u32, Vec<u8>)], topic: &str) -> usize {
-    messages.iter().filter(|m| m.0 == topic).count()
-}
-
-fn assert_clean(sandbox: &Sandbox) {
-    let left = sandbox.leftovers();
-    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
-    let stray = sandbox.stray_processes();
-    assert!(stray.is_empty(), "stray stage processes: {stray:?}");
-}
+use common::{Sandbox, assert_clean, count, example_exe, mcap_messages, text};
 
 /// source -> counter (user stage, `counter_args`) -> recorder; a second recorder joins the source
 /// and the counter.

@@ -469,6 +469,14 @@ fn spawn_all(
 
 /// What the supervision loop needs besides the stages: the graph (for branches), the run's
 /// shared-memory domain (for dead-node cleanup) and what failed so far.
+/// How a stage failed.
+enum Failure {
+    /// It exited with an error or was killed (the status, described).
+    Ended(String),
+    /// The stall watchdog found it sitting on its input (what it waited on).
+    Stalled(String),
+}
+
 struct Supervisor<'a> {
     graph: &'a Graph,
     shm_prefix: &'a str,
@@ -655,27 +663,8 @@ impl Supervisor<'_> {
             }
             let stage = stages[i].id.clone();
             let stderr_tail = stages[i].tail();
-            let status = describe_status(status);
-            match self.graph.isolated_branch_of(&stage) {
-                Some((root, branch)) => {
-                    self.stop_branch(stages, &branch);
-                    self.failed_branches.push(FailedBranch {
-                        root,
-                        stage,
-                        status,
-                        stderr_tail,
-                        stopped: branch.into_iter().collect(),
-                    });
-                }
-                None => {
-                    stop_all(stages);
-                    return Err(RunError::StageFailed {
-                        stage,
-                        status,
-                        stderr_tail,
-                    });
-                }
-            }
+            let failure = Failure::Ended(describe_status(status));
+            self.handle_failure(stages, stage, failure, stderr_tail)?;
         }
         Ok(())
     }
@@ -735,29 +724,53 @@ impl Supervisor<'_> {
             );
             let stage = s.id.clone();
             let stderr_tail = s.tail_now();
-            match self.graph.isolated_branch_of(&stage) {
-                Some((root, branch)) => {
-                    tracing::warn!("stage '{stage}' stalled: {detail}");
-                    self.stop_branch(stages, &branch);
-                    self.failed_branches.push(FailedBranch {
-                        root,
+            tracing::warn!("stage '{stage}' stalled: {detail}");
+            self.handle_failure(stages, stage, Failure::Stalled(detail), stderr_tail)?;
+        }
+        Ok(())
+    }
+
+    /// Applies a failed stage's policy: its isolated branch stops (and is reported at the end), or
+    /// the whole run stops with the failure as its error.
+    fn handle_failure(
+        &mut self,
+        stages: &mut [Running],
+        stage: String,
+        failure: Failure,
+        stderr_tail: Vec<String>,
+    ) -> Result<(), RunError> {
+        match self.graph.isolated_branch_of(&stage) {
+            Some((root, branch)) => {
+                self.stop_branch(stages, &branch);
+                let status = match failure {
+                    Failure::Ended(status) => status,
+                    Failure::Stalled(detail) => format!("stalled: {detail}"),
+                };
+                self.failed_branches.push(FailedBranch {
+                    root,
+                    stage,
+                    status,
+                    stderr_tail,
+                    stopped: branch.into_iter().collect(),
+                });
+                Ok(())
+            }
+            None => {
+                stop_all(stages);
+                Err(match failure {
+                    Failure::Ended(status) => RunError::StageFailed {
                         stage,
-                        status: format!("stalled: {detail}"),
+                        status,
                         stderr_tail,
-                        stopped: branch.into_iter().collect(),
-                    });
-                }
-                None => {
-                    stop_all(stages);
-                    return Err(RunError::Stalled {
+                    },
+                    Failure::Stalled(detail) => RunError::Stalled {
                         stage,
                         detail,
                         stderr_tail,
-                    });
-                }
+                    },
+                })
             }
         }
-        Ok(())
     }
 
     /// Stops every stage of `branch` (SIGTERM: they finalize; SIGKILL after a grace period) and tells

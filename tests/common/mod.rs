@@ -139,3 +139,25 @@ pub fn mcap_messages(path: &Path) -> Vec<(String, u32, Vec<u8>)> {
         })
         .collect()
 }
+
+/// The path of a built example (e.g. `external_counter`), next to the imuflow binary.
+pub fn example_exe(name: &str) -> PathBuf {
+    Path::new(IMUFLOW)
+        .parent()
+        .expect("target dir")
+        .join("examples")
+        .join(name)
+}
+
+/// Messages of `topic` in a recording read with [`mcap_messages`].
+pub fn count(messages: &[(String, u32, Vec<u8>)], topic: &str) -> usize {
+    messages.iter().filter(|m| m.0 == topic).count()
+}
+
+/// Nothing left behind: no shared-memory files, no stage processes of this sandbox.
+pub fn assert_clean(sandbox: &Sandbox) {
+    let left = sandbox.leftovers();
+    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
+    let stray = sandbox.stray_processes();
+    assert!(stray.is_empty(), "stray stage processes: {stray:?}");
+}

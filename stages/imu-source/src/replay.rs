@@ -214,7 +214,19 @@ pub fn run(
         0 => recording.imu_frames,
         n => n.min(recording.imu_frames),
     };
-    let mut imu_published = 0u64;
+    // The last seq replayed: that of the `total`-th IMU frame (its truth may come before or after it).
+    let last_seq = (total < recording.imu_frames)
+        .then(|| {
+            recording
+                .frames
+                .iter()
+                .filter_map(|f| match f {
+                    Recorded::Imu(f) => Some(f.header.seq),
+                    Recorded::Truth(_) => None,
+                })
+                .nth((total as usize).saturating_sub(1))
+        })
+        .flatten();
     let Some(mut out) = Publisher::start(ctx, total)? else {
         return Ok(());
     };
@@ -223,12 +235,18 @@ pub fn run(
         Recorded::Truth(_) => None,
     });
     for frame in &recording.frames {
-        if out.ctx.should_stop() || imu_published == total {
+        if out.ctx.should_stop() {
             break;
+        }
+        let seq = match frame {
+            Recorded::Imu(f) => f.header.seq,
+            Recorded::Truth(f) => f.header.seq,
+        };
+        if last_seq.is_some_and(|last| seq > last) {
+            continue;
         }
         match frame {
             Recorded::Imu(f) => {
-                imu_published += 1;
                 if realtime && let Some(first) = first_capture {
                     out.pace(Duration::from_nanos(
                         f.header.capture_ns.saturating_sub(first),
