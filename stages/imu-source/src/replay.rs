@@ -126,24 +126,28 @@ impl Recording {
             ..Recording::default()
         };
         let mut truth_frames = 0u64;
-        let stream = mcap::MessageStream::new(bytes).context("not a readable mcap file")?;
-        for (n, message) in stream.enumerate() {
-            let message = message.with_context(|| format!("mcap message {n} is corrupt"))?;
-            let id = message.channel.id;
+        for_each_record(bytes, |n, record| {
+            let mcap::records::Record::Message { header, data } = record else {
+                return Ok(());
+            };
+            let id = header.channel_id;
             if id == imu.id {
-                let f: ImuFrame = decode(&message.data, &imu.topic, rec.imu_frames)?;
+                let f: ImuFrame = decode(&data, &imu.topic, rec.imu_frames)
+                    .with_context(|| format!("mcap record {n}"))?;
                 rec.imu_frames += 1;
                 if !f.header.is_end() {
                     rec.frames.push(Recorded::Imu(Box::new(f)));
                 }
             } else if let Some(t) = truth.as_ref().filter(|t| t.id == id) {
-                let f: MotionFrame = decode(&message.data, &t.topic, truth_frames)?;
+                let f: MotionFrame = decode(&data, &t.topic, truth_frames)
+                    .with_context(|| format!("mcap record {n}"))?;
                 truth_frames += 1;
                 if !f.header.is_end() {
                     rec.frames.push(Recorded::Truth(Box::new(f)));
                 }
             }
-        }
+            Ok(())
+        })?;
         if rec.imu_frames == 0 {
             tracing::warn!(topic = %rec.imu_topic, "the recording's IMU topic holds no messages");
         }
@@ -153,39 +157,88 @@ impl Recording {
 
 /// The file's channels by id: from the summary when the file has one, else from its messages.
 fn channels(bytes: &[u8]) -> anyhow::Result<BTreeMap<u16, Channel>> {
-    let summary = mcap::Summary::read(bytes).context("not an mcap file")?;
+    let summary = match mcap::Summary::read(bytes) {
+        Ok(summary) => summary,
+        // No footer (a recorder killed before it finished): read the records themselves.
+        Err(_) if bytes.starts_with(mcap::MAGIC) => None,
+        Err(e) => return Err(e).context("not an mcap file"),
+    };
     if let Some(summary) = summary
         && !summary.channels.is_empty()
     {
         return Ok(summary.channels.into_iter().collect());
     }
-    // No summary (a file whose writer was killed): collect the channels of the messages.
+    // No summary (a file whose writer was killed): collect the channels as the records declare them.
+    let mut schemas: BTreeMap<u16, Arc<mcap::Schema<'static>>> = BTreeMap::new();
     let mut found = BTreeMap::new();
-    let stream = mcap::MessageStream::new(bytes).context("not an mcap file")?;
-    for (n, message) in stream.enumerate() {
-        let message = message.with_context(|| format!("mcap message {n} is corrupt"))?;
-        found
-            .entry(message.channel.id)
-            .or_insert_with(|| owned_channel(&message.channel));
-    }
+    for_each_record(bytes, |_, record| {
+        match record {
+            mcap::records::Record::Schema { header, data } => {
+                let schema = mcap::Schema {
+                    id: header.id,
+                    name: header.name,
+                    encoding: header.encoding,
+                    data: std::borrow::Cow::Owned(data.into_owned()),
+                };
+                schemas.insert(schema.id, Arc::new(schema));
+            }
+            mcap::records::Record::Channel(c) => {
+                let channel = mcap::Channel {
+                    id: c.id,
+                    topic: c.topic,
+                    schema: schemas.get(&c.schema_id).cloned(),
+                    message_encoding: c.message_encoding,
+                    metadata: c.metadata,
+                };
+                found.entry(channel.id).or_insert_with(|| Arc::new(channel));
+            }
+            _ => {}
+        }
+        Ok(())
+    })?;
     Ok(found)
 }
 
-fn owned_channel(c: &mcap::Channel<'_>) -> Channel {
-    Arc::new(mcap::Channel {
-        id: c.id,
-        topic: c.topic.clone(),
-        schema: c.schema.as_ref().map(|s| {
-            Arc::new(mcap::Schema {
-                id: s.id,
-                name: s.name.clone(),
-                encoding: s.encoding.clone(),
-                data: std::borrow::Cow::Owned(s.data.to_vec()),
-            })
-        }),
-        message_encoding: c.message_encoding.clone(),
-        metadata: c.metadata.clone(),
-    })
+/// Chunks declaring more than this uncompressed are taken as damage, not data: imuflow's recorder
+/// writes chunks of a few MB, mcap's writers default to 1 MiB.
+const MAX_RECORD_BYTES: usize = 1 << 30;
+
+/// Every record of the file in order (chunks opened), with its index. Read with mcap's sans-io
+/// reader set to check each chunk whole (its sizes against a limit, its CRC) before yielding the
+/// records in it: mcap 0.26's `MessageStream` reserves memory for a record length read out of a
+/// chunk before checking it, so one damaged byte of compressed data made it panic ("capacity
+/// overflow", found by tests/fuzzed_inputs.rs) or abort on a failed allocation.
+fn for_each_record(
+    bytes: &[u8],
+    mut visit: impl FnMut(usize, mcap::records::Record<'_>) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_prevalidate_chunk_crcs(true)
+            .with_record_length_limit(MAX_RECORD_BYTES)
+            // A recording whose writer was killed has no end magic; it is still replayable.
+            .with_skip_end_magic(true),
+    );
+    let mut rest = bytes;
+    let mut n = 0;
+    while let Some(event) = reader.next_event() {
+        match event.with_context(|| format!("mcap record {n} is corrupt"))? {
+            LinearReadEvent::ReadRequest(need) => {
+                let len = need.min(rest.len());
+                reader.insert(len).copy_from_slice(&rest[..len]);
+                reader.notify_read(len);
+                rest = &rest[len..];
+            }
+            LinearReadEvent::Record { data, opcode } => {
+                let record = mcap::parse_record(opcode, data)
+                    .with_context(|| format!("mcap record {n} is corrupt"))?;
+                visit(n, record)?;
+                n += 1;
+            }
+        }
+    }
+    Ok(())
 }
 
 fn describe(channels: &BTreeMap<u16, Channel>) -> String {
@@ -272,6 +325,49 @@ pub fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn sample() -> Vec<u8> {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/sample/walk.mcap");
+        std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+    }
+
+    /// Offset of the first record with opcode `op` (records: opcode u8, length u64 LE, body).
+    fn first_record(bytes: &[u8], op: u8) -> usize {
+        let mut at = 8; // after the magic
+        while at + 9 <= bytes.len() {
+            if bytes[at] == op {
+                return at;
+            }
+            let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+            at += 9 + len;
+        }
+        panic!("no record {op:#x}");
+    }
+
+    #[test]
+    fn a_recording_cut_after_its_data_replays_the_same_frames() {
+        // A recorder killed before it wrote the summary: no DataEnd, summary, footer or end magic.
+        let whole = sample();
+        let data_end = first_record(&whole, 0x0F);
+        let full = Recording::parse(&whole, None, None).expect("the sample");
+        let cut = Recording::parse(&whole[..data_end], None, None).expect("the cut file");
+        assert_eq!(full.imu_frames, 1511);
+        assert_eq!(cut.imu_frames, full.imu_frames);
+        assert_eq!(cut.frames.len(), full.frames.len());
+        assert_eq!(cut.truth_topic, full.truth_topic);
+    }
+
+    #[test]
+    fn a_damaged_chunk_is_an_error_not_a_crash() {
+        // The byte tests/fuzzed_inputs.rs found: inside a zstd chunk's compressed records. mcap's
+        // MessageStream panicked ("capacity overflow") on the record length it decompressed.
+        let mut bytes = sample();
+        let offset = 357_054;
+        assert!(first_record(&bytes, 0x06) <= offset);
+        bytes[offset] = 0;
+        let err = Recording::parse(&bytes, None, None).expect_err("damaged");
+        assert!(format!("{err:#}").contains("corrupt"), "{err:#}");
+    }
 
     #[test]
     fn not_an_mcap_file_is_a_named_error() {
