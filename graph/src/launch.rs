@@ -669,11 +669,12 @@ impl Supervisor<'_> {
         Ok(())
     }
 
-    /// The stall watchdog. A stage whose every forward input holds frames it has not taken (its
-    /// least advanced producer is ahead of it) and whose position has not moved for its
-    /// `stall_timeout_s` is hung or frozen: it is handled like a failed stage (its branch stops,
-    /// or the run). Positions come from the stages' heartbeats, not from their logs. Sources have
-    /// no inputs and are never stalled; a stage waiting on a slow producer is not behind it.
+    /// The stall watchdog. A stage that sent no heartbeat for its `stall_timeout_s` is not running
+    /// (stopped, frozen); a stage whose every forward input holds frames it has not taken (its
+    /// least advanced producer is ahead of it) and whose position has not moved for that long is
+    /// hung. Either is handled like a failed stage (its branch stops, or the run). Positions come
+    /// from the stages' heartbeats, not from their logs; a stage waiting on a slow producer is not
+    /// behind it, and a source blocked by back-pressure still sends heartbeats.
     fn watch_for_stalls(&mut self, stages: &mut [Running]) -> Result<(), RunError> {
         for i in 0..stages.len() {
             let s = &stages[i];
@@ -684,6 +685,20 @@ impl Supervisor<'_> {
                 continue;
             };
             let timeout_s = node.stall_timeout_s(self.graph);
+            // Any stage, sources included: a process that sends no heartbeat is not running.
+            // (A source has no input to sit on; frozen, it would hold its readers forever.)
+            let quiet = s.heard_at.elapsed();
+            if quiet.as_secs_f64() >= timeout_s {
+                let detail = format!(
+                    "no heartbeat for {:.0} s (stall_timeout_s = {timeout_s}): the process is not running (stopped or frozen)",
+                    quiet.as_secs_f64()
+                );
+                let stage = s.id.clone();
+                let stderr_tail = s.tail_now();
+                tracing::warn!("stage '{stage}' stalled: {detail}");
+                self.handle_failure(stages, stage, Failure::Stalled(detail), stderr_tail)?;
+                continue;
+            }
             let still = s.moved_at.elapsed();
             if still.as_secs_f64() < timeout_s {
                 continue;
