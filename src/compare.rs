@@ -13,7 +13,7 @@ use clap::Args;
 use imuflow_dataset::Split;
 use imuflow_eval::compare::batch::{self, BatchOptions};
 use imuflow_graph::Graph;
-use imuflow_graph::combine::{self, Combined, SinkPaths, Variant};
+use imuflow_graph::combine::{self, AblationVariant, Combined, SinkPaths, Variant};
 use imuflow_graph::launch::{self, LaunchOptions};
 
 use crate::registry;
@@ -81,34 +81,22 @@ pub fn run(args: CompareArgs) -> ExitCode {
     }
 }
 
-/// A variant to load: its name, graph file and overrides.
-struct VariantSource {
-    name: String,
-    graph: PathBuf,
-    sets: Vec<String>,
-}
-
-/// The command line's files as variants: a graph file is one variant, an ablation file
-/// (configs/ab/) its `[[variant]]`s. Also returns the single ablation file's name, if that is all.
-fn variant_sources(files: &[PathBuf]) -> anyhow::Result<(Vec<VariantSource>, Option<String>)> {
-    let mut sources: Vec<VariantSource> = Vec::new();
+/// The command line's files as variants: a graph file is one variant (no overrides), an ablation
+/// file (configs/ab/) its `[[variant]]`s. Also returns the single ablation file's name, if that is
+/// all.
+fn variant_sources(files: &[PathBuf]) -> anyhow::Result<(Vec<AblationVariant>, Option<String>)> {
+    let mut sources = Vec::new();
     let mut ablation_names = Vec::new();
     for path in files {
         match combine::read_ablation(path)? {
             Some(ablation) => {
                 ablation_names.push(ablation.name);
-                for v in ablation.variants {
-                    sources.push(VariantSource {
-                        name: v.name,
-                        graph: v.graph,
-                        sets: v.set,
-                    });
-                }
+                sources.extend(ablation.variants);
             }
-            None => sources.push(VariantSource {
+            None => sources.push(AblationVariant {
                 name: variant_name(path),
                 graph: path.clone(),
-                sets: Vec::new(),
+                set: Vec::new(),
             }),
         }
     }
@@ -126,7 +114,7 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
     let (sources, ablation_name) = variant_sources(&args.variants)?;
     let mut variants = Vec::new();
     for source in &sources {
-        let graph = match Graph::load(&source.graph, &source.sets, &registry) {
+        let graph = match Graph::load(&source.graph, &source.set, &registry) {
             Ok(g) => g,
             Err(e) => {
                 eprintln!("error: {e}");
@@ -231,16 +219,15 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
 fn batch(
     args: &CompareArgs,
     name: &str,
-    sources: &[VariantSource],
+    sources: &[AblationVariant],
     data: &Path,
     variants: &[Variant],
     registry: &imuflow_graph::spec::Registry,
 ) -> anyhow::Result<ExitCode> {
-    let split = match args.split.as_str() {
-        "train" => Split::Train,
-        "validation" => Split::Validation,
-        _ => Split::Test,
-    };
+    let split = Split::ALL
+        .into_iter()
+        .find(|s| s.name() == args.split)
+        .context("--split")?;
     let out = args
         .out
         .clone()
@@ -261,7 +248,7 @@ fn batch(
         let path = &source.graph;
         let mut text =
             std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-        text.extend(source.sets.join("\n").bytes());
+        text.extend(source.set.join("\n").bytes());
         fingerprint.push_str(&format!("{:016x}", imuflow_dataset::fnv1a64(&text)));
     }
     if let Some(m) = &args.mapping {

@@ -514,7 +514,7 @@ impl StageContext {
                     .record_latency(header.publish_ns, transport::now_ns());
                 self.any_cursor = i + 1;
                 self.stats.frames_in += 1;
-                self.position.fetch_max(header.seq + 1, Ordering::Relaxed);
+                self.advance(header.seq);
                 self.step_started = Some(Instant::now());
                 if self.last_step.is_none_or(|s| s.seq <= header.seq) {
                     self.last_step = Some(Step {

@@ -37,6 +37,26 @@ impl Problems {
     }
 }
 
+/// A duration key (`ready_timeout_s`, `stall_timeout_s`) of the file (`stage` None) or of a
+/// stage: its value, or `None` when absent or invalid (the problem recorded).
+fn seconds(
+    problems: &mut Problems,
+    stage: Option<&str>,
+    key: &str,
+    value: &Option<toml::Value>,
+) -> Option<f64> {
+    let v = value.as_ref()?;
+    let s = positive_number(v);
+    if s.is_none() {
+        let message = format!("must be a positive number of seconds (got {v})");
+        match stage {
+            Some(id) => problems.stage(id, Some(key), message),
+            None => problems.file(key, message),
+        }
+    }
+    s
+}
+
 /// A stage after the per-stage layer: its declared ports and parsed (not yet resolved) inputs.
 struct Declared<'a> {
     id: &'a str,
@@ -65,16 +85,13 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
             DEFAULT_RATE_HZ
         }),
     };
-    let ready_timeout_s = match &file.ready_timeout_s {
-        None => DEFAULT_READY_TIMEOUT_S,
-        Some(v) => positive_number(v).unwrap_or_else(|| {
-            problems.file(
-                "ready_timeout_s",
-                format!("must be a positive number of seconds (got {v})"),
-            );
-            DEFAULT_READY_TIMEOUT_S
-        }),
-    };
+    let ready_timeout_s = seconds(
+        &mut problems,
+        None,
+        "ready_timeout_s",
+        &file.ready_timeout_s,
+    )
+    .unwrap_or(DEFAULT_READY_TIMEOUT_S);
     let mode = match file.mode.as_deref() {
         None | Some("offline") => Mode::Offline,
         Some("live") => Mode::Live,
@@ -90,16 +107,13 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
         Mode::Offline => crate::graph::DEFAULT_OFFLINE_STALL_TIMEOUT_S,
         Mode::Live => crate::graph::DEFAULT_LIVE_STALL_TIMEOUT_S,
     };
-    let stall_timeout_s = match &file.stall_timeout_s {
-        None => default_stall,
-        Some(v) => positive_number(v).unwrap_or_else(|| {
-            problems.file(
-                "stall_timeout_s",
-                format!("must be a positive number of seconds (got {v})"),
-            );
-            default_stall
-        }),
-    };
+    let stall_timeout_s = seconds(
+        &mut problems,
+        None,
+        "stall_timeout_s",
+        &file.stall_timeout_s,
+    )
+    .unwrap_or(default_stall);
     if file.name.trim().is_empty() {
         problems.file("name", "must not be empty");
     }
@@ -451,17 +465,12 @@ fn declare<'a>(
             OnFailure::default()
         }),
     };
-    let stall_timeout_s = entry.stall_timeout_s.as_ref().and_then(|v| {
-        let s = positive_number(v);
-        if s.is_none() {
-            problems.stage(
-                id,
-                Some("stall_timeout_s"),
-                format!("must be a positive number of seconds (got {v})"),
-            );
-        }
-        s
-    });
+    let stall_timeout_s = seconds(
+        problems,
+        Some(id),
+        "stall_timeout_s",
+        &entry.stall_timeout_s,
+    );
     Some(Declared {
         id,
         runner,

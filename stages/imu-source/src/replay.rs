@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, anyhow, bail};
 use imuflow_graph::StageContext;
-use imuflow_graph::frames::{Frame, ImuFrame, MotionFrame, frame_from_bytes};
+use imuflow_graph::frames::{Frame, FrameHeader, ImuFrame, MotionFrame, frame_from_bytes};
 
 use crate::Publisher;
 
@@ -23,6 +23,15 @@ pub const RAW_ENCODING: &str = "imuflow-raw";
 pub enum Recorded {
     Imu(Box<ImuFrame>),
     Truth(Box<MotionFrame>),
+}
+
+impl Recorded {
+    pub fn header(&self) -> &FrameHeader {
+        match self {
+            Recorded::Imu(f) => &f.header,
+            Recorded::Truth(f) => &f.header,
+        }
+    }
 }
 
 /// The frames of one recording to replay.
@@ -203,12 +212,13 @@ fn channels(bytes: &[u8]) -> anyhow::Result<BTreeMap<u16, Channel>> {
 /// writes chunks of a few MB, mcap's writers default to 1 MiB.
 const MAX_RECORD_BYTES: usize = 1 << 30;
 
-/// Every record of the file in order (chunks opened), with its index. Read with mcap's sans-io
+/// Every record of an mcap file in order (chunks opened), with its index: imuflow's one way to
+/// read mcap files it did not just write (replay, and `imuflow compare`'s report). Read with mcap's sans-io
 /// reader set to check each chunk whole (its sizes against a limit, its CRC) before yielding the
 /// records in it: mcap 0.26's `MessageStream` reserves memory for a record length read out of a
 /// chunk before checking it, so one damaged byte of compressed data made it panic ("capacity
 /// overflow", found by tests/fuzzed_inputs.rs) or abort on a failed allocation.
-fn for_each_record(
+pub fn for_each_record(
     bytes: &[u8],
     mut visit: impl FnMut(usize, mcap::records::Record<'_>) -> anyhow::Result<()>,
 ) -> anyhow::Result<()> {
@@ -291,32 +301,20 @@ pub fn run(
         if out.ctx.should_stop() {
             break;
         }
-        let seq = match frame {
-            Recorded::Imu(f) => f.header.seq,
-            Recorded::Truth(f) => f.header.seq,
-        };
-        if last_seq.is_some_and(|last| seq > last) {
+        let header = frame.header();
+        if last_seq.is_some_and(|last| header.seq > last) {
             continue;
         }
+        // Truth frames are paced like their IMU frame (the same capture time), so that truth and
+        // estimate of one sample leave together instead of the truth a frame early.
+        if realtime && let Some(first) = first_capture {
+            out.pace(Duration::from_nanos(
+                header.capture_ns.saturating_sub(first),
+            ));
+        }
         match frame {
-            Recorded::Imu(f) => {
-                if realtime && let Some(first) = first_capture {
-                    out.pace(Duration::from_nanos(
-                        f.header.capture_ns.saturating_sub(first),
-                    ));
-                }
-                out.publish_imu(f, Instant::now())?;
-            }
-            Recorded::Truth(f) => {
-                // Paced like its IMU frame (the same capture time), so that truth and estimate
-                // of one sample leave together instead of the truth a frame early.
-                if realtime && let Some(first) = first_capture {
-                    out.pace(Duration::from_nanos(
-                        f.header.capture_ns.saturating_sub(first),
-                    ));
-                }
-                out.publish_truth(f)?
-            }
+            Recorded::Imu(f) => out.publish_imu(f, Instant::now())?,
+            Recorded::Truth(f) => out.publish_truth(f)?,
         }
     }
     out.finish()

@@ -15,6 +15,7 @@ use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
 use imuflow_graph::combine::Combined;
 use imuflow_graph::frames::{MotionFrame, ValidationFrame, frame_from_bytes};
 use imuflow_graph::launch::RunReport;
+use imuflow_imu_source::replay::for_each_record;
 
 use crate::score::{
     MotionScores, SKIPPED_FLAGS, disagreement, score_against_truth, score_without_truth,
@@ -275,16 +276,32 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
     })
 }
 
-/// Messages per topic, in file order.
+/// Messages per topic, in file order (through replay's validating reader: a damaged chunk is an
+/// error, not a crash).
 fn read_topics(bytes: &[u8]) -> anyhow::Result<BTreeMap<String, Vec<Vec<u8>>>> {
+    let mut topic_of: BTreeMap<u16, String> = BTreeMap::new();
     let mut topics: BTreeMap<String, Vec<Vec<u8>>> = BTreeMap::new();
-    for message in mcap::MessageStream::new(bytes).context("not a readable mcap file")? {
-        let message = message.context("a damaged message")?;
-        topics
-            .entry(message.channel.topic.clone())
-            .or_default()
-            .push(message.data.into_owned());
-    }
+    for_each_record(bytes, |n, record| {
+        match record {
+            mcap::records::Record::Channel(c) => {
+                topic_of.insert(c.id, c.topic);
+            }
+            mcap::records::Record::Message { header, data } => {
+                let topic = topic_of.get(&header.channel_id).with_context(|| {
+                    format!(
+                        "mcap record {n}: a message of undeclared channel {}",
+                        header.channel_id
+                    )
+                })?;
+                topics
+                    .entry(topic.clone())
+                    .or_default()
+                    .push(data.into_owned());
+            }
+            _ => {}
+        }
+        Ok(())
+    })?;
     Ok(topics)
 }
 
