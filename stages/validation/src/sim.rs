@@ -9,7 +9,7 @@
 //! local rotation `parent_from_joint`, and its three generalized velocities are the child's angular
 //! velocity relative to the parent, expressed in the parent's frame.
 
-use imuflow_body::kinematics::Pose;
+use imuflow_body::kinematics::{FkData, Pose, forward_kinematics};
 use imuflow_body::rotation::axis_angle_from_rotation;
 use imuflow_body::skeleton::{JointId, NUM_JOINTS};
 use nalgebra::{Quaternion, Rotation3, UnitQuaternion, Vector3};
@@ -23,6 +23,15 @@ const GRAVITY_MPS2: f64 = 9.81;
 /// The root's (pelvis) stance feedback starts only when the feet carry this share of the weight:
 /// a foot that barely touches cannot hold the pelvis up. [inferred]
 const STANCE_LOAD_FRACTION: f64 = 0.2;
+/// A foot is the stance foot (and the other one swings) when it carries this share of the feet's
+/// load. [inferred]
+const SINGLE_STANCE_SHARE: f64 = 0.8;
+/// The estimate swings a foot when its ball is this much higher than the other's, m. [inferred]
+const SWING_CLEARANCE_M: f64 = 0.02;
+/// Largest foot-placement shift, m. [inferred]
+const MAX_PLACEMENT_SHIFT_M: f64 = 0.3;
+/// The feet's balls, [left, right].
+const FEET: [JointId; 2] = [JointId::LEFT_FOOT, JointId::RIGHT_FOOT];
 /// Gauss-Seidel sweeps per solver iteration (see `Simulation::new`).
 const PGS_SWEEPS: usize = 4;
 
@@ -62,6 +71,10 @@ pub struct SimConfig {
     /// Pelvis-orientation feedback through the stance hips, per unit root inertia, 1/s² and 1/s.
     pub balance_kp: f64,
     pub balance_kd: f64,
+    /// Foot placement: the swing foot is put this far further per metre the simulated centre of
+    /// mass is ahead of the estimate's (relative to the stance foot), and per m/s it is faster.
+    pub placement_kp: f64,
+    pub placement_kv: f64,
     /// Residual mode: root PD per unit mass (force) and root inertia (torque), 1/s² and 1/s.
     pub residual_kp: f64,
     pub residual_kd: f64,
@@ -69,6 +82,8 @@ pub struct SimConfig {
     pub friction: f64,
     /// Physics steps per input frame.
     pub substeps: usize,
+    /// rapier solver iterations (its internal substeps) per physics step.
+    pub solver_iterations: usize,
 }
 
 impl Default for SimConfig {
@@ -80,10 +95,13 @@ impl Default for SimConfig {
             max_torque_nm_per_kg: 4.0,
             balance_kp: 400.0,
             balance_kd: 40.0,
+            placement_kp: 1.0,
+            placement_kv: 0.3,
             residual_kp: 100.0,
             residual_kd: 20.0,
             friction: 0.8,
             substeps: 4,
+            solver_iterations: 1,
         }
     }
 }
@@ -166,6 +184,23 @@ pub struct Simulation {
     ground: ColliderHandle,
     /// Vertical floor force on each foot during the last substep, N (for the stance feedback).
     foot_load_n: [f64; 2],
+    /// The estimate's centre of mass at the previous frame, m (for its velocity).
+    previous_target_com_m: Option<Vector3<f64>>,
+    /// This frame's foot-placement reference (see `placement_reference`).
+    placement: Option<Placement>,
+    target_fk: FkData,
+}
+
+/// What the foot placement compares the simulated body with, from the estimate of this frame.
+#[derive(Debug, Clone)]
+struct Placement {
+    /// The estimate's centre of mass and its velocity, world, m and m/s.
+    com_m: Vector3<f64>,
+    com_velocity_mps: Vector3<f64>,
+    /// The estimate's feet (balls), world, m, [left, right].
+    feet_m: [Vector3<f64>; 2],
+    /// The estimate's world rotation of each thigh (the hip joint frames), [left, right].
+    thigh: [Rotation3<f64>; 2],
 }
 
 fn vec3(v: &Vector3<f64>) -> Vec3 {
@@ -200,6 +235,7 @@ impl Simulation {
         // motors are coupled through the whole multibody's mass matrix, and with one sweep the
         // chain sagged (a T-pose folded at the knees within 1.5 s); with four it stands to 5 mm.
         world.integration_parameters.num_internal_pgs_iterations = PGS_SWEEPS;
+        world.integration_parameters.num_solver_iterations = config.solver_iterations.max(1);
 
         let ground_body = world.bodies.insert(RigidBodyBuilder::fixed());
         let floor = ColliderBuilder::halfspace(rapier3d::na::Unit::new_unchecked(Vec3::Y))
@@ -231,7 +267,7 @@ impl Simulation {
                 .additional_mass_properties(mass)
                 .can_sleep(false);
             let handle = world.bodies.insert(body);
-            for shape in &link.shapes {
+            for (carried, shape) in &link.shapes {
                 let collider = collider(shape)
                     .density(0.0)
                     .friction(config.friction as f32)
@@ -243,7 +279,7 @@ impl Simulation {
                 let c = world
                     .colliders
                     .insert_with_parent(collider, handle, &mut world.bodies);
-                collider_joint.push((c, contact_joint(link.joint)));
+                collider_joint.push((c, contact_joint(*carried)));
             }
             if let Some(parent) = link.joint.parent() {
                 let parent_body = link_body[link_of[parent.index()].expect("parents are links")];
@@ -290,6 +326,9 @@ impl Simulation {
             collider_joint,
             ground,
             foot_load_n: [0.0; 2],
+            previous_target_com_m: None,
+            placement: None,
+            target_fk: FkData::new(),
         };
         sim.set_state(start);
         sim
@@ -345,15 +384,16 @@ impl Simulation {
     pub fn step(&mut self, target: &Target, dt: f64) -> FrameForces {
         let substeps = self.config.substeps.max(1);
         let h = dt / substeps as f64;
+        self.placement = Some(self.placement_reference(target, dt));
         self.world.integration_parameters.dt = h as f32;
         let mut out = FrameForces::default();
         let mut slip = [(0.0, 0u32); 2];
         for _ in 0..substeps {
             self.drive_joints(target);
             let (force, torque) = self.drive_root(target);
+            self.world.step();
             out.residual_force_n += force / substeps as f64;
             out.residual_torque_nm += torque / substeps as f64;
-            self.world.step();
             out.penetration_m = out.penetration_m.max(self.add_contact_forces(
                 &mut out.contact_force_n,
                 h,
@@ -424,6 +464,7 @@ impl Simulation {
     fn drive_joints(&mut self, target: &Target) {
         let (kp, kd) = (self.config.kp, self.config.kd);
         let stance = self.stance_correction(target);
+        let swing = self.swing_hip_target();
         let gains: Vec<(usize, JointId, f64)> = self
             .model
             .links
@@ -437,8 +478,11 @@ impl Simulation {
             let link = mb.link_mut(id).expect("link ids are valid");
             let j = joint.index();
             let current = rotation(link.joint.joint_rot());
-            let error =
-                axis_angle_from_rotation(&(target.pose.parent_from_joint[j] * current.inverse()));
+            let wanted = match (joint, swing) {
+                (JointId::LEFT_HIP, Some((0, hip))) | (JointId::RIGHT_HIP, Some((1, hip))) => hip,
+                _ => target.pose.parent_from_joint[j],
+            };
+            let error = axis_angle_from_rotation(&(wanted * current.inverse()));
             let mut velocity = target.angular_velocity[j] + error * (kp / kd.max(1e-9));
             match joint {
                 JointId::LEFT_HIP => velocity += stance[0],
@@ -451,6 +495,106 @@ impl Simulation {
                     .set_motor_velocity(axis, velocity[k] as f32, damping as f32);
             }
         }
+    }
+
+    /// The estimate's centre of mass (and its velocity from the previous frame's), feet and thighs.
+    fn placement_reference(&mut self, target: &Target, dt: f64) -> Placement {
+        forward_kinematics(&self.model.body.skeleton, &target.pose, &mut self.target_fk);
+        let fk = &self.target_fk;
+        let com_m = self
+            .model
+            .links
+            .iter()
+            .map(|l| {
+                let j = l.joint.index();
+                l.mass_kg * (fk.joint_in_world_m[j] + fk.world_from_joint[j] * l.com_m)
+            })
+            .sum::<Vector3<f64>>()
+            / self.model.total_mass_kg;
+        let com_velocity_mps = match self.previous_target_com_m {
+            Some(previous) if dt > 0.0 => (com_m - previous) / dt,
+            _ => self.sim_com().1,
+        };
+        self.previous_target_com_m = Some(com_m);
+        Placement {
+            com_m,
+            com_velocity_mps,
+            feet_m: FEET.map(|f| fk.joint_in_world_m[f.index()]),
+            thigh: [JointId::LEFT_HIP, JointId::RIGHT_HIP].map(|h| fk.world_from_joint[h.index()]),
+        }
+    }
+
+    /// The simulated centre of mass and its velocity, world, m and m/s.
+    fn sim_com(&self) -> (Vector3<f64>, Vector3<f64>) {
+        let (mut com, mut velocity) = (Vector3::zeros(), Vector3::zeros());
+        for handle in &self.link_body {
+            let rb = &self.world.bodies[*handle];
+            let m = f64::from(rb.mass());
+            com += m * vector(rb.center_of_mass());
+            velocity += m * vector(rb.linvel());
+        }
+        (
+            com / self.model.total_mass_kg,
+            velocity / self.model.total_mass_kg,
+        )
+    }
+
+    /// Foot placement (SIMBICON, Yin et al. 2007, §4.2: `θ_d = θ_d0 + c_d·d + c_v·v`): while one
+    /// foot carries the body and the estimate has the other one in the air, the swing thigh follows the estimate's thigh in the world,
+    /// not relative to the simulated pelvis, turned so that its foot lands
+    /// `placement_kp·Δd + placement_kv·Δv` further, where Δd and Δv are how far the simulated
+    /// centre of mass is ahead of the estimate's, relative to each one's stance foot, and how much
+    /// faster it moves (horizontal). Stepping towards where the body is falling catches it.
+    /// Returns the swing side (0 left, 1 right) and its hip's local target rotation.
+    fn swing_hip_target(&self) -> Option<(usize, Rotation3<f64>)> {
+        let placement = self.placement.as_ref()?;
+        let weight = self.model.total_mass_kg * GRAVITY_MPS2;
+        let load: f64 = self.foot_load_n.iter().sum();
+        if load <= STANCE_LOAD_FRACTION * weight {
+            return None;
+        }
+        let stance = if self.foot_load_n[0] >= SINGLE_STANCE_SHARE * load {
+            0
+        } else if self.foot_load_n[1] >= SINGLE_STANCE_SHARE * load {
+            1
+        } else {
+            return None;
+        };
+        let swing = 1 - stance;
+        // Only while the estimate swings that foot too: with both its feet down, an unloaded
+        // simulated foot should come down, not be held off the floor by the shift.
+        if placement.feet_m[swing].y - placement.feet_m[stance].y < SWING_CLEARANCE_M {
+            return None;
+        }
+        let (com, com_velocity) = self.sim_com();
+        let sim_foot = self.foot_position(FEET[stance]);
+        let horizontal = |v: Vector3<f64>| Vector3::new(v.x, 0.0, v.z);
+        let ahead = horizontal((com - sim_foot) - (placement.com_m - placement.feet_m[stance]));
+        let faster = horizontal(com_velocity - placement.com_velocity_mps);
+        let mut shift = self.config.placement_kp * ahead + self.config.placement_kv * faster;
+        if shift.norm() > MAX_PLACEMENT_SHIFT_M {
+            shift *= MAX_PLACEMENT_SHIFT_M / shift.norm();
+        }
+        // Turning the thigh by θ about `shift × up` moves a foot `leg` below the hip by θ·leg
+        // along `shift`.
+        let leg = self.model.leg_length_m;
+        let turn = Rotation3::new(shift.cross(&Vector3::y()) / leg);
+        let pelvis = rotation(*self.world.bodies[self.link_body[0]].rotation());
+        Some((swing, pelvis.inverse() * turn * placement.thigh[swing]))
+    }
+
+    /// World position of a rigid leaf joint (a foot's ball) of the simulated body, m.
+    fn foot_position(&self, leaf: JointId) -> Vector3<f64> {
+        let parent = leaf.parent().expect("leaves have parents");
+        let link = self.model.carrying_link(leaf);
+        let to_world = self
+            .multibody()
+            .link(self.link_id[link])
+            .expect("link ids are valid")
+            .local_to_world();
+        debug_assert_eq!(self.model.links[link].joint, parent);
+        vector(to_world.translation)
+            + rotation(to_world.rotation) * self.model.body.skeleton.offset_in_parent_m(leaf)
     }
 
     /// The change of each hip's velocity target that steers the pelvis (see `drive_joints`); zero
@@ -471,29 +615,49 @@ impl Simulation {
         [0, 1].map(|side| in_pelvis * (self.foot_load_n[side] / load))
     }
 
-    /// Residual mode: a PD force and torque on the root towards the estimate (explicit: weak gains
-    /// on the heaviest link). Returns them (world); zero in torques mode.
+    /// Residual mode: a PD force and torque that keep the root near the estimate, applied as an
+    /// acceleration field over the whole body (each link gets its mass times the same linear
+    /// acceleration, and the same angular acceleration about the centre of mass), so the help
+    /// moves the body as one piece, like a hand holding it by the pelvis through a rigid frame.
+    /// Applied to the pelvis link alone, the damping term diverged at 240 Hz: in reduced
+    /// coordinates the pelvis answers a root force with its own small articulated inertia. The
+    /// total force and torque are `m·(kp·Δp + kd·Δv)` and `I·(kp·Δθ + kd·Δω)` with the root's
+    /// errors, `I` the whole body's inertia about the pelvis. Returns them (world); zero in torques
+    /// mode.
     fn drive_root(&mut self, target: &Target) -> (Vector3<f64>, Vector3<f64>) {
-        let root = self.link_body[0];
-        let rb = &mut self.world.bodies[root];
-        rb.reset_forces(false);
+        for handle in &self.link_body {
+            self.world.bodies[*handle].reset_forces(false);
+        }
         if self.config.mode == Mode::Torques {
             return (Vector3::zeros(), Vector3::zeros());
         }
+        let rb = &self.world.bodies[self.link_body[0]];
         let orientation = rotation(*rb.rotation());
-        let origin = rb.translation();
+        let origin = vector(rb.translation());
         let orientation_error =
             axis_angle_from_rotation(&(target.pose.parent_from_joint[0] * orientation.inverse()));
-        let angvel_error = target.angular_velocity[0] - vector(rb.angvel());
-        let velocity = vector(rb.velocity_at_point(origin));
+        let velocity = vector(rb.velocity_at_point(rb.translation()));
         let (kp, kd) = (self.config.residual_kp, self.config.residual_kd);
-        let force = self.model.total_mass_kg
-            * (kp * (target.pose.root_in_world_m - vector(origin))
-                + kd * (target.root_velocity - velocity));
-        let torque = self.model.root_inertia_kgm2 * (kp * orientation_error + kd * angvel_error);
-        rb.add_force_at_point(vec3(&force), origin, false);
-        rb.add_torque(vec3(&torque), false);
-        (force, torque)
+        let linear =
+            kp * (target.pose.root_in_world_m - origin) + kd * (target.root_velocity - velocity);
+        let angular =
+            kp * orientation_error + kd * (target.angular_velocity[0] - vector(rb.angvel()));
+        let (com, _) = self.sim_com();
+        let mut total_torque = Vector3::zeros();
+        for handle in &self.link_body {
+            let rb = &mut self.world.bodies[*handle];
+            let m = f64::from(rb.mass());
+            let at = vector(rb.center_of_mass());
+            let force = m * (linear + angular.cross(&(at - com)));
+            // The link's inertia is diagonal in its frame (model.rs).
+            let inertia = vector(rb.mass_properties().local_mprops.principal_inertia());
+            let frame = rotation(*rb.rotation());
+            let torque = frame * inertia.component_mul(&(frame.inverse() * angular));
+            rb.add_force_at_point(vec3(&force), rb.center_of_mass(), false);
+            rb.add_torque(vec3(&torque), false);
+            total_torque += torque + (at - com).cross(&force);
+        }
+        (self.model.total_mass_kg * linear, total_torque)
     }
 
     /// Adds `weight` × the floor's force on each joint during the last step of `h` seconds to
@@ -563,14 +727,15 @@ impl Simulation {
             };
         }
         pose.root_in_world_m = joint_position_m[0];
-        // The rigid leaves ride on their parent link.
-        for leaf in crate::model::RIGID_LEAVES {
-            let parent = leaf.parent().expect("leaves have parents").index();
-            let j = leaf.index();
+        // The rigid joints ride on their carrying link, in their rest pose (parents first).
+        for rigid in crate::model::RIGID_JOINTS {
+            let parent = rigid.parent().expect("rigid joints have parents").index();
+            let j = rigid.index();
             world_from_joint[j] = world_from_joint[parent];
             joint_position_m[j] = joint_position_m[parent]
-                + world_from_joint[parent] * self.model.body.skeleton.offset_in_parent_m(leaf);
-            joint_velocity_mps[j] = joint_velocity_mps[parent];
+                + world_from_joint[parent] * self.model.body.skeleton.offset_in_parent_m(rigid);
+            let carrier = &self.world.bodies[self.link_body[self.model.carrying_link(rigid)]];
+            joint_velocity_mps[j] = vector(carrier.velocity_at_point(vec3(&joint_position_m[j])));
         }
         SimState {
             pose,
@@ -604,12 +769,16 @@ fn collider(shape: &Shape) -> ColliderBuilder {
         Shape::Cuboid {
             centre,
             half_extents,
+            rotation,
         } => ColliderBuilder::cuboid(
             half_extents.x as f32,
             half_extents.y as f32,
             half_extents.z as f32,
         )
-        .translation(vec3(centre)),
+        .position(rapier3d::math::Pose::from_parts(
+            vec3(centre),
+            quat(rotation),
+        )),
     }
 }
 

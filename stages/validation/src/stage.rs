@@ -94,6 +94,27 @@ pub const SPEC: StageSpec = StageSpec {
         ),
         ParamSpec::float("balance_kd", 0.0, 1e4, "40", "its damping (1/s)"),
         ParamSpec::float(
+            "placement_kp",
+            0.0,
+            10.0,
+            "1",
+            "foot placement: swing foot shift per metre the simulated centre of mass is ahead of the estimate's (relative to the stance foot)",
+        ),
+        ParamSpec::float(
+            "placement_kv",
+            0.0,
+            10.0,
+            "0.3",
+            "foot placement: swing foot shift per m/s the simulated centre of mass is faster (s)",
+        ),
+        ParamSpec::float(
+            "foot_pitch_deg",
+            -45.0,
+            45.0,
+            "0",
+            "ankle pitch (toe down, degrees) at which the soles are level: 0 for the nets' estimates, 9.3 for Bandai-retargeted truth",
+        ),
+        ParamSpec::float(
             "residual_kp",
             0.0,
             1e5,
@@ -120,6 +141,13 @@ pub const SPEC: StageSpec = StageSpec {
             required: false,
             default: "4",
             doc: "physics steps per frame",
+        },
+        ParamSpec {
+            name: "solver_iterations",
+            ty: ParamType::Int { min: 1, max: 16 },
+            required: false,
+            default: "1",
+            doc: "rapier solver iterations per physics step (each recomputes the multibody mass matrix)",
         },
         ParamSpec::float(
             "fall_height_fraction",
@@ -163,10 +191,15 @@ pub fn build(stage: &str, params: &Params) -> anyhow::Result<Validator> {
         max_torque_nm_per_kg: params.float("max_torque_nm_per_kg", d.max_torque_nm_per_kg),
         balance_kp: params.float("balance_kp", d.balance_kp),
         balance_kd: params.float("balance_kd", d.balance_kd),
+        placement_kp: params.float("placement_kp", d.placement_kp),
+        placement_kv: params.float("placement_kv", d.placement_kv),
         residual_kp: params.float("residual_kp", d.residual_kp),
         residual_kd: params.float("residual_kd", d.residual_kd),
         friction: params.float("friction", d.friction),
         substeps: params.int("substeps", d.substeps as i64).max(1) as usize,
+        solver_iterations: params
+            .int("solver_iterations", d.solver_iterations as i64)
+            .max(1) as usize,
     };
     let f = FallRule::default();
     let fall = FallRule {
@@ -174,7 +207,11 @@ pub fn build(stage: &str, params: &Params) -> anyhow::Result<Validator> {
         trunk_tilt_deg: params.float("fall_tilt_deg", f.trunk_tilt_deg),
         max_drift_m: params.float("max_drift_m", f.max_drift_m),
     };
-    Ok(Validator::new(SimModel::new(&body), config, fall))
+    let model = SimModel::with_foot_pitch(
+        &body,
+        params.float("foot_pitch_deg", crate::model::DEFAULT_FOOT_PITCH_DEG),
+    );
+    Ok(Validator::new(model, config, fall))
 }
 
 /// Seconds between two frames from their capture times, or the graph's nominal period when the

@@ -1,0 +1,275 @@
+//! Tracks the true motion of clips with the validation simulation and prints the scores, the time
+//! per frame and what preceded the falls: the quickest way to try the controller's gains.
+//!
+//! ```text
+//! cargo run --release -p imuflow-validation --example track -- CLIP [FIRST [COUNT]]
+//! cargo run --release -p imuflow-validation --example track -- @LIST    # one clip path a line
+//! ```
+//!
+//! CLIP is a recording with a truth channel (`models/sample/walk.mcap`) or a Bandai Namco BVH.
+//! With @LIST, torques mode only, the totals over the clips. Variables override the defaults:
+//! `SIM_KP`, `SIM_KD`, `SIM_BKP`, `SIM_BKD`, `SIM_PKP`, `SIM_PKV`, `SIM_RKP`, `SIM_RKD`,
+//! `SIM_FRICTION`, `SIM_MAXTAU`, `SIM_SUBSTEPS`, `SIM_ITERS`, `SIM_FOOT_PITCH` (the SimConfig
+//! fields and the stage parameters of the same meaning); `SIM_MODES=torques,residual` picks the
+//! modes of a single clip; `SIM_TRACE=1` prints every frame (root offset from the estimate, pelvis
+//! and trunk tilt, the feet's loads and the estimate's ball heights); `SIM_FEET=1` prints the
+//! estimate's stance-foot pitch instead of simulating (see `model::DEFAULT_FOOT_PITCH_DEG`).
+
+use std::path::Path;
+
+use anyhow::Context;
+use imuflow_body::body_model::{BodyModel, BodyParams};
+use imuflow_body::kinematics::{FkData, Pose, forward_kinematics};
+use imuflow_body::skeleton::JointId;
+use imuflow_imu_source::replay::{Recorded, Recording};
+use imuflow_imu_source::synth::{Motion, Options};
+use imuflow_validation::model::DEFAULT_FOOT_PITCH_DEG;
+use imuflow_validation::{FallRule, Mode, SimConfig, SimModel, Validator};
+use nalgebra::Vector3;
+
+const DT: f64 = 1.0 / 60.0;
+const FEET: [JointId; 2] = [JointId::LEFT_FOOT, JointId::RIGHT_FOOT];
+/// How far back a fall looks for what preceded it, frames (0.5 s).
+const LOOKBACK: usize = 30;
+
+fn env_f64(name: &str, default: f64) -> f64 {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let body = BodyModel::new(&BodyParams::builtin()?, 1.75, 70.0)?;
+    let clip = args.first().map_or("models/sample/walk.mcap", |s| s);
+    if let Some(list) = clip.strip_prefix('@') {
+        return batch(&body, Path::new(list));
+    }
+    let first: usize = args.get(1).map_or(Ok(0), |s| s.parse())?;
+    let count: usize = args.get(2).map_or(Ok(usize::MAX), |s| s.parse())?;
+    let poses: Vec<Pose> = load(Path::new(clip))?
+        .into_iter()
+        .skip(first)
+        .take(count)
+        .collect();
+    if std::env::var("SIM_FEET").is_ok() {
+        stance_pitch(&body, &poses);
+        return Ok(());
+    }
+    let modes = std::env::var("SIM_MODES").unwrap_or_else(|_| "torques,residual".into());
+    for mode in modes.split(',').filter_map(Mode::parse) {
+        let run = track(&body, mode, &poses, first);
+        println!(
+            "{mode:?}: {}",
+            run.validator.stats.summary_line(mode == Mode::Residual)
+        );
+        println!("  falls at frames {:?}", run.falls);
+    }
+    Ok(())
+}
+
+/// Torques mode over every clip of `list`: the totals, and what preceded the falls and resyncs.
+fn batch(body: &BodyModel, list: &Path) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(list).with_context(|| list.display().to_string())?;
+    let (mut frames, mut falls, mut resyncs) = (0u64, 0u64, 0u64);
+    let (mut tracking, mut pose) = (0.0, 0.0);
+    let mut causes = Causes::default();
+    let mut step_us = Vec::new();
+    for clip in text.lines().map(str::trim).filter(|l| !l.is_empty()) {
+        let run = track(body, Mode::Torques, &load(Path::new(clip))?, 0);
+        let s = &run.validator.stats;
+        if std::env::var("SIM_VERBOSE").is_ok() {
+            println!("{clip}: {}", s.summary_line(false));
+        }
+        frames += s.frames;
+        falls += s.falls;
+        resyncs += s.resyncs;
+        tracking += s.tracking_error_mean_m() * s.frames as f64;
+        pose += s.pose_error_mean_m() * s.frames as f64;
+        step_us.extend_from_slice(&s.step_us[1..]);
+        causes.add(&run.causes);
+    }
+    step_us.sort_by(f64::total_cmp);
+    println!(
+        "{frames} frames: falls {falls} ({:.1}/min), resyncs {resyncs} ({:.1}/min), tracking {:.1} cm, pose {:.1} cm, p50 {:.0} µs/frame",
+        falls as f64 * 3600.0 / frames as f64,
+        resyncs as f64 * 3600.0 / frames as f64,
+        100.0 * tracking / frames as f64,
+        100.0 * pose / frames as f64,
+        step_us.get(step_us.len() / 2).copied().unwrap_or(0.0)
+    );
+    println!(
+        "of the {} falls and resyncs, {} followed a scuff (a simulated foot loaded while the estimate's is 3 cm up) and {} a bounce (no simulated foot loaded while an estimate's foot is down) within 0.5 s",
+        causes.failures, causes.after_scuff, causes.after_bounce
+    );
+    Ok(())
+}
+
+/// What preceded the failures of a run.
+#[derive(Default)]
+struct Causes {
+    failures: u32,
+    after_scuff: u32,
+    after_bounce: u32,
+}
+
+impl Causes {
+    fn add(&mut self, other: &Causes) {
+        self.failures += other.failures;
+        self.after_scuff += other.after_scuff;
+        self.after_bounce += other.after_bounce;
+    }
+}
+
+struct Run {
+    validator: Validator,
+    falls: Vec<usize>,
+    causes: Causes,
+}
+
+fn config(mode: Mode) -> SimConfig {
+    let d = SimConfig::default();
+    SimConfig {
+        mode,
+        kp: env_f64("SIM_KP", d.kp),
+        kd: env_f64("SIM_KD", d.kd),
+        max_torque_nm_per_kg: env_f64("SIM_MAXTAU", d.max_torque_nm_per_kg),
+        balance_kp: env_f64("SIM_BKP", d.balance_kp),
+        balance_kd: env_f64("SIM_BKD", d.balance_kd),
+        placement_kp: env_f64("SIM_PKP", d.placement_kp),
+        placement_kv: env_f64("SIM_PKV", d.placement_kv),
+        residual_kp: env_f64("SIM_RKP", d.residual_kp),
+        residual_kd: env_f64("SIM_RKD", d.residual_kd),
+        friction: env_f64("SIM_FRICTION", d.friction),
+        substeps: env_f64("SIM_SUBSTEPS", d.substeps as f64) as usize,
+        solver_iterations: env_f64("SIM_ITERS", d.solver_iterations as f64) as usize,
+    }
+}
+
+fn track(body: &BodyModel, mode: Mode, poses: &[Pose], first: usize) -> Run {
+    let model = SimModel::with_foot_pitch(body, env_f64("SIM_FOOT_PITCH", DEFAULT_FOOT_PITCH_DEG));
+    let mut validator = Validator::new(model, config(mode), FallRule::default());
+    let trace = std::env::var("SIM_TRACE").is_ok();
+    let mut fk = FkData::new();
+    let (mut falls, mut causes) = (Vec::new(), Causes::default());
+    let mut recent: Vec<(bool, bool)> = Vec::new();
+    for (i, pose) in poses.iter().enumerate() {
+        let Some(o) = validator.frame(Some(pose), DT) else {
+            continue;
+        };
+        forward_kinematics(&body.skeleton, pose, &mut fk);
+        let load = |f: &JointId| o.forces.contact_force_n[f.index()].y;
+        let height = |f: &JointId| fk.joint_in_world_m[f.index()].y;
+        let scuff = FEET.iter().any(|f| load(f) > 50.0 && height(f) > 0.03);
+        let bounce = FEET.iter().all(|f| load(f) < 5.0) && FEET.iter().any(|f| height(f) < 0.01);
+        recent.push((scuff, bounce));
+        if o.fell || o.resynced {
+            let window = &recent[recent.len().saturating_sub(LOOKBACK)..];
+            causes.failures += 1;
+            causes.after_scuff += u32::from(window.iter().any(|w| w.0));
+            causes.after_bounce += u32::from(window.iter().any(|w| w.1));
+        }
+        if o.fell {
+            falls.push(first + i);
+        }
+        if std::env::var("SIM_JOINTS")
+            .ok()
+            .and_then(|v| v.parse::<usize>().ok())
+            == Some(first + i)
+        {
+            for j in JointId::all() {
+                let e = o.state.joint_position_m[j.index()] - fk.joint_in_world_m[j.index()];
+                println!("{j:?}: {:.3} m", e.norm());
+            }
+        }
+        if trace {
+            let tilt = |j: usize| {
+                (o.state.world_from_joint[j] * Vector3::y())
+                    .angle(&(fk.world_from_joint[j] * Vector3::y()))
+                    .to_degrees()
+            };
+            let d = o.state.joint_position_m[0] - fk.joint_in_world_m[0];
+            println!(
+                "{:5} track {:.3} root {:+.3} {:+.3} {:+.3} pelvis {:5.1}° trunk {:5.1}° load L {:5.0} R {:5.0} N, estimate's balls L {:.3} R {:.3} m{}",
+                first + i,
+                o.score.tracking_error_m,
+                d.x,
+                d.y,
+                d.z,
+                tilt(0),
+                tilt(JointId::SPINE3.index()),
+                load(&FEET[0]),
+                load(&FEET[1]),
+                height(&FEET[0]),
+                height(&FEET[1]),
+                if o.fell {
+                    " FELL"
+                } else if o.resynced {
+                    " RESYNC"
+                } else {
+                    ""
+                }
+            );
+        }
+    }
+    Run {
+        validator,
+        falls,
+        causes,
+    }
+}
+
+/// The true poses of a BVH (retargeted, 60 Hz) or of a recording's truth channel.
+fn load(path: &Path) -> anyhow::Result<Vec<Pose>> {
+    if path.extension().is_some_and(|e| e == "bvh") {
+        return Ok(Motion::load(path, &Options::default(), 60.0)?.clip.poses);
+    }
+    let recording = Recording::load(path, None, None)?;
+    let poses: Vec<Pose> = recording
+        .frames
+        .iter()
+        .filter_map(|f| match f {
+            Recorded::Truth(m) => Pose::from_wire(&m.local_pose_wxyz, &m.root_position_m).ok(),
+            Recorded::Imu(_) => None,
+        })
+        .collect();
+    anyhow::ensure!(!poses.is_empty(), "{}: no truth channel", path.display());
+    Ok(poses)
+}
+
+/// The stance feet's pitch in the estimate: over the frames where a ball of the foot is within
+/// 1.5 cm of the floor and moves slower than 0.1 m/s, degrees toe-down from the rest pose.
+fn stance_pitch(body: &BodyModel, poses: &[Pose]) {
+    let ankles = [JointId::LEFT_ANKLE, JointId::RIGHT_ANKLE];
+    let mut fk = FkData::new();
+    let mut pitches = Vec::new();
+    let mut previous: Option<[Vector3<f64>; 2]> = None;
+    for pose in poses {
+        forward_kinematics(&body.skeleton, pose, &mut fk);
+        let balls = FEET.map(|f| fk.joint_in_world_m[f.index()]);
+        if let Some(before) = previous {
+            for side in 0..2 {
+                let speed = (balls[side] - before[side]).xz().norm() / DT;
+                if balls[side].y < 0.015 && speed < 0.1 {
+                    let toe = fk.world_from_joint[ankles[side].index()] * Vector3::z();
+                    pitches.push(-toe.y.asin().to_degrees());
+                }
+            }
+        }
+        previous = Some(balls);
+    }
+    if pitches.is_empty() {
+        println!("no stance frames");
+        return;
+    }
+    pitches.sort_by(f64::total_cmp);
+    let at = |q: f64| pitches[((pitches.len() - 1) as f64 * q) as usize];
+    println!(
+        "stance pitch over {} foot-frames: p10 {:.1}°, median {:.1}°, p90 {:.1}°",
+        pitches.len(),
+        at(0.1),
+        at(0.5),
+        at(0.9)
+    );
+}
