@@ -7,13 +7,19 @@ use imuflow_body::kinematics::FkData;
 use imuflow_body::skeleton::{JointId, NUM_JOINTS};
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
-/// Joints that are not simulated, parents before children: the massless leaves (toes and
-/// fingers) and the wrists. Each is rigidly part of its nearest simulated ancestor's link (ankle,
-/// elbow), in its rest pose; their rotations in the estimate are not tracked. The kinematics nets
-/// never estimate the wrists (PIP's ignored joints: always identity), and the multibody's cost
-/// grows with links × degrees of freedom² (rapier's mass matrix): two fewer spherical joints take
-/// 66 degrees of freedom to 60 and the time per frame down by about a fifth.
-pub const RIGID_JOINTS: [JointId; 6] = [
+/// Joints that are not simulated, parents before children: the neck and the collars (massless in
+/// the body model), the wrists (never estimated: the kinematics nets leave them at identity, PIP's
+/// ignored joints) and the massless leaves (toes and fingers). Each is rigidly part of its nearest
+/// simulated ancestor's link, in its rest pose; the rotation of an inner one is folded into its
+/// children's targets (`Target::folded`), so every simulated joint keeps the estimate's
+/// orientation in the world and only the rigid joint's own bend is lost (the shoulders sit where
+/// the rest pose has them on the chest). rapier's multibody costs links × degrees of freedom²
+/// (its mass matrix, recomputed every step): 15 links and 51 degrees of freedom instead of 20 and
+/// 66 take the time per frame down by about 40 %.
+pub const RIGID_JOINTS: [JointId; 9] = [
+    JointId::NECK,
+    JointId::LEFT_COLLAR,
+    JointId::RIGHT_COLLAR,
     JointId::LEFT_FOOT,
     JointId::RIGHT_FOOT,
     JointId::LEFT_WRIST,
@@ -22,7 +28,7 @@ pub const RIGID_JOINTS: [JointId; 6] = [
     JointId::RIGHT_HAND,
 ];
 
-/// Mass (kg) the massless inner joints (spine2, neck, collars) take from their parent's segment so
+/// Mass (kg) the massless inner joints that are simulated (spine2) take from their parent's segment so
 /// that every link of the multibody has a mass the solver can drive: with a few grams the stiff
 /// motors of these joints were ill-conditioned (20-90° errors while standing). The total mass is
 /// unchanged. [inferred]
@@ -390,16 +396,21 @@ mod tests {
     }
 
     #[test]
-    fn links_cover_every_joint_but_the_rigid_leaves_with_the_body_mass() {
+    fn links_cover_every_joint_but_the_rigid_ones_with_the_body_mass() {
         let m = model();
         assert_eq!(m.links.len(), NUM_JOINTS - RIGID_JOINTS.len());
         assert_eq!(m.links[0].joint, JointId::ROOT);
-        // Parents come before children (the multibody is built in this order).
+        // Parents (the carriers of rigid ones) come before children (the multibody is built in
+        // this order), and every rigid joint's parent is a link or listed before it.
         for (i, l) in m.links.iter().enumerate().skip(1) {
-            let parent = l.joint.parent().unwrap();
+            let parent = carrier(l.joint.parent().unwrap());
             assert!(m.links[..i].iter().any(|p| p.joint == parent));
         }
-        // The body's 70 kg, four stand-in masses for spine2, neck and the collars included.
+        for (i, rigid) in RIGID_JOINTS.iter().enumerate() {
+            let parent = rigid.parent().unwrap();
+            assert!(is_simulated(parent) || RIGID_JOINTS[..i].contains(&parent));
+        }
+        // The body's 70 kg, the stand-in mass of spine2 included.
         assert!((m.total_mass_kg - 70.0).abs() < 1e-9);
         // Every link is massive (the lightest real segment is a hand, 0.61 % of 70 kg = 0.43 kg), and
         // the parents that gave up stand-in mass kept most of their own.

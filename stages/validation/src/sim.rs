@@ -117,6 +117,25 @@ pub struct Target {
 }
 
 impl Target {
+    /// The target with each rigid joint's rotation folded into its children's, parents first:
+    /// `R_c ← R_r·R_c` and `ω_c ← ω_r + R_r·ω_c` (relative angular velocities compose so, in the
+    /// rigid joint's parent frame), then `R_r = I`, `ω_r = 0`. Every simulated joint keeps its
+    /// world orientation and angular velocity ([`crate::model::RIGID_JOINTS`]).
+    pub fn folded(mut self) -> Target {
+        for rigid in crate::model::RIGID_JOINTS {
+            let j = rigid.index();
+            let (r, w) = (self.pose.parent_from_joint[j], self.angular_velocity[j]);
+            for child in rigid.children() {
+                let c = child.index();
+                self.angular_velocity[c] = w + r * self.angular_velocity[c];
+                self.pose.parent_from_joint[c] = r * self.pose.parent_from_joint[c];
+            }
+            self.pose.parent_from_joint[j] = Rotation3::identity();
+            self.angular_velocity[j] = Vector3::zeros();
+        }
+        self
+    }
+
     /// The target at `pose`, with velocities by finite difference from the previous frame's pose
     /// `dt` seconds earlier (zero without one).
     pub fn from_poses(previous: Option<&Pose>, pose: &Pose, dt: f64) -> Target {
@@ -282,10 +301,18 @@ impl Simulation {
                 collider_joint.push((c, contact_joint(*carried)));
             }
             if let Some(parent) = link.joint.parent() {
-                let parent_body = link_body[link_of[parent.index()].expect("parents are links")];
-                let offset = model.body.skeleton.offset_in_parent_m(link.joint);
+                // The parent link may carry rigid joints between it and this one (a collar
+                // before a shoulder): the anchor is this joint's rest position in that link.
+                let carrier = crate::model::carrier(parent);
+                let parent_body = link_body[link_of[carrier.index()].expect("carriers are links")];
+                let mut offset = *model.body.skeleton.offset_in_parent_m(link.joint);
+                let mut j = parent;
+                while j != carrier {
+                    offset += model.body.skeleton.offset_in_parent_m(j);
+                    j = j.parent().expect("the carrier is an ancestor");
+                }
                 let mut joint = SphericalJointBuilder::new()
-                    .local_anchor1(vec3(offset))
+                    .local_anchor1(vec3(&offset))
                     .local_anchor2(Vec3::ZERO)
                     .build();
                 let max_torque = (config.max_torque_nm_per_kg * model.body.mass_kg) as f32;
@@ -785,6 +812,48 @@ fn collider(shape: &Shape) -> ColliderBuilder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A pose with every joint bent: rotations about varied axes, growing with `t`.
+    fn bent(t: f64) -> Pose {
+        let mut pose = Pose::t_pose(Vector3::new(0.1 * t, 0.9, 0.3 * t));
+        for (j, r) in pose.parent_from_joint.iter_mut().enumerate() {
+            let axis = Vector3::new((j as f64).sin(), 1.0, (2.0 * j as f64).cos());
+            *r = Rotation3::new(axis.normalize() * (0.2 + 0.4 * t) * (1.0 + (j % 3) as f64) / 3.0);
+        }
+        pose
+    }
+
+    #[test]
+    fn folding_the_rigid_joints_keeps_every_simulated_joint_turned_and_turning_as_before() {
+        let body = imuflow_body::body_model::BodyModel::new(
+            &imuflow_body::body_model::BodyParams::builtin().unwrap(),
+            1.75,
+            70.0,
+        )
+        .unwrap();
+        let dt = 1e-4;
+        let (before, now) = (bent(0.5), bent(0.5 + dt));
+        let folded = Target::from_poses(Some(&before), &now, dt).folded();
+        let (mut fk, mut fk_folded) = (FkData::new(), FkData::new());
+        forward_kinematics(&body.skeleton, &now, &mut fk);
+        forward_kinematics(&body.skeleton, &folded.pose, &mut fk_folded);
+        // A second way to the folded velocities: finite differences of the folded poses.
+        let fold_pose = |p: &Pose| Target::from_poses(None, p, dt).folded().pose;
+        let differenced = Target::from_poses(Some(&fold_pose(&before)), &fold_pose(&now), dt);
+        for joint in JointId::all() {
+            let j = joint.index();
+            if crate::model::is_simulated(joint) {
+                let turned = (fk.world_from_joint[j].matrix()
+                    - fk_folded.world_from_joint[j].matrix())
+                .norm();
+                assert!(turned < 1e-12, "{joint:?} turned by {turned}");
+                let w = (folded.angular_velocity[j] - differenced.angular_velocity[j]).norm();
+                assert!(w < 1e-3, "{joint:?}: {w} rad/s apart");
+            } else {
+                assert_eq!(folded.pose.parent_from_joint[j], Rotation3::identity());
+            }
+        }
+    }
 
     #[test]
     fn motor_errors_stay_finite_where_nalgebras_rotation_log_is_nan() {

@@ -247,12 +247,12 @@ impl Validator {
                     false,
                 ));
             }
-            let sim = Simulation::new(&self.model, &self.config, &target);
+            let sim = Simulation::new(&self.model, &self.config, &target.clone().folded());
             let state = sim.state();
             self.sim = Some(sim);
             return Some(self.record(started, dt, target_outcome(state), false, false));
         };
-        let forces = sim.step(&target, dt);
+        let forces = sim.step(&target.clone().folded(), dt);
         let state = sim.state();
         let score = self.score(&state, &forces);
         let contact_mask = contact_mask(&forces);
@@ -265,7 +265,7 @@ impl Validator {
             target.pose.root_in_world_m.y -= self.lift_m;
             self.lift_m = self.floor_lift(&target.pose);
             target.pose.root_in_world_m.y += self.lift_m;
-            let sim = Simulation::new(&self.model, &self.config, &target);
+            let sim = Simulation::new(&self.model, &self.config, &target.clone().folded());
             let state = sim.state();
             self.sim = Some(sim);
             state
