@@ -5,7 +5,10 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{Sandbox, assert_clean, count, example_exe, mcap_messages, text};
+use common::{
+    Sandbox, assert_clean, count, example_exe, mcap_messages, text, wait_for_stage,
+    wait_with_timeout,
+};
 use imuflow_graph::frames::{MotionFrame, frame_from_bytes};
 
 #[test]
@@ -140,42 +143,4 @@ params = {{ path = "{{dir}}/kill.rrd" }}
     );
     assert!(std::fs::metadata(sb.path("kill.rrd")).is_ok_and(|m| m.len() > 10_000));
     assert_clean(&sb);
-}
-
-/// The pid of this sandbox's stage `id`, once it runs.
-fn wait_for_stage(sb: &Sandbox, id: &str, timeout: Duration) -> Option<i32> {
-    let needle = format!("IMUFLOW_STAGE_ID={id}");
-    let start = Instant::now();
-    while start.elapsed() < timeout {
-        for line in sb.stray_processes() {
-            let pid: i32 = line.split(':').next()?.parse().ok()?;
-            let env = std::fs::read(format!("/proc/{pid}/environ")).unwrap_or_default();
-            if env.split(|&b| b == 0).any(|v| v == needle.as_bytes()) {
-                return Some(pid);
-            }
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    None
-}
-
-fn wait_with_timeout(child: std::process::Child, timeout: Duration) -> std::process::Output {
-    let id = child.id();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        let _ = tx.send(child.wait_with_output());
-    });
-    match rx.recv_timeout(timeout) {
-        Ok(output) => output.expect("wait for imuflow"),
-        Err(_) => {
-            // SAFETY: kill(2) on the launcher this test started.
-            #[allow(unsafe_code)]
-            unsafe {
-                libc::kill(id as i32, libc::SIGKILL);
-            }
-            panic!(
-                "imuflow did not finish within {timeout:?}: a stopped branch must not hang the run"
-            );
-        }
-    }
 }

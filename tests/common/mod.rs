@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
 
 pub const IMUFLOW: &str = env!("CARGO_BIN_EXE_imuflow");
 
@@ -160,4 +161,44 @@ pub fn assert_clean(sandbox: &Sandbox) {
     assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
     let stray = sandbox.stray_processes();
     assert!(stray.is_empty(), "stray stage processes: {stray:?}");
+}
+
+/// The pid of this sandbox's stage `id`, once it runs.
+pub fn wait_for_stage(sb: &Sandbox, id: &str, timeout: Duration) -> Option<i32> {
+    let needle = format!("IMUFLOW_STAGE_ID={id}");
+    let start = Instant::now();
+    while start.elapsed() < timeout {
+        for line in sb.stray_processes() {
+            let pid: i32 = line.split(':').next()?.parse().ok()?;
+            let env = std::fs::read(format!("/proc/{pid}/environ")).unwrap_or_default();
+            if env.split(|&b| b == 0).any(|v| v == needle.as_bytes()) {
+                return Some(pid);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    None
+}
+
+/// Waits for the launcher `child`; past `timeout` it is killed and the test fails (a hang is a
+/// bug, never an answer).
+pub fn wait_with_timeout(child: std::process::Child, timeout: Duration) -> std::process::Output {
+    let id = child.id();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(child.wait_with_output());
+    });
+    match rx.recv_timeout(timeout) {
+        Ok(output) => output.expect("wait for imuflow"),
+        Err(_) => {
+            // SAFETY: kill(2) on the launcher this test started.
+            #[allow(unsafe_code)]
+            unsafe {
+                libc::kill(id as i32, libc::SIGKILL);
+            }
+            panic!(
+                "imuflow did not finish within {timeout:?}: a failed stage must not hang the run"
+            );
+        }
+    }
 }

@@ -567,11 +567,12 @@ impl Simulation {
     }
 
     /// Foot placement (SIMBICON, Yin et al. 2007, §4.2: `θ_d = θ_d0 + c_d·d + c_v·v`): while one
-    /// foot carries the body and the estimate has the other one in the air, the swing thigh follows the estimate's thigh in the world,
-    /// not relative to the simulated pelvis, turned so that its foot lands
-    /// `placement_kp·Δd + placement_kv·Δv` further, where Δd and Δv are how far the simulated
-    /// centre of mass is ahead of the estimate's, relative to each one's stance foot, and how much
-    /// faster it moves (horizontal). Stepping towards where the body is falling catches it.
+    /// foot carries the body and the estimate has the other one in the air, the swing thigh
+    /// follows the estimate's thigh in the world, not relative to the simulated pelvis, turned so
+    /// that its foot lands `placement_kp·Δd + placement_kv·Δv` further, where Δd and Δv are how
+    /// far the simulated centre of mass is ahead of the estimate's, relative to each one's stance
+    /// foot, and how much faster it moves (horizontal). Stepping towards where the body is falling
+    /// catches it.
     /// Returns the swing side (0 left, 1 right) and its hip's local target rotation.
     fn swing_hip_target(&self) -> Option<(usize, Rotation3<f64>)> {
         let placement = self.placement.as_ref()?;

@@ -1,0 +1,129 @@
+//! Fault injection over the method graphs: every stage of `configs/pip.toml` and
+//! `configs/globalpose.toml`, one run each, killed with SIGKILL (no clean-up of its own) at a
+//! pseudo-random moment of a run on the bundled sample. The declared behaviour:
+//!
+//! - the validation stage (`on_failure = "stop-branch"`): its branch stops, the capture runs to the
+//!   end, the run exits 0 with a warning naming the stage, and the recording holds every frame;
+//! - any other stage: the run stops with an error naming the stage and how it died, and exits
+//!   non-zero; the recording is readable to its last message (finalized, unless the recorder
+//!   itself was the one killed, whose file is read as a killed writer's: no footer);
+//! - either way nothing is left behind: no shared-memory files, no stage processes.
+
+mod common;
+
+use std::path::Path;
+use std::time::Duration;
+
+use common::{
+    Sandbox, assert_clean, count, mcap_messages, text, wait_for_stage, wait_with_timeout,
+};
+use imuflow_imu_source::replay::for_each_record;
+
+/// models/sample/README.md: 1511 frames with the true pose.
+const SAMPLE_FRAMES: usize = 1511;
+
+/// When to kill `stage`: 0.3-1.5 s after it started, drawn from its name (FNV-1a), so a failure
+/// reproduces.
+fn kill_delay(graph: &str, stage: &str) -> Duration {
+    let hash = format!("{graph}/{stage}")
+        .bytes()
+        .fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+            (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+        });
+    Duration::from_millis(300 + hash % 1200)
+}
+
+/// Messages in an mcap file read record by record (a killed writer's file has no footer).
+fn messages_to_the_last(path: &Path) -> usize {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut n = 0;
+    for_each_record(&bytes, |_, record| {
+        n += usize::from(matches!(record, mcap::records::Record::Message { .. }));
+        Ok(())
+    })
+    .unwrap_or_else(|e| panic!("{}: readable to its last message: {e:#}", path.display()));
+    n
+}
+
+fn kill_each_stage(graph_name: &str, stages: &[&str]) {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let graph = format!("{root}/configs/{graph_name}.toml");
+    for stage in stages {
+        let sb = Sandbox::new(&format!("fault-{graph_name}-{stage}"));
+        let (mcap, rrd) = (sb.path("run.mcap"), sb.path("run.rrd"));
+        let sets = [
+            format!("stages.source.params.path={root}/models/sample/walk.mcap"),
+            format!("stages.record.params.path={}", mcap.display()),
+            format!("stages.viz.params.path={}", rrd.display()),
+        ];
+        let mut args = vec!["run", graph.as_str(), "--no-progress", "--quiet"];
+        for s in &sets {
+            args.extend(["--set", s.as_str()]);
+        }
+        let child = sb
+            .command(&args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("start imuflow");
+        let pid = wait_for_stage(&sb, stage, Duration::from_secs(60))
+            .unwrap_or_else(|| panic!("{graph_name}: stage '{stage}' starts"));
+        std::thread::sleep(kill_delay(graph_name, stage));
+        // SAFETY: kill(2) on a stage process of this test's own run.
+        #[allow(unsafe_code)]
+        let killed = unsafe { libc::kill(pid, libc::SIGKILL) } == 0;
+        assert!(killed, "{graph_name}: '{stage}' was still running");
+        let out = wait_with_timeout(child, Duration::from_secs(240));
+        let stderr = text(&out.stderr);
+        let named = format!("stage '{stage}' failed: killed by signal 9");
+        assert!(
+            stderr.contains(&named),
+            "{graph_name}, '{stage}' killed: the error names it\n{stderr}"
+        );
+        if *stage == "val" {
+            assert!(
+                out.status.success(),
+                "{graph_name}: an isolated branch's failure exits 0\n{stderr}"
+            );
+            let messages = mcap_messages(&mcap);
+            assert_eq!(count(&messages, "source.truth"), SAMPLE_FRAMES);
+            assert_eq!(count(&messages, "opt.motion"), SAMPLE_FRAMES);
+        } else {
+            assert!(
+                !out.status.success(),
+                "{graph_name}: '{stage}' killed must fail the run\n{stderr}"
+            );
+            if *stage == "record" {
+                // Killed mid-write: what reached the file reads back up to its last message.
+                messages_to_the_last(&mcap);
+            } else {
+                // The recorder was stopped and finalized its file (summary, statistics, CRCs).
+                let messages = mcap_messages(&mcap);
+                assert!(
+                    messages.len() < 6 * SAMPLE_FRAMES,
+                    "{graph_name}: the run stopped early"
+                );
+            }
+        }
+        assert_clean(&sb);
+        eprintln!("{graph_name}: '{stage}' killed -> {}", out.status);
+    }
+}
+
+#[test]
+fn killing_any_stage_of_the_pip_graph_fails_or_isolates_as_declared() {
+    kill_each_stage(
+        "pip",
+        &[
+            "source", "calib", "kin", "contact", "opt", "val", "viz", "record",
+        ],
+    );
+}
+
+#[test]
+fn killing_any_stage_of_the_globalpose_graph_fails_or_isolates_as_declared() {
+    kill_each_stage(
+        "globalpose",
+        &["source", "calib", "kin", "opt", "val", "viz", "record"],
+    );
+}
