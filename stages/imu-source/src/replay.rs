@@ -230,10 +230,25 @@ pub fn for_each_record(
             // A recording whose writer was killed has no end magic; it is still replayable.
             .with_skip_end_magic(true),
     );
+    // A finalized file ends with the magic; one whose writer was killed ends wherever the writer
+    // stopped, often inside a chunk it was still writing. There a broken record is the cut-off
+    // end, not damage: every record before it is read.
+    let finalized = bytes.len() > mcap::MAGIC.len() && bytes.ends_with(mcap::MAGIC);
     let mut rest = bytes;
     let mut n = 0;
     while let Some(event) = reader.next_event() {
-        match event.with_context(|| format!("mcap record {n} is corrupt"))? {
+        let event = match event {
+            Ok(event) => event,
+            Err(e) if !finalized => {
+                tracing::warn!(
+                    "the recording ends inside record {n} (its writer was stopped before it \
+                     finished: {e}); read the {n} records before it"
+                );
+                return Ok(());
+            }
+            Err(e) => return Err(e).with_context(|| format!("mcap record {n} is corrupt")),
+        };
+        match event {
             LinearReadEvent::ReadRequest(need) => {
                 let len = need.min(rest.len());
                 reader.insert(len).copy_from_slice(&rest[..len]);
@@ -353,6 +368,44 @@ mod tests {
         assert_eq!(cut.imu_frames, full.imu_frames);
         assert_eq!(cut.frames.len(), full.frames.len());
         assert_eq!(cut.truth_topic, full.truth_topic);
+    }
+
+    /// Offset of the last record with opcode `op`.
+    fn last_record(bytes: &[u8], op: u8) -> usize {
+        let (mut at, mut last) = (8, None);
+        while at + 9 <= bytes.len() {
+            if bytes[at] == op {
+                last = Some(at);
+            }
+            let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+            at += 9 + len;
+        }
+        last.unwrap_or_else(|| panic!("no record {op:#x}"))
+    }
+
+    #[test]
+    fn a_recording_cut_inside_a_chunk_replays_the_chunks_before_it() {
+        // A recorder killed while writing a chunk (tests/fault_injection.rs): the file ends inside
+        // it. Every chunk before it is read, exactly as from the same file cut cleanly before it.
+        let whole = sample();
+        let last_chunk = last_record(&whole, 0x06);
+        let chunk_len =
+            u64::from_le_bytes(whole[last_chunk + 1..last_chunk + 9].try_into().unwrap()) as usize;
+        let clean = Recording::parse(&whole[..last_chunk], None, None).expect("cut before");
+        for inside in [
+            last_chunk + 5,
+            last_chunk + 9 + chunk_len / 2,
+            last_chunk + chunk_len,
+        ] {
+            let cut = Recording::parse(&whole[..inside], None, None).expect("cut inside");
+            assert_eq!(cut.imu_frames, clean.imu_frames, "cut at {inside}");
+            assert_eq!(cut.frames.len(), clean.frames.len());
+        }
+        assert!(clean.imu_frames > 0 && clean.imu_frames < 1511);
+        // A finalized file (end magic) damaged in the same place is still an error.
+        let mut damaged = whole.clone();
+        damaged[last_chunk + 9 + chunk_len / 2] ^= 0xFF;
+        assert!(Recording::parse(&damaged, None, None).is_err());
     }
 
     #[test]
