@@ -3,7 +3,7 @@
 
 mod common;
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use common::{
     Sandbox, assert_clean, count, example_exe, mcap_messages, text, wait_for_stage,
