@@ -11,7 +11,7 @@ mod common;
 
 use std::collections::BTreeMap;
 
-use common::{Sandbox, mcap_messages, text};
+use common::{Sandbox, mcap_messages, sample_run_args, text};
 
 /// `header.publish_ns`: bytes 16..24 of every frame (`FrameHeader` leads every frame type).
 const PUBLISH_NS: std::ops::Range<usize> = 16..24;
@@ -34,23 +34,13 @@ fn frames_by_topic(path: &std::path::Path) -> BTreeMap<String, Vec<(u64, Vec<u8>
 
 fn run_twice(variant: &str) {
     let sb = Sandbox::new(&format!("det-{variant}"));
-    let root = env!("CARGO_MANIFEST_DIR");
-    let graph = format!("{root}/configs/{variant}.toml");
     let mut recordings = Vec::new();
     for run in ["a", "b"] {
         let mcap = sb.path(&format!("{run}.mcap"));
         let rrd = sb.path(&format!("{run}.rrd"));
-        let sets = [
-            // The calibration prelude (about 600 frames) and some walking after it.
-            "stages.source.params.frames=800".to_owned(),
-            format!("stages.source.params.path={root}/models/sample/walk.mcap"),
-            format!("stages.record.params.path={}", mcap.display()),
-            format!("stages.viz.params.path={}", rrd.display()),
-        ];
-        let mut args = vec!["run", graph.as_str(), "--no-progress", "--quiet"];
-        for s in &sets {
-            args.extend(["--set", s.as_str()]);
-        }
+        // The calibration prelude (about 600 frames) and some walking after it.
+        let args = sample_run_args(variant, &mcap, &rrd, &["stages.source.params.frames=800"]);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
         let out = sb.run_within(&args, 300);
         assert!(
             out.status.success(),

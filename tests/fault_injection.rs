@@ -15,7 +15,8 @@ use std::path::Path;
 use std::time::Duration;
 
 use common::{
-    Sandbox, assert_clean, count, mcap_messages, text, wait_for_stage, wait_with_timeout,
+    Sandbox, assert_clean, count, mcap_messages, sample_run_args, text, wait_for_stage,
+    wait_with_timeout,
 };
 use imuflow_imu_source::replay::for_each_record;
 
@@ -46,20 +47,11 @@ fn messages_to_the_last(path: &Path) -> usize {
 }
 
 fn kill_each_stage(graph_name: &str, stages: &[&str]) {
-    let root = env!("CARGO_MANIFEST_DIR");
-    let graph = format!("{root}/configs/{graph_name}.toml");
     for stage in stages {
         let sb = Sandbox::new(&format!("fault-{graph_name}-{stage}"));
-        let (mcap, rrd) = (sb.path("run.mcap"), sb.path("run.rrd"));
-        let sets = [
-            format!("stages.source.params.path={root}/models/sample/walk.mcap"),
-            format!("stages.record.params.path={}", mcap.display()),
-            format!("stages.viz.params.path={}", rrd.display()),
-        ];
-        let mut args = vec!["run", graph.as_str(), "--no-progress", "--quiet"];
-        for s in &sets {
-            args.extend(["--set", s.as_str()]);
-        }
+        let mcap = sb.path("run.mcap");
+        let args = sample_run_args(graph_name, &mcap, &sb.path("run.rrd"), &[]);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
         let child = sb
             .command(&args)
             .stdout(std::process::Stdio::piped())

@@ -202,3 +202,24 @@ pub fn wait_with_timeout(child: std::process::Child, timeout: Duration) -> std::
         }
     }
 }
+
+/// `imuflow run` arguments for a method graph (`configs/<graph>.toml`) on the bundled sample, its
+/// recorder and rerun logger writing `mcap` and `rrd`, with `extra` `--set` overrides first.
+pub fn sample_run_args(graph: &str, mcap: &Path, rrd: &Path, extra: &[&str]) -> Vec<String> {
+    let root = env!("CARGO_MANIFEST_DIR");
+    let mut args = vec![
+        "run".to_owned(),
+        format!("{root}/configs/{graph}.toml"),
+        "--no-progress".to_owned(),
+        "--quiet".to_owned(),
+    ];
+    let sets = extra.iter().map(|s| s.to_string()).chain([
+        format!("stages.source.params.path={root}/models/sample/walk.mcap"),
+        format!("stages.record.params.path={}", mcap.display()),
+        format!("stages.viz.params.path={}", rrd.display()),
+    ]);
+    for set in sets {
+        args.extend(["--set".to_owned(), set]);
+    }
+    args
+}
