@@ -1,5 +1,5 @@
 //! Live degradation: a live graph (UDP source → T-pose calibration → PIP kinematics → recorder)
-//! fed over loopback with every fault a wireless sensor network produces at once: lost packets,
+//! fed over loopback, after two still seconds for the calibration, with every fault a wireless sensor network produces at once: lost packets,
 //! reordered, duplicated and late packets, one sensor dead for two seconds and a burst of NaN
 //! samples from another. The graph must keep running at sensor rate to the end of the stream,
 //! flag exactly the frames with a dead or NaN sensor INVALID, skip (and count) every packet that
@@ -16,12 +16,15 @@ use imuflow_graph::frames::{BodyImuFrame, ImuFrame, KinematicsFrame, flags, fram
 use imuflow_imu_source::udp;
 
 const RATE_HZ: f64 = 60.0;
-/// Packets the sender produces (6 s at 60 Hz); `plan` decides what becomes of each.
-const PACKETS: u64 = 360;
+/// Packets the sender produces (7 s at 60 Hz); `plan` decides what becomes of each.
+const PACKETS: u64 = 420;
+/// The body holds still for these packets, so the T-pose calibration completes (it needs 1.5 s
+/// of stillness).
+const STILL: std::ops::Range<u64> = 0..120;
 /// Sensor 2 is dead (marked not valid) for these packets: two seconds.
-const DEAD: std::ops::Range<u64> = 120..240;
+const DEAD: std::ops::Range<u64> = 150..270;
 /// Sensor 4 reports NaN for these packets.
-const NAN_BURST: std::ops::Range<u64> = 260..280;
+const NAN_BURST: std::ops::Range<u64> = 300..320;
 
 /// What the sender does at step `seq`: the packets it sends, in order.
 fn plan(seq: u64) -> Vec<u64> {
@@ -49,7 +52,14 @@ fn plan(seq: u64) -> Vec<u64> {
 }
 
 fn packet(seq: u64) -> udp::Packet {
-    let mut p = udp::synthetic_packet(seq, RATE_HZ, 0, 0);
+    // While still: the first packet's orientations, no rotation.
+    let mut p = udp::synthetic_packet(if STILL.contains(&seq) { 0 } else { seq }, RATE_HZ, 0, 0);
+    p.seq = seq;
+    if STILL.contains(&seq) {
+        for s in &mut p.sensors {
+            s.angular_rate_radps = [0.0; 3];
+        }
+    }
     if DEAD.contains(&seq) {
         p.sensors[2].valid = false;
     }
