@@ -1,5 +1,5 @@
 //! Live degradation: a live graph (UDP source → T-pose calibration → PIP kinematics → recorder)
-//! fed over loopback, after two still seconds for the calibration, with every fault a wireless sensor network produces at once: lost packets,
+//! fed over loopback, after three still seconds for the calibration, with every fault a wireless sensor network produces at once: lost packets,
 //! reordered, duplicated and late packets, one sensor dead for two seconds and a burst of NaN
 //! samples from another. The graph must keep running at sensor rate to the end of the stream,
 //! flag exactly the frames with a dead or NaN sensor INVALID, skip (and count) every packet that
@@ -16,15 +16,16 @@ use imuflow_graph::frames::{BodyImuFrame, ImuFrame, KinematicsFrame, flags, fram
 use imuflow_imu_source::udp;
 
 const RATE_HZ: f64 = 60.0;
-/// Packets the sender produces (7 s at 60 Hz); `plan` decides what becomes of each.
-const PACKETS: u64 = 420;
-/// The body holds still for these packets, so the T-pose calibration completes (it needs 1.5 s
-/// of stillness).
-const STILL: std::ops::Range<u64> = 0..120;
+/// Packets the sender produces (8 s at 60 Hz); `plan` decides what becomes of each.
+const PACKETS: u64 = 480;
+/// The body holds still for these packets, so the T-pose calibration completes: it needs 90
+/// frames (1.5 s) still after a 15-frame window, and the faults below take about one packet in
+/// seven of them away.
+const STILL: std::ops::Range<u64> = 0..180;
 /// Sensor 2 is dead (marked not valid) for these packets: two seconds.
-const DEAD: std::ops::Range<u64> = 150..270;
+const DEAD: std::ops::Range<u64> = 200..320;
 /// Sensor 4 reports NaN for these packets.
-const NAN_BURST: std::ops::Range<u64> = 300..320;
+const NAN_BURST: std::ops::Range<u64> = 350..370;
 
 /// What the sender does at step `seq`: the packets it sends, in order.
 fn plan(seq: u64) -> Vec<u64> {
