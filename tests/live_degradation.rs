@@ -12,6 +12,7 @@ use std::collections::BTreeSet;
 use std::time::Duration;
 
 use common::{Sandbox, assert_clean, mcap_messages, text, wait_with_timeout};
+use imuflow_graph::FrameHeader;
 use imuflow_graph::frames::{BodyImuFrame, ImuFrame, KinematicsFrame, flags, frame_from_bytes};
 use imuflow_imu_source::udp;
 
