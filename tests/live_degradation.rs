@@ -17,58 +17,27 @@ use imuflow_graph::frames::{BodyImuFrame, ImuFrame, KinematicsFrame, flags, fram
 use imuflow_imu_source::udp;
 
 const RATE_HZ: f64 = 60.0;
-/// Packets the sender produces (8 s at 60 Hz); `plan` decides what becomes of each.
+/// Packets the sender produces (8 s at 60 Hz).
 const PACKETS: u64 = 480;
-/// The body holds still for these packets, so the T-pose calibration completes: it needs 90
-/// frames (1.5 s) still after a 15-frame window, and the faults below take about one packet in
-/// seven of them away.
-const STILL: std::ops::Range<u64> = 0..180;
 /// Sensor 2 is dead (marked not valid) for these packets: two seconds.
 const DEAD: std::ops::Range<u64> = 200..320;
 /// Sensor 4 reports NaN for these packets.
 const NAN_BURST: std::ops::Range<u64> = 350..370;
 
-/// What the sender does at step `seq`: the packets it sends, in order.
-fn plan(seq: u64) -> Vec<u64> {
-    // Every 11th packet is lost.
-    if seq % 11 == 5 {
-        return Vec::new();
+/// Every fault at once (the options of `tools/udp-send`), after three still seconds for the T-pose
+/// calibration: it needs 90 frames (1.5 s) still after a 15-frame window, and the faults take
+/// about one packet in seven of them away.
+fn faults() -> udp::Faults {
+    udp::Faults {
+        loss_every: 11,
+        reorder_every: 20,
+        duplicate_every: 13,
+        late_every: 17,
+        dead: Some((2, DEAD)),
+        nan_burst: Some((4, NAN_BURST)),
+        still: 0..180,
+        ..udp::Faults::default()
     }
-    // Every 20th pair arrives swapped: seq+1 first, then seq (stale by then).
-    if seq % 20 == 8 {
-        return vec![seq + 1, seq];
-    }
-    if seq % 20 == 9 {
-        return Vec::new();
-    }
-    let mut out = vec![seq];
-    // Every 13th packet arrives twice.
-    if seq % 13 == 0 {
-        out.push(seq);
-    }
-    // Every 17th step, a packet from half a second ago arrives late.
-    if seq % 17 == 0 && seq >= 30 {
-        out.push(seq - 30);
-    }
-    out
-}
-
-fn packet(seq: u64) -> udp::Packet {
-    // While still: the first packet's orientations, no rotation.
-    let mut p = udp::synthetic_packet(if STILL.contains(&seq) { 0 } else { seq }, RATE_HZ, 0, 0);
-    p.seq = seq;
-    if STILL.contains(&seq) {
-        for s in &mut p.sensors {
-            s.angular_rate_radps = [0.0; 3];
-        }
-    }
-    if DEAD.contains(&seq) {
-        p.sensors[2].valid = false;
-    }
-    if NAN_BURST.contains(&seq) {
-        p.sensors[4].angular_rate_radps[1] = f32::NAN;
-    }
-    p
 }
 
 #[test]
@@ -120,14 +89,15 @@ params = {{ path = "{{dir}}/live.mcap" }}
         );
         std::thread::sleep(Duration::from_millis(50));
     }
+    let faults = faults();
     let mut accepted: Vec<u64> = Vec::new();
     let mut stale = 0;
     let start = std::time::Instant::now();
     for step in 0..PACKETS {
         imuflow_graph::wait::sleep_until(start + Duration::from_secs_f64(step as f64 / RATE_HZ));
-        for seq in plan(step) {
+        for seq in faults.plan(step, RATE_HZ) {
             socket
-                .send_to(&packet(seq).encode(), ("127.0.0.1", port))
+                .send_to(&faults.packet(seq, RATE_HZ).encode(), ("127.0.0.1", port))
                 .expect("loopback send");
             if accepted.last().is_some_and(|last| seq <= *last) {
                 stale += 1;

@@ -235,16 +235,86 @@ pub fn run(ctx: StageContext, options: &Options) -> anyhow::Result<()> {
     out.finish()
 }
 
-/// Sends `frames` packets of a slowly turning, resting body to `to` at `rate_hz` (the sender of
-/// `tools/udp-send`). Every `nan_every`-th packet (when > 0) carries a NaN for sensor 0 and every
-/// `missing_every`-th marks sensor 1 not valid.
-pub fn send_synthetic(
-    to: &str,
-    frames: u64,
-    rate_hz: f64,
-    nan_every: u64,
-    missing_every: u64,
-) -> anyhow::Result<()> {
+/// The faults a sender injects (each `*_every` = 0: never), the way wireless sensor networks fail:
+/// for `tools/udp-send` and the live-degradation test.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Faults {
+    /// Put a NaN into sensor 0 of every N-th packet.
+    pub nan_every: u64,
+    /// Mark sensor 1 not valid in every N-th packet.
+    pub missing_every: u64,
+    /// Drop every N-th packet (step `seq % N == N / 2`).
+    pub loss_every: u64,
+    /// Every N steps, send a pair swapped: `seq + 1` first, then `seq` (stale by then).
+    pub reorder_every: u64,
+    /// Send every N-th packet twice.
+    pub duplicate_every: u64,
+    /// Every N-th step, also send the packet of half a second before (late).
+    pub late_every: u64,
+    /// `(sensor, packets)`: that sensor is marked not valid for those packets.
+    pub dead: Option<(usize, std::ops::Range<u64>)>,
+    /// `(sensor, packets)`: that sensor reports a NaN angular rate for those packets.
+    pub nan_burst: Option<(usize, std::ops::Range<u64>)>,
+    /// Packets during which the body holds still (no rotation), e.g. for a T-pose calibration.
+    pub still: std::ops::Range<u64>,
+}
+
+impl Faults {
+    /// The packets (their seqs) to send at step `seq` of a stream at `rate_hz`, in order.
+    pub fn plan(&self, seq: u64, rate_hz: f64) -> Vec<u64> {
+        let every = |n: u64, at: u64| n > 0 && seq % n == at % n;
+        if every(self.loss_every, self.loss_every / 2) {
+            return Vec::new();
+        }
+        if every(self.reorder_every, 8) {
+            return vec![seq + 1, seq];
+        }
+        if every(self.reorder_every, 9) {
+            return Vec::new();
+        }
+        let mut out = vec![seq];
+        if every(self.duplicate_every, 0) {
+            out.push(seq);
+        }
+        let half_second = (0.5 * rate_hz).round() as u64;
+        if every(self.late_every, 0) && seq >= half_second {
+            out.push(seq - half_second);
+        }
+        out
+    }
+
+    /// Packet `seq` of the synthetic body ([`synthetic_packet`]) with these faults.
+    pub fn packet(&self, seq: u64, rate_hz: f64) -> Packet {
+        let still = self.still.contains(&seq);
+        let mut p = synthetic_packet(
+            if still { self.still.start } else { seq },
+            rate_hz,
+            self.nan_every,
+            self.missing_every,
+        );
+        p.seq = seq;
+        if still {
+            for s in &mut p.sensors {
+                s.angular_rate_radps = [0.0; 3];
+            }
+        }
+        if let Some((sensor, packets)) = &self.dead
+            && packets.contains(&seq)
+        {
+            p.sensors[*sensor].valid = false;
+        }
+        if let Some((sensor, packets)) = &self.nan_burst
+            && packets.contains(&seq)
+        {
+            p.sensors[*sensor].angular_rate_radps[1] = f32::NAN;
+        }
+        p
+    }
+}
+
+/// Sends `frames` steps of a slowly turning body ([`synthetic_packet`]) to `to` at `rate_hz`
+/// (the sender of `tools/udp-send`), with `faults`. Returns the packets sent.
+pub fn send_synthetic(to: &str, frames: u64, rate_hz: f64, faults: &Faults) -> anyhow::Result<u64> {
     let socket = UdpSocket::bind("127.0.0.1:0")
         .or_else(|_| UdpSocket::bind("0.0.0.0:0"))
         .context("cannot open a UDP socket")?;
@@ -253,15 +323,18 @@ pub fn send_synthetic(
         .with_context(|| format!("cannot send to '{to}'"))?;
     let start = Instant::now();
     let period = Duration::from_secs_f64(1.0 / rate_hz.max(1e-3));
-    for seq in 0..frames {
-        imuflow_graph::wait::sleep_until(start + period.mul_f64(seq as f64));
-        let packet = synthetic_packet(seq, rate_hz, nan_every, missing_every);
-        // A receiver that is not (yet) listening makes loopback sends fail; keep going.
-        if let Err(e) = socket.send(&packet.encode()) {
-            tracing::debug!("send {seq}: {e}");
+    let mut sent = 0;
+    for step in 0..frames {
+        imuflow_graph::wait::sleep_until(start + period.mul_f64(step as f64));
+        for seq in faults.plan(step, rate_hz) {
+            // A receiver that is not (yet) listening makes loopback sends fail; keep going.
+            if let Err(e) = socket.send(&faults.packet(seq, rate_hz).encode()) {
+                tracing::debug!("send {seq}: {e}");
+            }
+            sent += 1;
         }
     }
-    Ok(())
+    Ok(sent)
 }
 
 /// Packet `seq` of [`send_synthetic`]: sensor i turns about the vertical at 0.5·(i+1) rad/s and
@@ -313,6 +386,36 @@ mod tests {
         let f = p.to_frame();
         assert_eq!(f.valid_mask, ALL_VALID);
         assert_eq!(f.header.flags, 0);
+    }
+
+    #[test]
+    fn faults_lose_swap_repeat_and_delay_packets_as_planned() {
+        let f = Faults {
+            loss_every: 11,
+            reorder_every: 20,
+            duplicate_every: 13,
+            late_every: 17,
+            dead: Some((2, 5..7)),
+            nan_burst: Some((4, 6..8)),
+            ..Faults::default()
+        };
+        assert_eq!(f.plan(5, 60.0), Vec::<u64>::new()); // lost: 5 % 11 == 11 / 2
+        assert_eq!(f.plan(28, 60.0), vec![29, 28]); // swapped
+        assert_eq!(f.plan(29, 60.0), Vec::<u64>::new()); // already sent
+        assert_eq!(f.plan(26, 60.0), vec![26, 26]); // twice
+        assert_eq!(f.plan(34, 60.0), vec![34, 4]); // and one of half a second (30) before
+        assert_eq!(f.plan(1, 60.0), vec![1]);
+        assert!(Faults::default().plan(5, 60.0) == vec![5]);
+        let frame = |seq| {
+            Packet::decode(&f.packet(seq, 60.0).encode())
+                .unwrap()
+                .to_frame()
+        };
+        assert_eq!(frame(4).valid_mask, ALL_VALID);
+        assert_eq!(frame(5).valid_mask, ALL_VALID & !(1 << 2));
+        assert_eq!(frame(6).valid_mask, ALL_VALID & !(1 << 2) & !(1 << 4));
+        assert_eq!(frame(7).valid_mask, ALL_VALID & !(1 << 4));
+        assert_eq!(frame(7).header.seq, 7);
     }
 
     #[test]
