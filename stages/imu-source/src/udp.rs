@@ -415,7 +415,7 @@ mod tests {
         assert_eq!(frame(5).valid_mask, ALL_VALID & !(1 << 2));
         assert_eq!(frame(6).valid_mask, ALL_VALID & !(1 << 2) & !(1 << 4));
         assert_eq!(frame(7).valid_mask, ALL_VALID & !(1 << 4));
-        assert_eq!(frame(7).header.seq, 7);
+        assert_eq!(f.packet(7, 60.0).seq, 7);
     }
 
     #[test]
