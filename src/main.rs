@@ -362,7 +362,7 @@ fn print_summary(graph: &Graph, report: &launch::RunReport) {
         report.run_id
     );
     println!(
-        "{:<14} {:<14} {:>9} {:>9} {:>8} {:>10} {:>10} {:>12} {:>12}",
+        "{:<14} {:<14} {:>9} {:>9} {:>8} {:>10} {:>10} {:>7} {:>12} {:>12}",
         "stage",
         "kind",
         "frames in",
@@ -370,13 +370,14 @@ fn print_summary(graph: &Graph, report: &launch::RunReport) {
         "dropped",
         "mean µs",
         "p99 µs",
+        "busy %",
         "in-lat p50",
         "in-lat p99"
     );
     for node in graph.topological_order() {
         if let Some((kind, s)) = report.stages.get(&node.id) {
             println!(
-                "{:<14} {:<14} {:>9} {:>9} {:>8} {:>10.1} {:>10.1} {:>12.1} {:>12.1}",
+                "{:<14} {:<14} {:>9} {:>9} {:>8} {:>10.1} {:>10.1} {:>7.1} {:>12.1} {:>12.1}",
                 node.id,
                 kind,
                 s.frames_in,
@@ -384,6 +385,7 @@ fn print_summary(graph: &Graph, report: &launch::RunReport) {
                 s.dropped,
                 s.mean_us,
                 s.p99_us,
+                100.0 * s.busy_fraction,
                 s.latency_p50_us,
                 s.latency_p99_us
             );

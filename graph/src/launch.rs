@@ -362,6 +362,7 @@ fn empty_summary() -> StageSummary {
         p99_us: 0.0,
         max_us: 0.0,
         wall_s: 0.0,
+        busy_fraction: 0.0,
         latency_p50_us: 0.0,
         latency_p99_us: 0.0,
         detail: String::new(),

@@ -44,7 +44,13 @@ impl StageStats {
         };
         let mut latency = self.latency_us.clone();
         latency.sort_by(f32::total_cmp);
+        let busy_s = sorted.iter().map(|&x| f64::from(x)).sum::<f64>() * 1e-6;
         StageSummary {
+            busy_fraction: if wall.is_zero() {
+                0.0
+            } else {
+                busy_s / wall.as_secs_f64()
+            },
             latency_p50_us: f64::from(percentile(&latency, 0.5)),
             latency_p99_us: f64::from(percentile(&latency, 0.99)),
             frames_in: self.frames_in,
@@ -83,6 +89,10 @@ pub struct StageSummary {
     pub max_us: f64,
     /// Time from the start signal to the end, s.
     pub wall_s: f64,
+    /// Share of `wall_s` spent processing steps: the stage nearest 1 is an offline graph's
+    /// bottleneck; in a live graph it is the load the stage puts on a core.
+    #[serde(default)]
+    pub busy_fraction: f64,
     /// Median transport latency of input frames (publisher to this stage), µs; 0 for sources.
     pub latency_p50_us: f64,
     /// 99th percentile transport latency of input frames, µs.
@@ -119,5 +129,8 @@ mod tests {
         assert!((sum.mean_us - 20.0).abs() < 1e-3);
         assert!((sum.max_us - 30.0).abs() < 1e-3);
         assert_eq!(sum.frames_in, 3);
+        // 60 µs of work in one second.
+        assert!((sum.busy_fraction - 60e-6).abs() < 1e-9);
+        assert_eq!(s.summary(Duration::ZERO).busy_fraction, 0.0);
     }
 }

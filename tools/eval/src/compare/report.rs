@@ -491,13 +491,19 @@ fn markdown(
     let _ = writeln!(md, "\n## Stages\n");
     let _ = writeln!(
         md,
-        "| stage | kind | frames in | out | dropped | mean µs | p99 µs | input latency p50 µs |\n|---|---|---:|---:|---:|---:|---:|---:|"
+        "| stage | kind | frames in | out | dropped | mean µs | p99 µs | busy % | input latency p50 µs |\n|---|---|---:|---:|---:|---:|---:|---:|---:|"
     );
     for (id, (kind, s)) in &run.stages {
         let _ = writeln!(
             md,
-            "| {id} | {kind} | {} | {} | {} | {:.0} | {:.0} | {:.0} |",
-            s.frames_in, s.frames_out, s.dropped, s.mean_us, s.p99_us, s.latency_p50_us
+            "| {id} | {kind} | {} | {} | {} | {:.0} | {:.0} | {:.1} | {:.0} |",
+            s.frames_in,
+            s.frames_out,
+            s.dropped,
+            s.mean_us,
+            s.p99_us,
+            100.0 * s.busy_fraction,
+            s.latency_p50_us
         );
     }
     for b in &run.failed_branches {
