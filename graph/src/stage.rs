@@ -161,6 +161,8 @@ pub struct StageContext {
     inputs: Vec<InputSlot>,
     stats: StageStats,
     step_started: Option<Instant>,
+    /// Time the outputs spent in `send` since it was last read (back-pressure), ns.
+    publish_wait_ns: Arc<AtomicU64>,
     last_step: Option<Step>,
     started: Instant,
     any_cursor: usize,
@@ -250,6 +252,7 @@ impl StageContext {
             inputs,
             stats: StageStats::default(),
             step_started: None,
+            publish_wait_ns: Arc::new(AtomicU64::new(0)),
             last_step: None,
             started: Instant::now(),
             any_cursor: 0,
@@ -373,6 +376,7 @@ impl StageContext {
             self.graph.mode,
             &readers,
             self.stop.clone(),
+            self.publish_wait_ns.clone(),
         )?)
     }
 
@@ -426,7 +430,7 @@ impl StageContext {
     #[allow(clippy::should_implement_trait)]
     pub fn next(&mut self) -> Result<Option<Step>, StageError> {
         if let Some(t) = self.step_started.take() {
-            self.stats.record_processing(t.elapsed());
+            self.record_work(t.elapsed());
         }
         // Release the frames of the previous step so their shared memory goes back.
         for slot in self.inputs.iter_mut().filter(|s| !s.feedback) {
@@ -484,7 +488,7 @@ impl StageContext {
     /// when every input reached END_OF_STREAM or the stage was told to stop.
     pub fn next_any(&mut self) -> Result<Option<usize>, StageError> {
         if let Some(t) = self.step_started.take() {
-            self.stats.record_processing(t.elapsed());
+            self.record_work(t.elapsed());
         }
         let n = self.inputs.len();
         loop {
@@ -671,7 +675,7 @@ impl StageContext {
         outputs: &mut [&mut dyn EndOutput],
     ) -> Result<StageSummary, StageError> {
         if let Some(t) = self.step_started.take() {
-            self.stats.record_processing(t.elapsed());
+            self.record_work(t.elapsed());
         }
         let (seq, capture_ns) = self.last_step.map_or((0, 0), |s| (s.seq + 1, s.capture_ns));
         let mut end_error = None;
@@ -691,6 +695,14 @@ impl StageContext {
         }
     }
 
+    /// Records a step's processing time, less the time its outputs waited for full readers
+    /// (offline back-pressure): the summary's processing time and busy share are the stage's own
+    /// work, so the stage nearest 100 % busy is the bottleneck.
+    fn record_work(&mut self, elapsed: Duration) {
+        let waited = Duration::from_nanos(self.publish_wait_ns.swap(0, Ordering::Relaxed));
+        self.stats.record_processing(elapsed.saturating_sub(waited));
+    }
+
     /// One line of this stage's own end-of-run result (scores, counts) for the run summary.
     pub fn set_summary_detail(&mut self, line: impl Into<String>) {
         self.stats.detail = line.into();
@@ -699,7 +711,7 @@ impl StageContext {
     /// For sources: records `n` frames as produced and `elapsed` as the time producing them took.
     pub fn record_source_step(&mut self, step: Step, elapsed: Duration) {
         self.stats.frames_in += 1;
-        self.stats.record_processing(elapsed);
+        self.record_work(elapsed);
         self.last_step = Some(step);
         self.advance(step.seq);
     }

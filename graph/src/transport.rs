@@ -6,7 +6,7 @@
 //! graphs let a full buffer overwrite its oldest frame; readers count the gaps in `seq` as drops.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use iceoryx2::port::BackpressureAction;
@@ -238,6 +238,9 @@ pub struct Output<T: Frame> {
         Vec<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>>,
     ),
     sent: u64,
+    /// Nanoseconds spent in `send` (offline: waiting for a full reader, back-pressure), shared
+    /// with the stage's context so its processing time leaves them out.
+    waited_ns: Arc<AtomicU64>,
 }
 
 impl<T: Frame> Output<T> {
@@ -250,6 +253,7 @@ impl<T: Frame> Output<T> {
         mode: Mode,
         reader_stages: &[String],
         stop: Arc<AtomicBool>,
+        waited_ns: Arc<AtomicU64>,
     ) -> Result<Self, TransportError> {
         let name = output_service_name(run_id, stage, port);
         let service = open_pubsub::<T>(node, &name, mode, reader_stages.len())?;
@@ -302,6 +306,7 @@ impl<T: Frame> Output<T> {
             notifiers,
             _services: (service, wake_services),
             sent: 0,
+            waited_ns,
         })
     }
 
@@ -330,7 +335,11 @@ impl<T: Frame> Output<T> {
             reserved: 0,
             ..header
         };
-        match sample.send() {
+        let sending = std::time::Instant::now();
+        let sent = sample.send();
+        self.waited_ns
+            .fetch_add(sending.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        match sent {
             Ok(_) => {}
             Err(iceoryx2::port::SendError::UnableToDeliver) => {
                 return Err(TransportError::Stopped {
