@@ -375,8 +375,10 @@ impl StageContext {
             port,
             self.graph.mode,
             &readers,
-            self.stop.clone(),
-            self.publish_wait_ns.clone(),
+            crate::transport::OutputShared {
+                stop: self.stop.clone(),
+                waited_ns: self.publish_wait_ns.clone(),
+            },
         )?)
     }
 

@@ -243,6 +243,14 @@ pub struct Output<T: Frame> {
     waited_ns: Arc<AtomicU64>,
 }
 
+/// What an output shares with its stage: the stop flag it gives up waiting on, and the counter of
+/// time spent waiting for full readers.
+#[derive(Clone, Debug, Default)]
+pub struct OutputShared {
+    pub stop: Arc<AtomicBool>,
+    pub waited_ns: Arc<AtomicU64>,
+}
+
 impl<T: Frame> Output<T> {
     /// Opens output `port` of `stage`, read by the stages in `reader_stages`.
     pub fn open(
@@ -252,9 +260,9 @@ impl<T: Frame> Output<T> {
         port: &str,
         mode: Mode,
         reader_stages: &[String],
-        stop: Arc<AtomicBool>,
-        waited_ns: Arc<AtomicU64>,
+        shared: OutputShared,
     ) -> Result<Self, TransportError> {
+        let OutputShared { stop, waited_ns } = shared;
         let name = output_service_name(run_id, stage, port);
         let service = open_pubsub::<T>(node, &name, mode, reader_stages.len())?;
         let strategy = match mode {
