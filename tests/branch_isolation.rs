@@ -112,12 +112,7 @@ params = {{ path = "{{dir}}/kill.rrd" }}
 "#
         ),
     );
-    let child = sb
-        .command(&["run", graph.to_str().expect("utf8"), "--no-progress"])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("start imuflow");
+    let child = sb.spawn(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     // Let the simulation run a while, then kill -9 it: no END_OF_STREAM, no clean-up of its own.
     let val = wait_for_stage(&sb, "val", Duration::from_secs(30)).expect("the val stage starts");
     std::thread::sleep(Duration::from_millis(1500));

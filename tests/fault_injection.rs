@@ -52,12 +52,7 @@ fn kill_each_stage(graph_name: &str, stages: &[&str]) {
         let mcap = sb.path("run.mcap");
         let args = sample_run_args(graph_name, &mcap, &sb.path("run.rrd"), &[]);
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
-        let child = sb
-            .command(&args)
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .expect("start imuflow");
+        let child = sb.spawn(&args);
         let pid = wait_for_stage(&sb, stage, Duration::from_secs(60))
             .unwrap_or_else(|| panic!("{graph_name}: stage '{stage}' starts"));
         std::thread::sleep(kill_delay(graph_name, stage));

@@ -276,12 +276,7 @@ params = {{ path = "{{dir}}/udp.mcap" }}
 "#
         ),
     );
-    let child = sb
-        .command(&["run", graph.to_str().expect("utf8"), "--no-progress"])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("start imuflow");
+    let child = sb.spawn(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     // Send at 200 Hz until the run is over (the stage may start listening after the first ones).
     let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let sender = {

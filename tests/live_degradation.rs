@@ -73,12 +73,7 @@ params = {{ path = "{{dir}}/live.mcap" }}
 "#
         ),
     );
-    let child = sb
-        .command(&["run", graph.to_str().expect("utf8"), "--no-progress"])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("start imuflow");
+    let child = sb.spawn(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     // Wait until the source listens (its port is taken), then send at sensor rate.
     let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("sender socket");
     let deadline = std::time::Instant::now() + Duration::from_secs(60);

@@ -173,12 +173,7 @@ fn sigint_stops_the_graph_cleanly_with_valid_files() {
             )
             .replace("frames = 120", "frames = 100000"),
     );
-    let mut child = sb
-        .command(&["run", graph.to_str().expect("utf8"), "--no-progress"])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("start imuflow");
+    let mut child = sb.spawn(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     std::thread::sleep(Duration::from_millis(1500));
     // SAFETY: sending SIGINT to the child we just spawned.
     #[allow(unsafe_code)]

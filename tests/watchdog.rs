@@ -102,12 +102,7 @@ fn freeze(name: &str, victim: &str, stage: &str) {
         ),
     )
     .expect("graph");
-    let mut child = sb
-        .command(&["run", file.to_str().expect("utf8"), "--no-progress"])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .expect("start imuflow");
+    let mut child = sb.spawn(&["run", file.to_str().expect("utf8"), "--no-progress"]);
     // Freeze the victim once it runs.
     let deadline = Instant::now() + Duration::from_secs(30);
     let pid = loop {

@@ -53,6 +53,16 @@ impl Sandbox {
         c
     }
 
+    /// Starts imuflow with its stdout and stderr piped, for tests that act on the run while it
+    /// goes (kill a stage, send packets) and read its output at the end.
+    pub fn spawn(&self, args: &[&str]) -> std::process::Child {
+        self.command(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("start imuflow")
+    }
+
     /// Runs imuflow to completion; a run that takes over a minute is killed and fails the test
     /// (a hang is a bug, never an answer).
     pub fn run(&self, args: &[&str]) -> Output {
