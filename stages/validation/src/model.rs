@@ -146,22 +146,30 @@ pub fn carrier(joint: JointId) -> JointId {
     j
 }
 
+/// Where `joint` sits at rest in the frame of the link that carries its parent, m: its offset in
+/// its parent plus those of the rigid joints between (they hold their rest pose). For a link's
+/// joint this is its anchor in its parent link; for a rigid joint, its place in its own carrier.
+pub fn offset_in_carrier(body: &BodyModel, joint: JointId) -> Vector3<f64> {
+    let mut offset = *body.skeleton.offset_in_parent_m(joint);
+    let mut j = joint.parent().expect("the root has no carrier above it");
+    while !is_simulated(j) {
+        offset += body.skeleton.offset_in_parent_m(j);
+        j = j.parent().expect("the root is simulated");
+    }
+    offset
+}
+
 /// The joints a link carries (its own and the rigid joints riding on it), each with its position
 /// in the link's frame at rest, m.
 fn carried(body: &BodyModel, link: JointId) -> Vec<(JointId, Vector3<f64>)> {
-    let mut out = vec![(link, Vector3::zeros())];
-    for j in RIGID_JOINTS {
-        if carrier(j) == link {
-            let parent = j.parent().expect("rigid joints have parents");
-            let at = out
-                .iter()
-                .find(|(c, _)| *c == parent)
-                .map(|(_, p)| *p)
-                .expect("RIGID_JOINTS lists parents first");
-            out.push((j, at + body.skeleton.offset_in_parent_m(j)));
-        }
-    }
-    out
+    std::iter::once((link, Vector3::zeros()))
+        .chain(
+            RIGID_JOINTS
+                .into_iter()
+                .filter(|j| carrier(*j) == link)
+                .map(|j| (j, offset_in_carrier(body, j))),
+        )
+        .collect()
 }
 
 impl SimModel {

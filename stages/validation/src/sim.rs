@@ -305,12 +305,7 @@ impl Simulation {
                 // before a shoulder): the anchor is this joint's rest position in that link.
                 let carrier = crate::model::carrier(parent);
                 let parent_body = link_body[link_of[carrier.index()].expect("carriers are links")];
-                let mut offset = *model.body.skeleton.offset_in_parent_m(link.joint);
-                let mut j = parent;
-                while j != carrier {
-                    offset += model.body.skeleton.offset_in_parent_m(j);
-                    j = j.parent().expect("the carrier is an ancestor");
-                }
+                let offset = crate::model::offset_in_carrier(&model.body, link.joint);
                 let mut joint = SphericalJointBuilder::new()
                     .local_anchor1(vec3(&offset))
                     .local_anchor2(Vec3::ZERO)
@@ -611,18 +606,15 @@ impl Simulation {
         Some((swing, pelvis.inverse() * turn * placement.thigh[swing]))
     }
 
-    /// World position of a rigid leaf joint (a foot's ball) of the simulated body, m.
-    fn foot_position(&self, leaf: JointId) -> Vector3<f64> {
-        let parent = leaf.parent().expect("leaves have parents");
-        let link = self.model.carrying_link(leaf);
+    /// World position of a rigid joint (a foot's ball) of the simulated body, m.
+    fn foot_position(&self, rigid: JointId) -> Vector3<f64> {
         let to_world = self
             .multibody()
-            .link(self.link_id[link])
+            .link(self.link_id[self.model.carrying_link(rigid)])
             .expect("link ids are valid")
             .local_to_world();
-        debug_assert_eq!(self.model.links[link].joint, parent);
         vector(to_world.translation)
-            + rotation(to_world.rotation) * self.model.body.skeleton.offset_in_parent_m(leaf)
+            + rotation(to_world.rotation) * crate::model::offset_in_carrier(&self.model.body, rigid)
     }
 
     /// The change of each hip's velocity target that steers the pelvis (see `drive_joints`); zero
