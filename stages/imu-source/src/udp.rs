@@ -285,16 +285,12 @@ impl Faults {
 
     /// Packet `seq` of the synthetic body ([`synthetic_packet`]) with these faults.
     pub fn packet(&self, seq: u64, rate_hz: f64) -> Packet {
-        let still = self.still.contains(&seq);
-        let mut p = synthetic_packet(
-            if still { self.still.start } else { seq },
-            rate_hz,
-            self.nan_every,
-            self.missing_every,
-        );
-        p.seq = seq;
-        if still {
-            for s in &mut p.sensors {
+        let mut p = synthetic_packet(seq, rate_hz, self.nan_every, self.missing_every);
+        if self.still.contains(&seq) {
+            // Held in the first still packet's orientations; the faults stay this packet's.
+            let held = synthetic_packet(self.still.start, rate_hz, 0, 0);
+            for (s, h) in p.sensors.iter_mut().zip(&held.sensors) {
+                s.orientation_wxyz = h.orientation_wxyz;
                 s.angular_rate_radps = [0.0; 3];
             }
         }
@@ -416,6 +412,20 @@ mod tests {
         assert_eq!(frame(6).valid_mask, ALL_VALID & !(1 << 2) & !(1 << 4));
         assert_eq!(frame(7).valid_mask, ALL_VALID & !(1 << 4));
         assert_eq!(f.packet(7, 60.0).seq, 7);
+        // Held still, a packet keeps its seq's own faults and the first still orientation.
+        let still = Faults {
+            missing_every: 4,
+            still: 0..10,
+            ..Faults::default()
+        };
+        let (first, held) = (still.packet(0, 60.0), still.packet(7, 60.0));
+        assert!(!held.sensors[1].valid && first.sensors[1].valid);
+        assert_eq!(
+            held.sensors[5].orientation_wxyz,
+            first.sensors[5].orientation_wxyz
+        );
+        assert_eq!(held.sensors[5].angular_rate_radps, [0.0; 3]);
+        assert!(still.packet(10, 60.0).sensors[5].angular_rate_radps[1] > 0.0);
     }
 
     #[test]

@@ -64,7 +64,8 @@ fn sensor_range(text: &str) -> Result<(usize, std::ops::Range<u64>), String> {
         first.trim().parse().map_err(|_| bad())?,
         end.trim().parse().map_err(|_| bad())?,
     );
-    if sensor >= 6 || first >= end {
+    let sensors = imuflow_imu_source::udp::Packet::default().sensors.len();
+    if sensor >= sensors || first >= end {
         return Err(bad());
     }
     Ok((sensor, first..end))
