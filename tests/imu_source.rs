@@ -5,7 +5,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{Sandbox, assert_clean, mcap_messages, text};
+use common::{Sandbox, assert_clean, free_udp_port, mcap_messages, text};
 use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, flags, frame_from_bytes};
 use imuflow_imu_source::udp;
 
@@ -256,11 +256,7 @@ params = { path = "{dir}/out.mcap" }
 #[test]
 fn udp_packets_become_frames_with_invalid_sensors_marked() {
     let sb = Sandbox::new("udp");
-    // A free loopback port: bind, note it, release it for the stage.
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .expect("free port")
-        .port();
+    let port = free_udp_port();
     let graph = sb.graph(
         "udp.toml",
         &format!(

@@ -11,7 +11,7 @@ mod common;
 use std::collections::BTreeSet;
 use std::time::Duration;
 
-use common::{Sandbox, assert_clean, mcap_messages, text, wait_with_timeout};
+use common::{Sandbox, assert_clean, free_udp_port, mcap_messages, text, wait_with_timeout};
 use imuflow_graph::FrameHeader;
 use imuflow_graph::frames::{BodyImuFrame, ImuFrame, KinematicsFrame, flags, frame_from_bytes};
 use imuflow_imu_source::udp;
@@ -43,10 +43,7 @@ fn faults() -> udp::Faults {
 #[test]
 fn a_live_graph_rides_out_lost_reordered_duplicated_late_dead_and_nan_samples() {
     let sb = Sandbox::new("live-degradation");
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .expect("free port")
-        .port();
+    let port = free_udp_port();
     let root = env!("CARGO_MANIFEST_DIR");
     let graph = sb.graph(
         "live.toml",

@@ -233,3 +233,11 @@ pub fn sample_run_args(graph: &str, mcap: &Path, rrd: &Path, extra: &[&str]) -> 
     }
     args
 }
+
+/// A free loopback UDP port: bound, noted and released again, for a stage to bind.
+pub fn free_udp_port() -> u16 {
+    std::net::UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .expect("free port")
+        .port()
+}
