@@ -8,6 +8,7 @@ use imuflow_eval::nets::{self, NetsEval};
 use imuflow_eval::physics::{self, PhysicsEval};
 use imuflow_eval::test_split::Copies;
 use imuflow_kinematics::Method;
+use imuflow_kinematics::infer::SensorBones;
 
 /// Options of `imuflow eval`.
 #[derive(Args)]
@@ -28,6 +29,13 @@ pub struct EvalArgs {
     /// Which copies of each test clip: ideal, augmented (sensor noise and mounting errors) or all.
     #[arg(long, default_value = "augmented", value_parser = Copies::NAMES)]
     copies: String,
+    /// Orientation of the bones that carry a sensor: the calibrated measurement (the kinematics
+    /// stage's default) or the networks' own estimate (the papers').
+    #[arg(long, default_value = "measured", value_parser = ["measured", "network"])]
+    sensor_bones: String,
+    /// With `--sensor-bones measured`: how far (degrees) a bone may stay from its sensor.
+    #[arg(long, default_value_t = imuflow_kinematics::infer::SENSOR_BONE_TOLERANCE_DEG)]
+    sensor_bone_tolerance_deg: f64,
     /// Evaluate at most this many sequences per method.
     #[arg(long, default_value_t = usize::MAX)]
     limit: usize,
@@ -48,6 +56,8 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
         .map(|(method, weights)| (method, PathBuf::from(weights)))
         .collect(),
         copies: Copies::parse(&args.copies).unwrap_or(Copies::Augmented),
+        sensor_bones: SensorBones::parse(&args.sensor_bones, args.sensor_bone_tolerance_deg)
+            .context("--sensor-bone-tolerance-deg must be a finite angle ≥ 0")?,
         limit: args.limit,
         progress: !args.no_progress,
     };

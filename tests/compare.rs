@@ -42,6 +42,17 @@ fn the_three_variants_combine_into_one_valid_graph_with_isolated_branches() {
             "the sinks read {v}'s motion:\n{combined}"
         );
     }
+    // Each variant's calibrated IMUs go to the recorder (the sensor-bone error), not the viewer.
+    let record = &combined[combined.find("[stages.record]").expect("a recorder")..];
+    let viz = &combined[combined.find("[stages.viz]").expect("a logger")..];
+    let viz = &viz[..viz.find("[stages.record]").unwrap_or(viz.len())];
+    for v in ["pip", "globalpose", "no-physics"] {
+        assert!(
+            record.contains(&format!("{v}__body_imu = \"{v}-calib.body_imu\"")),
+            "{record}"
+        );
+    }
+    assert!(!viz.contains("body_imu"), "{viz}");
     // PIP's feedback edge is rewired inside its own copy.
     assert!(combined.contains("state = \"pip-opt.motion\", feedback = [\"state\"]"));
 }

@@ -46,6 +46,10 @@ pub struct VariantOutputs {
     pub contacts: Option<String>,
     /// The variant's validation stage in the combined graph (ports `sim` and `validation`).
     pub validation: Option<String>,
+    /// `stage.port` of the calibrated IMU frames the variant's estimate is made from (the nearest
+    /// BodyImuFrame upstream of its motion), recorded as `<variant>__body_imu` so that the report
+    /// can say how far the pose is from its own sensors. `None` when the graph has none.
+    pub body_imu: Option<String>,
     /// Every stage of the variant's own branch, in the combined graph.
     pub stages: Vec<String>,
     /// The first stages of the branch (they read only shared stages): where identical input
@@ -234,11 +238,14 @@ pub fn combine(
                         .is_some_and(|e| e.from_stage == motion_stage && e.from_port == motion_port)
             })
             .map(|n| rename(&n.id));
+        let body_imu = nearest_body_imu(v, &motion_stage)
+            .map(|(stage, port)| format!("{}.{port}", rename(&stage)));
         outputs.push(VariantOutputs {
             name: v.name.clone(),
             motion: format!("{}.{motion_port}", rename(&motion_stage)),
             contacts,
             validation,
+            body_imu,
             stages: own.iter().map(|n| prefixed(&v.name, &n.id)).collect(),
             roots,
         });
@@ -261,11 +268,23 @@ pub fn combine(
             sink_inputs.push((group("validation_scores"), format!("{val}.validation")));
         }
     }
-    let inline_inputs = sink_inputs
-        .iter()
-        .map(|(k, v)| format!("{k} = {}", quote(v)))
-        .collect::<Vec<_>>()
-        .join(", ");
+    let inline = |inputs: &[(String, String)]| {
+        inputs
+            .iter()
+            .map(|(k, v)| format!("{k} = {}", quote(v)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let inline_inputs = inline(&sink_inputs);
+    // The calibrated IMUs go to the recorder only (the viewer draws the skeletons); a calibration
+    // shared by the variants is recorded once.
+    let mut recorded = sink_inputs.clone();
+    let mut body_imus = BTreeSet::new();
+    for o in &outputs {
+        if let Some(b) = o.body_imu.as_ref().filter(|b| body_imus.insert(b.as_str())) {
+            recorded.push((format!("{}{GROUP_SEPARATOR}body_imu", o.name), b.clone()));
+        }
+    }
     if let Some(rrd) = &sinks.rrd {
         let _ = writeln!(
             text,
@@ -287,7 +306,8 @@ pub fn combine(
     }
     let _ = writeln!(
         text,
-        "\n[stages.record]\nkind = \"recorder\"\ninputs = {{ {inline_inputs} }}\nparams = {{ path = {} }}",
+        "\n[stages.record]\nkind = \"recorder\"\ninputs = {{ {} }}\nparams = {{ path = {} }}",
+        inline(&recorded),
         quote(&sinks.mcap)
     );
     Ok(Combined {
@@ -515,6 +535,25 @@ fn check_comparable(first: &Variant, v: &Variant) -> Result<(), CombineError> {
 
 /// The variant's motion estimate: what its sinks read as `motion`, else the single `motion`
 /// output of an optimizer stage.
+/// The nearest BodyImuFrame output upstream of `stage` (breadth first over its inputs, feedback
+/// edges included: they only lead back to stages already seen).
+fn nearest_body_imu(v: &Variant, stage: &str) -> Option<(String, String)> {
+    let mut seen = BTreeSet::from([stage.to_owned()]);
+    let mut queue = std::collections::VecDeque::from([stage.to_owned()]);
+    while let Some(id) = queue.pop_front() {
+        let node = v.graph.stages.get(&id)?;
+        for edge in node.inputs.values() {
+            if edge.frame == FrameType::BodyImu {
+                return Some((edge.from_stage.clone(), edge.from_port.clone()));
+            }
+            if seen.insert(edge.from_stage.clone()) {
+                queue.push_back(edge.from_stage.clone());
+            }
+        }
+    }
+    None
+}
+
 fn motion_output(v: &Variant) -> Result<(String, String), CombineError> {
     let read_by_sinks: BTreeSet<(String, String)> = v
         .graph

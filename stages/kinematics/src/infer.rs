@@ -9,7 +9,9 @@
 use candle_core::{Device, Tensor};
 use imuflow_body::kinematics::{FkData, forward_kinematics, imu_positions_in_world};
 use imuflow_body::rotation::{from_to, rotation_from_r6d};
-use imuflow_body::skeleton::{CONTACT_JOINTS, FULL_JOINTS, LEAF_JOINTS, REDUCED_JOINTS};
+use imuflow_body::skeleton::{
+    CONTACT_JOINTS, FULL_JOINTS, IMU_JOINTS, LEAF_JOINTS, REDUCED_JOINTS,
+};
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 
@@ -69,9 +71,59 @@ impl StartPose {
     }
 }
 
+/// Where the output pose takes the orientation of the bones that carry a sensor (forearms, lower
+/// legs, head) from.
+///
+/// Both papers let the networks estimate every reduced joint, the instrumented ones included, so
+/// the estimate can contradict the sensor on that very bone (measured through the graphs: 22° on
+/// the forearms of a standing person with the hands in front, 12.6° on the head, while calibration
+/// put those sensors within 2.5–3.8° of their bones). TransPose and PIP already take the root's
+/// orientation straight from the pelvis sensor (reference §2.1 "Pose assembly"); `Measured`
+/// extends that to the other five sensors, up to a tolerance: imposing the raw measurement would
+/// also pass its noise and its calibration error into the pose, which the networks filter (on the
+/// test split with GlobalPose's augmentation, 0.1 rad mounting errors, imposing exactly made the
+/// angle error 0.4° worse and the jitter 34 % higher). So the bone keeps the networks' estimate
+/// while it is within `tolerance` of the measurement, and is turned onto the edge of that cone
+/// when it is not: the pose never contradicts a sensor by more than the calibration error.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SensorBones {
+    /// Within `tolerance_rad` of the calibrated measurement (0: the measurement itself).
+    Measured { tolerance_rad: f64 },
+    /// The networks' own estimate (the papers' behaviour).
+    Network,
+}
+
+/// Default tolerance of [`SensorBones::Measured`]: 5°, the sensor-bone agreement the issue asks
+/// for and above the 2.5–3.8° that T-pose calibration leaves on real sensors.
+pub const SENSOR_BONE_TOLERANCE_DEG: f64 = 5.0;
+
+impl Default for SensorBones {
+    fn default() -> SensorBones {
+        SensorBones::Measured {
+            tolerance_rad: SENSOR_BONE_TOLERANCE_DEG.to_radians(),
+        }
+    }
+}
+
+impl SensorBones {
+    /// `"measured"` (with `tolerance_deg`) or `"network"`.
+    pub fn parse(name: &str, tolerance_deg: f64) -> Option<SensorBones> {
+        match name {
+            "measured" if tolerance_deg.is_finite() && tolerance_deg >= 0.0 => {
+                Some(SensorBones::Measured {
+                    tolerance_rad: tolerance_deg.to_radians(),
+                })
+            }
+            "network" => Some(SensorBones::Network),
+            _ => None,
+        }
+    }
+}
+
 /// One method's nets with their streaming state.
 pub struct Streamer {
     method: Method,
+    sensor_bones: SensorBones,
     nets: Vec<Rnn>,
     states: Vec<LstmState>,
     body: BodyModel,
@@ -126,6 +178,7 @@ impl Streamer {
         let states = Vec::new();
         Ok(Streamer {
             method: weights.metadata.method,
+            sensor_bones: SensorBones::default(),
             nets: weights.nets,
             states,
             body,
@@ -138,6 +191,11 @@ impl Streamer {
 
     pub fn method(&self) -> Method {
         self.method
+    }
+
+    /// Where the instrumented bones' orientations come from (default: measured).
+    pub fn set_sensor_bones(&mut self, sensor_bones: SensorBones) {
+        self.sensor_bones = sensor_bones;
     }
 
     /// Forget the state: the next frame starts a new session from the start pose.
@@ -229,7 +287,10 @@ impl Streamer {
         let r6d = self.run(2, &full_x)?;
         let vel = self.run(3, &full_x)?;
         let contact = self.run(4, &full_x)?;
-        let pose = pose_from_reduced_r6d(&r6d, root);
+        let mut pose = pose_from_reduced_r6d(&r6d, root);
+        if let SensorBones::Measured { tolerance_rad } = self.sensor_bones {
+            impose_measured_bones(&mut pose, imu, tolerance_rad);
+        }
         let mut joint_position = [Vector3::zeros(); NUM_JOINTS];
         for (k, j) in FULL_JOINTS.iter().enumerate() {
             joint_position[j.index()] = root * v3(&full[3 * k..3 * k + 3]);
@@ -285,7 +346,12 @@ impl Streamer {
         let r6d = self.run(2, &[rrb2.as_slice(), &g2f, &ik1[..69]].concat())?;
         // Paper Eq. 1-3: the corrected root orientation R_root' = R_root·FromTo(gR2 → gR0).
         let root_c = root * from_to(&g2, &g0);
-        let pose = pose_from_reduced_r6d(&r6d, &root_c);
+        let mut pose = pose_from_reduced_r6d(&r6d, &root_c);
+        if let SensorBones::Measured { tolerance_rad } = self.sensor_bones {
+            // Before the FK that feeds vrnet: its joint inputs then agree with the sensors too.
+            // The root keeps GlobalPose's gravity-corrected orientation (paper Eq. 1-3).
+            impose_measured_bones(&mut pose, imu, tolerance_rad);
+        }
         // pRJ recomputed by FK of the pose with the root at identity (reference §2.4).
         let mut local = Pose::t_pose(Vector3::zeros());
         local.parent_from_joint = pose;
@@ -347,6 +413,48 @@ impl Streamer {
     }
 }
 
+/// Turns each bone that carries a non-root sensor onto the cone of half-angle `tolerance_rad`
+/// around the sensor's calibrated orientation `R_MB` (in M) when it lies outside it (the smallest
+/// rotation that does: about the axis of the difference); a bone inside the cone is left alone.
+/// Only the bones' local rotations change, against their parents' estimated global orientation;
+/// their children (wrists, hands, ankles, feet: identity in the networks' pose) follow them.
+pub fn impose_measured_bones(
+    pose: &mut [Rotation3<f64>; NUM_JOINTS],
+    imu: &ImuInput,
+    tolerance_rad: f64,
+) {
+    let global = global_rotations(pose);
+    for (sensor, joint) in IMU_JOINTS.iter().enumerate() {
+        let Some(parent) = joint.parent() else {
+            continue; // the root: each method sets its own
+        };
+        let estimated = global[joint.index()];
+        let measured = rot(&imu.orientation[sensor]);
+        // measured = difference · estimated, the difference in world axes.
+        let difference = measured * estimated.transpose();
+        let angle = difference.angle();
+        if angle <= tolerance_rad {
+            continue;
+        }
+        let turned = match difference.axis() {
+            Some(axis) => Rotation3::from_axis_angle(&axis, angle - tolerance_rad) * estimated,
+            None => measured, // a half turn: any axis is as good, take the measurement
+        };
+        pose[joint.index()] = global[parent.index()].transpose() * turned;
+    }
+}
+
+/// Global (M) rotations of a local pose whose entry 0 is the root's orientation in M.
+pub fn global_rotations(local: &[Rotation3<f64>; NUM_JOINTS]) -> [Rotation3<f64>; NUM_JOINTS] {
+    let mut global = *local;
+    for j in JointId::all() {
+        if let Some(parent) = j.parent() {
+            global[j.index()] = global[parent.index()] * local[j.index()];
+        }
+    }
+    global
+}
+
 /// Local pose from the 15 reduced joints' rotations in the root frame (6D each): ignored joints get
 /// identity, the root gets `root` (reference §2.1 "Pose assembly").
 pub fn pose_from_reduced_r6d(r6d: &[f32], root: &Rotation3<f64>) -> [Rotation3<f64>; NUM_JOINTS] {
@@ -368,4 +476,122 @@ pub fn pose_from_reduced_r6d(r6d: &[f32], root: &Rotation3<f64>) -> [Rotation3<f
     }
     local[0] = *root;
     local
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn some_rotation(k: usize) -> Rotation3<f64> {
+        let axis = Unit::new_normalize(Vector3::new(1.0 + k as f64, -0.5, 0.3 * k as f64 - 1.0));
+        Rotation3::from_axis_angle(&axis, 0.2 + 0.37 * k as f64)
+    }
+
+    #[test]
+    fn measured_bones_take_their_sensor_orientation_and_nothing_else_moves() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let mut pose = Pose::t_pose(Vector3::zeros());
+        for (j, r) in pose.parent_from_joint.iter_mut().enumerate() {
+            *r = some_rotation(j);
+        }
+        let mut imu = ImuInput::default();
+        for sensor in 0..6 {
+            imu.orientation[sensor] = row_major(&some_rotation(40 + sensor));
+        }
+        let mut before = FkData::new();
+        forward_kinematics(&body.skeleton, &pose, &mut before);
+        impose_measured_bones(&mut pose.parent_from_joint, &imu, 0.0);
+        let mut after = FkData::new();
+        forward_kinematics(&body.skeleton, &pose, &mut after);
+
+        let carried_by_a_sensor = |j: JointId| {
+            let mut at = Some(j);
+            while let Some(joint) = at {
+                if IMU_JOINTS[..5].contains(&joint) {
+                    return true;
+                }
+                at = joint.parent();
+            }
+            false
+        };
+        for j in JointId::all() {
+            let moved = (after.world_from(j).matrix() - before.world_from(j).matrix()).norm();
+            if let Some(sensor) = IMU_JOINTS[..5].iter().position(|&s| s == j) {
+                let want = some_rotation(40 + sensor);
+                let off = (after.world_from(j).matrix() - want.matrix()).norm();
+                assert!(off < 1e-6, "{}: {off} from its sensor", j.name());
+            } else if !carried_by_a_sensor(j) {
+                assert!(moved < 1e-12, "{} moved by {moved}", j.name());
+            }
+        }
+        // The root keeps the method's orientation (not the pelvis sensor's).
+        assert_eq!(pose.parent_from_joint[0], some_rotation(0));
+        // Children of a sensor bone keep their local rotation and follow it.
+        let wrist = JointId::LEFT_WRIST;
+        let want = some_rotation(40) * some_rotation(wrist.index());
+        assert!((after.world_from(wrist).matrix() - want.matrix()).norm() < 1e-6);
+    }
+
+    #[test]
+    fn within_a_tolerance_a_bone_moves_onto_the_cone_around_its_sensor_or_not_at_all() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let mut pose = Pose::t_pose(Vector3::zeros());
+        for (j, r) in pose.parent_from_joint.iter_mut().enumerate() {
+            *r = some_rotation(j);
+        }
+        let mut fk = FkData::new();
+        forward_kinematics(&body.skeleton, &pose, &mut fk);
+        // Sensor 0 (left forearm) 20° from its bone about some axis; sensor 1 (right forearm) 3°.
+        let axis = Unit::new_normalize(Vector3::new(0.3, -1.0, 0.5));
+        let off = |deg: f64| Rotation3::from_axis_angle(&axis, deg.to_radians());
+        let bone = |j: JointId| *fk.world_from(j);
+        let mut imu = ImuInput::default();
+        let measured_left = off(20.0) * bone(JointId::LEFT_ELBOW);
+        imu.orientation[0] = row_major(&measured_left);
+        imu.orientation[1] = row_major(&(off(3.0) * bone(JointId::RIGHT_ELBOW)));
+        for (orientation, joint) in imu.orientation.iter_mut().zip(IMU_JOINTS).skip(2) {
+            *orientation = row_major(fk.world_from(joint));
+        }
+        let right_before = pose.parent_from_joint[JointId::RIGHT_ELBOW.index()];
+        impose_measured_bones(&mut pose.parent_from_joint, &imu, 5f64.to_radians());
+        forward_kinematics(&body.skeleton, &pose, &mut fk);
+        // Left: on the cone's edge, 5° from the measurement, 15° turned toward it (same axis).
+        let left = *fk.world_from(JointId::LEFT_ELBOW);
+        let to_measurement = left.angle_to(&measured_left).to_degrees();
+        assert!((to_measurement - 5.0).abs() < 1e-4, "{to_measurement}");
+        let expected = off(15.0) * bone_before_left(&body);
+        assert!((left.matrix() - expected.matrix()).norm() < 1e-5);
+        // Right: inside the cone, untouched.
+        assert_eq!(
+            pose.parent_from_joint[JointId::RIGHT_ELBOW.index()],
+            right_before
+        );
+    }
+
+    /// The left forearm's world orientation in the test pose before any change.
+    fn bone_before_left(body: &BodyModel) -> Rotation3<f64> {
+        let mut pose = Pose::t_pose(Vector3::zeros());
+        for (j, r) in pose.parent_from_joint.iter_mut().enumerate() {
+            *r = some_rotation(j);
+        }
+        let mut fk = FkData::new();
+        forward_kinematics(&body.skeleton, &pose, &mut fk);
+        *fk.world_from(JointId::LEFT_ELBOW)
+    }
+
+    #[test]
+    fn global_rotations_match_forward_kinematics() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let mut pose = Pose::t_pose(Vector3::zeros());
+        for (j, r) in pose.parent_from_joint.iter_mut().enumerate() {
+            *r = some_rotation(j);
+        }
+        let mut fk = FkData::new();
+        forward_kinematics(&body.skeleton, &pose, &mut fk);
+        let global = global_rotations(&pose.parent_from_joint);
+        for j in JointId::all() {
+            let d = (global[j.index()].matrix() - fk.world_from(j).matrix()).norm();
+            assert!(d < 1e-12, "{}: {d}", j.name());
+        }
+    }
 }

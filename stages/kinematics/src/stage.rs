@@ -2,6 +2,9 @@
 //!
 //! - Frames flagged CALIBRATING pass through as the start pose (flagged CALIBRATING | INVALID); the nets
 //!   start (learned initialization from the start pose) at the first calibrated frame.
+//! - The bones that carry a sensor stay within `sensor_bone_tolerance_deg` of its calibrated
+//!   orientation (`sensor_bones = "measured"`, [`SensorBones`]); `"network"` keeps the networks'
+//!   own estimate, as in the papers.
 //! - A sensor without a valid sample holds its last valid one, and the output is flagged INVALID; before
 //!   any valid sample of a sensor the frame is not fed to the nets at all (the start pose goes out).
 
@@ -15,7 +18,7 @@ use imuflow_graph::{FrameType, StageContext};
 use nalgebra::{Quaternion, Rotation3, UnitQuaternion};
 
 use crate::features::ImuInput;
-use crate::infer::{Estimate, StartPose, Streamer};
+use crate::infer::{Estimate, SENSOR_BONE_TOLERANCE_DEG, SensorBones, StartPose, Streamer};
 use crate::method::Method;
 use crate::weights::Weights;
 
@@ -57,6 +60,20 @@ pub const SPEC: StageSpec = StageSpec {
             default: "tpose for pip, npose for globalpose",
             doc: "the pose the subject holds when calibration ends (initializes the networks' state)",
         },
+        ParamSpec {
+            name: "sensor_bones",
+            ty: ParamType::Choice(&["measured", "network"]),
+            required: false,
+            default: "measured",
+            doc: "orientation of the bones that carry a sensor (forearms, lower legs, head): measured (the networks' estimate, turned to within sensor_bone_tolerance_deg of the calibrated sensor) or network (the networks' own, as in the papers)",
+        },
+        ParamSpec::float(
+            "sensor_bone_tolerance_deg",
+            0.0,
+            180.0,
+            "5",
+            "with sensor_bones = measured: how far a bone may stay from its sensor (0: the measurement itself)",
+        ),
     ],
 };
 
@@ -86,7 +103,13 @@ pub fn run() -> anyhow::Result<()> {
             weights_path.display()
         )
     })?;
+    let sensor_bones_name = params.str("sensor_bones").unwrap_or("measured");
+    let tolerance_deg = params.float("sensor_bone_tolerance_deg", SENSOR_BONE_TOLERANCE_DEG);
+    let Some(sensor_bones) = SensorBones::parse(sensor_bones_name, tolerance_deg) else {
+        bail!("stage '{stage}': unknown sensor_bones '{sensor_bones_name}' (measured or network)");
+    };
     let mut streamer = Streamer::new(weights, start.pose())?;
+    streamer.set_sensor_bones(sensor_bones);
     let input = ctx.input::<BodyImuFrame>("imu")?;
     let mut output = ctx.output::<KinematicsFrame>("kinematics")?;
     if !ctx.ready()? {

@@ -10,18 +10,23 @@
 //! ```
 //!
 //! a weighted average of "a stationary joint stays where it is" and the network's root velocity. The
-//! first frame puts the lowest contact joint on the floor. PIP's kinematics carries foot-contact
+//! first frame puts the lowest contact joint on the floor. On flat terrain ([`Terrain::Flat`], the
+//! default) the root is then moved so that the lowest stationary foot approaches the floor by
+//! [`crate::FLAT_FLOOR_PULL_RATE`] of its height each frame (vertical errors of the network velocity would
+//! otherwise accumulate, most over jumps). PIP's kinematics carries foot-contact
 //! probabilities only (pelvis and hands 0), so with PIP weights only the feet anchor the root.
 
 use imuflow_body::kinematics::FkData;
 use imuflow_body::rotation::axis_angle_from_rotation;
 use imuflow_body::skeleton::CONTACT_JOINTS;
-use imuflow_body::{NUM_JOINTS, forward_kinematics};
+use imuflow_body::{NUM_JOINTS, Pose, forward_kinematics};
 use imuflow_contact::ContactSet;
 use nalgebra::Vector3;
 
-use crate::estimate::place_on_floor;
-use crate::{DT_S, Method, MotionEstimate, PhysicsBody, Reference, StepReport};
+use crate::estimate::{FEET, place_on_floor};
+use crate::{
+    DT_S, FLAT_FLOOR_PULL_RATE, Method, MotionEstimate, PhysicsBody, Reference, StepReport, Terrain,
+};
 
 /// Weight of the network velocity against the stationary joints (GlobalPose reference §5.4: β_velocity = 1).
 pub const NETWORK_VELOCITY_WEIGHT: f64 = 1.0;
@@ -52,6 +57,26 @@ pub fn refined_root_velocity(
     sum / total
 }
 
+/// On flat ground, the root's vertical velocity while a foot is planted: the weighted mean of the
+/// stationary joints' vertical motion relative to the root (Eq. 25 without the network's term;
+/// the legs' pose fixes the root's height over a planted foot, and the network's vertical
+/// velocity would only add its bias). `None` without a stationary foot.
+pub fn planted_vertical_velocity(
+    previous_rel: &[Vector3<f64>; CONTACT_JOINTS.len()],
+    rel: &[Vector3<f64>; CONTACT_JOINTS.len()],
+    weights: &[f64; CONTACT_JOINTS.len()],
+) -> Option<f64> {
+    let planted = CONTACT_JOINTS
+        .iter()
+        .zip(weights)
+        .any(|(j, w)| FEET.contains(j) && *w > 0.0);
+    let total: f64 = weights.iter().sum();
+    let sum: f64 = (0..CONTACT_JOINTS.len())
+        .map(|i| weights[i] * (previous_rel[i].y - rel[i].y) / DT_S)
+        .sum();
+    planted.then(|| sum / total)
+}
+
 /// Contact joints ([`CONTACT_JOINTS`]) of `reference`'s pose relative to the root, in world axes.
 pub fn contact_joints_rel(
     physics: &PhysicsBody,
@@ -67,6 +92,7 @@ pub fn contact_joints_rel(
 /// The `integrate` method.
 pub struct Integrate {
     physics: PhysicsBody,
+    terrain: Terrain,
     fk: FkData,
     /// Contact joints relative to the root (world axes) in the previous frame; `None` before the first.
     previous_rel: Option<[Vector3<f64>; CONTACT_JOINTS.len()]>,
@@ -76,13 +102,38 @@ pub struct Integrate {
 
 impl Integrate {
     pub fn new(physics: PhysicsBody) -> Integrate {
+        Integrate::with_terrain(physics, Terrain::default())
+    }
+
+    pub fn with_terrain(physics: PhysicsBody, terrain: Terrain) -> Integrate {
         Integrate {
             physics,
+            terrain,
             fk: FkData::new(),
             previous_rel: None,
             previous: MotionEstimate::default(),
             contacts: ContactSet::new(),
         }
+    }
+
+    /// Height above the floor of the lowest stationary foot's ground point (negative: below it),
+    /// 0 without a stationary foot.
+    fn stationary_foot_height(
+        &mut self,
+        pose: &Pose,
+        weights: &[f64; CONTACT_JOINTS.len()],
+    ) -> f64 {
+        forward_kinematics(&self.physics.body.skeleton, pose, &mut self.fk);
+        CONTACT_JOINTS
+            .iter()
+            .zip(weights)
+            .filter(|(j, w)| FEET.contains(j) && **w >= CONTACT_WEIGHT)
+            .map(|(j, _)| {
+                let geometry = &self.physics.geometry;
+                geometry.height_above(*j, &self.fk.joint_in_world_m[j.index()], 0.0)
+            })
+            .reduce(f64::min)
+            .unwrap_or(0.0)
     }
 
     /// Contact joints relative to the root, in world axes, of the reference pose.
@@ -122,13 +173,22 @@ impl Method for Integrate {
                 place_on_floor(&self.physics, &mut out.pose, &CONTACT_JOINTS, &mut self.fk);
             }
             Some(previous_rel) => {
-                let v = refined_root_velocity(
+                let mut v = refined_root_velocity(
                     previous_rel,
                     &rel,
                     &reference.stationary_prob,
                     &reference.root_velocity_mps,
                 );
+                if self.terrain == Terrain::Flat
+                    && let Some(v_y) = planted_vertical_velocity(previous_rel, &rel, &weights)
+                {
+                    v.y = v_y;
+                }
                 out.pose.root_in_world_m = self.previous.pose.root_in_world_m + v * DT_S;
+                if self.terrain == Terrain::Flat {
+                    out.pose.root_in_world_m.y -=
+                        FLAT_FLOOR_PULL_RATE * self.stationary_foot_height(&out.pose, &weights);
+                }
                 out.v.fixed_rows_mut::<3>(0).copy_from(&v);
                 // Joint velocities in the body crate's coordinates: log(R_prevᵀ·R)/dt in the joint frame.
                 for j in 0..NUM_JOINTS {
@@ -200,8 +260,8 @@ mod tests {
     #[test]
     fn a_stationary_foot_holds_the_root_against_a_wrong_network_velocity() {
         // Hand-derived: one foot fully stationary (w = 1), the pose still, the network says 1 m/s:
-        // v = (1·0 + 1·1 m/s) / (1 + 1) = 0.5 m/s.
-        let mut m = Integrate::new(PhysicsBody::new(1.75, 70.0).unwrap());
+        // v = (1·0 + 1·1 m/s) / (1 + 1) = 0.5 m/s. (The paper's Eq. 25 alone: proxy terrain.)
+        let mut m = Integrate::with_terrain(PhysicsBody::new(1.75, 70.0).unwrap(), Terrain::Proxy);
         let mut r = reference();
         r.stationary_prob[1] = 0.9;
         r.root_velocity_mps = Vector3::new(1.0, 0.0, 0.0);
@@ -228,5 +288,36 @@ mod tests {
             (w - Vector3::new(-0.2, 0.0, 0.0) / DT_S).norm() < 1e-9,
             "{w}"
         );
+    }
+
+    #[test]
+    fn on_flat_ground_a_planted_foot_alone_sets_the_vertical_velocity_and_the_foot_stays_down() {
+        // The network says 1 m/s up and 1 m/s sideways; one foot is planted, the pose still.
+        // Horizontal: Eq. 25, (0 + 1)/2 = 0.5 m/s. Vertical: the foot's (0), not the network's.
+        let mut m = Integrate::new(PhysicsBody::new(1.75, 70.0).unwrap());
+        let mut r = reference();
+        r.stationary_prob[1] = 0.9;
+        r.root_velocity_mps = Vector3::new(1.0, 1.0, 0.0);
+        let mut out = MotionEstimate::default();
+        m.step(&r, None, &mut out).unwrap();
+        let start = out.pose.root_in_world_m;
+        for _ in 0..30 {
+            m.step(&r, None, &mut out).unwrap();
+        }
+        assert!((out.v[0] - 0.5).abs() < 1e-12, "{}", out.v[0]);
+        assert!(out.v[1].abs() < 1e-12, "{}", out.v[1]);
+        assert!((out.pose.root_in_world_m.y - start.y).abs() < 1e-9);
+        // Lifted 10 cm (as after a biased flight), the planted foot comes back down by
+        // FLAT_FLOOR_PULL_RATE of its height per frame: 10 cm·0.8^n.
+        m.previous.pose.root_in_world_m.y += 0.1;
+        for n in 1..=5 {
+            m.step(&r, None, &mut out).unwrap();
+            let above = out.pose.root_in_world_m.y - start.y;
+            let want = 0.1 * (1.0 - FLAT_FLOOR_PULL_RATE).powi(n);
+            assert!(
+                (above - want).abs() < 1e-9,
+                "frame {n}: {above} m, want {want}"
+            );
+        }
     }
 }

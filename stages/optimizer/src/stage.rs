@@ -20,7 +20,7 @@ use crate::estimate::{FEET, place_on_floor};
 use crate::globalpose::{GlobalPose, GlobalPoseConfig};
 use crate::integrate::Integrate;
 use crate::pip::{Pip, PipConfig};
-use crate::{Method, MotionEstimate, PhysicsBody, Reference};
+use crate::{Method, MotionEstimate, PhysicsBody, Reference, Terrain};
 
 /// The methods, as the `method` parameter names them.
 pub const METHODS: [&str; 3] = ["integrate", "pip", "globalpose"];
@@ -102,6 +102,13 @@ pub const SPEC: StageSpec = StageSpec {
             "pip 0.6, globalpose 0.7",
             "friction coefficient μ of the contact cones",
         ),
+        ParamSpec {
+            name: "terrain",
+            ty: ParamType::Choice(&Terrain::NAMES),
+            required: false,
+            default: "flat",
+            doc: "integrate and globalpose: flat (stationary feet pulled to the floor from any height: no vertical drift) or proxy (GlobalPose's proxy surfaces: steps and seats, but a biased network can ratchet the root up)",
+        },
     ],
 };
 
@@ -112,8 +119,15 @@ fn build(stage: &str, params: &Params) -> anyhow::Result<(String, Box<dyn Method
         subject_body(params).with_context(|| format!("stage '{stage}': body model"))?,
     );
     let for_stage = physics.clone();
+    let terrain_name = params.str("terrain").unwrap_or("flat");
+    let Some(terrain) = Terrain::parse(terrain_name) else {
+        bail!(
+            "stage '{stage}': unknown terrain '{terrain_name}' ({})",
+            Terrain::NAMES.join(", ")
+        );
+    };
     let method: Box<dyn Method> = match name.as_str() {
-        "integrate" => Box::new(Integrate::new(physics)),
+        "integrate" => Box::new(Integrate::with_terrain(physics, terrain)),
         "pip" => {
             let d = PipConfig::default();
             let config = PipConfig {
@@ -134,6 +148,7 @@ fn build(stage: &str, params: &Params) -> anyhow::Result<(String, Box<dyn Method
                 kp_position: params.float("kp_position", d.kp_position),
                 kd_position: params.float("kd_position", d.kd_position),
                 friction: params.float("friction", d.friction),
+                terrain,
                 ..d
             };
             Box::new(GlobalPose::new(physics, config)?)

@@ -13,7 +13,7 @@ use nalgebra::{Rotation3, Vector3};
 
 use imuflow_body::kinematics::{FkData, Pose};
 use imuflow_body::rotation::angle_between;
-use imuflow_body::skeleton::{JointId, NUM_JOINTS, SIP_JOINTS};
+use imuflow_body::skeleton::{IMU_JOINTS, JointId, NUM_IMUS, NUM_JOINTS, SIP_JOINTS};
 
 pub use imuflow_body::skeleton::IGNORED_JOINTS;
 
@@ -59,6 +59,20 @@ pub fn sip_error_deg(predicted: &FkData, truth: &FkData) -> f64 {
         &truth.world_from_joint,
         &SIP_JOINTS,
     )
+}
+
+/// Sensor-bone error (degrees): mean over the six sensors of the angle between the estimate's
+/// global orientation of the bone a sensor sits on (`IMU_JOINTS`: forearms, lower legs, head,
+/// pelvis) and that sensor's calibrated measurement `R_MB`. How far the pose contradicts its own
+/// inputs; it cannot be below the calibration error on real sensors, and has no reason to be above
+/// it. `estimate` is the FK of the pose as output (root orientation included).
+pub fn sensor_bone_error_deg(estimate: &FkData, measured: &[Rotation3<f64>; NUM_IMUS]) -> f64 {
+    let sum: f64 = IMU_JOINTS
+        .iter()
+        .zip(measured)
+        .map(|(j, r)| angle_between(estimate.world_from(*j), r))
+        .sum();
+    (sum / NUM_IMUS as f64).to_degrees()
 }
 
 /// Global angle error (degrees): mean over all 24 joints of the angle between global rotations.
@@ -238,6 +252,26 @@ pub fn ground_penetration_m(positions: &[[Vector3<f64>; NUM_JOINTS]], floor_y_m:
 mod tests {
     use super::*;
     use approx::assert_relative_eq;
+
+    #[test]
+    fn sensor_bone_error_is_the_mean_angle_over_the_six_instrumented_bones() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let mut pose = Pose::t_pose(Vector3::zeros());
+        pose.parent_from_joint[JointId::LEFT_SHOULDER.index()] =
+            Rotation3::from_axis_angle(&Vector3::z_axis(), 0.5);
+        let mut fk = FkData::new();
+        forward_kinematics(&body.skeleton, &pose, &mut fk);
+        // The measurement agrees with every bone but the left forearm, which it sees 0.5 rad
+        // back (the shoulder turned the forearm by 0.5 rad) and the head, 0.3 rad about x.
+        let mut measured = [Rotation3::identity(); NUM_IMUS];
+        measured[4] = Rotation3::from_axis_angle(&Vector3::x_axis(), 0.3);
+        let want = (0.5f64 + 0.3) / 6.0;
+        assert_relative_eq!(
+            sensor_bone_error_deg(&fk, &measured),
+            want.to_degrees(),
+            epsilon = 1e-9
+        );
+    }
     use imuflow_body::kinematics::forward_kinematics;
     use imuflow_body::rotation::Axis;
     use imuflow_body::{BodyModel, BodyParams};

@@ -13,16 +13,18 @@ use std::time::Instant;
 
 use anyhow::Context;
 use imuflow_body::kinematics::{FkData, forward_kinematics};
+use imuflow_body::skeleton::NUM_IMUS;
 use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
 use imuflow_kinematics::Method;
 use imuflow_kinematics::data::{FPS, pose_of};
-use imuflow_kinematics::infer::Streamer;
+use imuflow_kinematics::features::ImuInput;
+use imuflow_kinematics::infer::{SensorBones, Streamer};
 use imuflow_kinematics::weights::Weights;
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Rotation3, Vector3};
 
 use crate::metrics::{
     IGNORED_JOINTS, apply_ignored_joints, global_angle_error_deg, jitter_km_per_s3,
-    joint_position_error_m, sip_error_deg,
+    joint_position_error_m, sensor_bone_error_deg, sip_error_deg,
 };
 use crate::test_split::{Copies, for_each_test_sequence, sequence_bar};
 
@@ -34,6 +36,9 @@ pub struct NetsEval {
     /// The methods to evaluate with their weight files, in table order.
     pub weights: Vec<(Method, PathBuf)>,
     pub copies: Copies,
+    /// Where the instrumented bones' orientations come from (the kinematics stage's
+    /// `sensor_bones`).
+    pub sensor_bones: SensorBones,
     /// At most this many sequences per method.
     pub limit: usize,
     /// Show a progress bar per method.
@@ -45,6 +50,7 @@ pub struct NetsEval {
 pub struct NetsReport {
     pub data: PathBuf,
     pub copies: Copies,
+    pub sensor_bones: SensorBones,
     pub rows: Vec<(Method, Scores)>,
 }
 
@@ -57,6 +63,7 @@ pub fn run(options: &NetsEval) -> anyhow::Result<NetsReport> {
             weights,
             &options.data,
             options.copies,
+            options.sensor_bones,
             options.limit,
             options.progress,
         )?;
@@ -65,6 +72,7 @@ pub fn run(options: &NetsEval) -> anyhow::Result<NetsReport> {
     Ok(NetsReport {
         data: options.data.clone(),
         copies: options.copies,
+        sensor_bones: options.sensor_bones,
         rows,
     })
 }
@@ -73,9 +81,14 @@ impl fmt::Display for NetsReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "test split of {} ({} copies; reduced protocol, reference §6)",
+            "test split of {} ({} copies; sensor bones {}; reduced protocol, reference §6)",
             self.data.display(),
-            self.copies.name()
+            self.copies.name(),
+            match self.sensor_bones {
+                SensorBones::Measured { tolerance_rad } =>
+                    format!("within {:.1}° of their sensors", tolerance_rad.to_degrees()),
+                SensorBones::Network => "from the networks".to_owned(),
+            }
         )?;
         f.write_str(&table(&self.rows))
     }
@@ -91,6 +104,9 @@ pub struct Scores {
     pub joint_cm: f64,
     pub jitter_km_s3: f64,
     pub truth_jitter_km_s3: f64,
+    /// Mean angle between the output pose's instrumented bones and their calibrated sensors
+    /// ([`sensor_bone_error_deg`]; on the pose as output, before the protocol's ignored joints).
+    pub sensor_bone_deg: f64,
     pub us_per_frame: f64,
 }
 
@@ -100,12 +116,14 @@ pub fn evaluate(
     weights: &Path,
     data: &Path,
     copies: Copies,
+    sensor_bones: SensorBones,
     limit: usize,
     progress: bool,
 ) -> anyhow::Result<Scores> {
     let loaded = Weights::load(weights, method)
         .with_context(|| format!("loading weights {}", weights.display()))?;
     let mut streamer = Streamer::new(loaded, Pose::t_pose(Vector3::zeros()))?;
+    streamer.set_sensor_bones(sensor_bones);
     let body = BodyModel::new(&BodyParams::builtin()?, 1.75, 70.0)?;
     let bar = sequence_bar(method.name(), progress);
     let mut totals = Scores::default();
@@ -117,10 +135,13 @@ pub fn evaluate(
         let mut true_positions = Vec::with_capacity(b - a);
         for f in a..b {
             let t0 = Instant::now();
-            let est = streamer.step(&shard.imu(f))?;
+            let imu = shard.imu(f);
+            let est = streamer.step(&imu)?;
             infer_s += t0.elapsed().as_secs_f64();
             let mut pred = Pose::t_pose(Vector3::zeros());
             pred.parent_from_joint = est.pose;
+            forward_kinematics(&body.skeleton, &pred, &mut fk_pred);
+            totals.sensor_bone_deg += sensor_bone_error_deg(&fk_pred, &measured_bones(&imu));
             let mut truth = pose_of(shard, f);
             truth.root_in_world_m = Vector3::zeros();
             apply_ignored_joints(&mut pred, &IGNORED_JOINTS);
@@ -147,10 +168,17 @@ pub fn evaluate(
         angle_deg: totals.angle_deg / n,
         joint_cm: totals.joint_cm / n,
         jitter_km_s3: totals.jitter_km_s3 / n,
+        sensor_bone_deg: totals.sensor_bone_deg / n,
         truth_jitter_km_s3: totals.truth_jitter_km_s3 / n,
         us_per_frame: infer_s * 1e6 / n,
         ..totals
     })
+}
+
+/// The calibrated sensor orientations `R_MB` of one frame's network input.
+fn measured_bones(imu: &ImuInput) -> [Rotation3<f64>; NUM_IMUS] {
+    imu.orientation
+        .map(|m| Rotation3::from_matrix(&Matrix3::from_row_slice(&m.map(f64::from))))
 }
 
 fn positions(fk: &FkData) -> [Vector3<f64>; NUM_JOINTS] {
@@ -162,26 +190,28 @@ fn positions(fk: &FkData) -> [Vector3<f64>; NUM_JOINTS] {
 /// The table `imuflow eval` prints.
 pub fn table(rows: &[(Method, Scores)]) -> String {
     let mut out = format!(
-        "{:<11} {:>5} {:>8} {:>9} {:>10} {:>10} {:>14} {:>14} {:>9}\n",
+        "{:<11} {:>5} {:>8} {:>9} {:>10} {:>10} {:>12} {:>14} {:>14} {:>9}\n",
         "method",
         "seqs",
         "frames",
         "SIP (°)",
         "angle (°)",
         "joint (cm)",
+        "sensor (°)",
         "jitter km/s³",
         "truth jitter",
         "µs/frame"
     );
     for (m, s) in rows {
         out.push_str(&format!(
-            "{:<11} {:>5} {:>8} {:>9.2} {:>10.2} {:>10.2} {:>14.3} {:>14.3} {:>9.0}\n",
+            "{:<11} {:>5} {:>8} {:>9.2} {:>10.2} {:>10.2} {:>12.2} {:>14.3} {:>14.3} {:>9.0}\n",
             m.name(),
             s.sequences,
             s.frames,
             s.sip_deg,
             s.angle_deg,
             s.joint_cm,
+            s.sensor_bone_deg,
             s.jitter_km_s3,
             s.truth_jitter_km_s3,
             s.us_per_frame

@@ -13,13 +13,13 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
 use imuflow_graph::combine::Combined;
-use imuflow_graph::frames::{MotionFrame, ValidationFrame, frame_from_bytes};
+use imuflow_graph::frames::{BodyImuFrame, MotionFrame, ValidationFrame, frame_from_bytes};
 use imuflow_graph::launch::RunReport;
 use imuflow_imu_source::replay::for_each_record;
 
 use crate::score::{
     MotionScores, SKIPPED_FLAGS, disagreement, score_against_truth, score_without_truth,
-    summarize_validation,
+    sensor_bone_error_deg, summarize_validation,
 };
 
 /// One row of the table: a metric, its unit, whether lower is better, one value per variant.
@@ -52,6 +52,8 @@ struct Streams {
     /// seq -> (pose, frame) of the estimate.
     motion: BTreeMap<u32, MotionFrame>,
     validation: Vec<ValidationFrame>,
+    /// The calibrated IMU frames the estimate was made from, by seq (empty when not recorded).
+    body_imu: BTreeMap<u64, BodyImuFrame>,
 }
 
 /// Per-frame series kept for the plots.
@@ -133,10 +135,22 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
                 .unwrap_or_default(),
             None => Vec::new(),
         };
+        let body_imu = v
+            .body_imu
+            .as_ref()
+            .and_then(|topic| topics.get(topic))
+            .map(|m| {
+                m.iter()
+                    .filter_map(|d| frame_from_bytes::<BodyImuFrame>(d))
+                    .map(|f| (f.header.seq, f))
+                    .collect()
+            })
+            .unwrap_or_default();
         variants.push(Streams {
             name: v.name.clone(),
             motion: motion_of(&v.motion)?,
             validation,
+            body_imu,
         });
     }
 
@@ -179,6 +193,10 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
             None => score_without_truth(&estimate, &body, rate_hz),
         };
         add_motion_rows(&mut table, k, &scores, truth.is_some());
+        if !v.body_imu.is_empty() {
+            let error = sensor_bone_error_deg(&estimate, &v.body_imu, &body);
+            table.set("sensor-bone error", "deg", true, k, error);
+        }
         if !v.validation.is_empty() {
             let frames: Vec<ValidationFrame> = v
                 .validation

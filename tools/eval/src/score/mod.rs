@@ -9,6 +9,7 @@
 //!   in the scored seqs: they are computed per run of consecutive seqs.
 //!
 //! - [`score_against_truth`] / [`score_without_truth`]: [`MotionScores`] of one estimate;
+//! - [`sensor_bone_error_deg`]: how far an estimate's instrumented bones are from its sensors;
 //! - [`disagreement`]: two estimates against each other, when there is no truth;
 //! - [`summarize_validation`]: the validation stage's stream as [`ValidationScores`];
 //! - [`paired_bootstrap`]: whether a difference between two variants' per-frame scores is more
@@ -21,12 +22,14 @@ mod bootstrap;
 mod disagreement;
 mod motion;
 mod pairing;
+mod sensors;
 mod validation;
 
 pub use bootstrap::{BootstrapError, PairedDifference, paired_bootstrap};
 pub use disagreement::{Disagreement, disagreement};
 pub use motion::{MotionScores, PerFrame, PerJoint, score_against_truth, score_without_truth};
 pub use pairing::{SKIPPED_FLAGS, is_scored};
+pub use sensors::sensor_bone_error_deg;
 pub use validation::{ValidationScores, summarize_validation, validation_stats};
 
 #[cfg(test)]

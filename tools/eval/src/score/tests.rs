@@ -242,3 +242,36 @@ fn a_validation_stream_summarizes_like_the_stage() {
     assert_relative_eq!(v.foot_skate_mean_mps, 0.2, epsilon = 1e-6);
     assert_relative_eq!(v.residual_force_mean_fraction, 0.5, epsilon = 1e-6);
 }
+
+#[test]
+fn sensor_bone_error_pairs_by_seq_and_leaves_out_incomplete_measurements() {
+    use imuflow_graph::frames::BodyImuFrame;
+    let body = body();
+    let estimate = gliding_truth(&body, 4);
+    // Every bone of the gliding T-pose is at identity; the measurements agree except the head
+    // sensor, 60° off about x, so the mean over six sensors is 10°.
+    let head = nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 60f64.to_radians());
+    let measured = |seq: u64, valid_mask: u32| {
+        let mut f = BodyImuFrame::default();
+        f.header.seq = seq;
+        f.valid_mask = valid_mask;
+        f.bone_orientation_wxyz = [[1.0, 0.0, 0.0, 0.0]; 6];
+        f.bone_orientation_wxyz[4] = quat_wxyz_from_rotation(&head).map(|v| v as f32);
+        (seq, f)
+    };
+    // Seq 1's head sensor is not valid, seq 3 has no measurement: both left out.
+    let frames: std::collections::BTreeMap<u64, BodyImuFrame> =
+        [measured(0, 0x3f), measured(1, 0x2f), measured(2, 0x3f)].into();
+    let error = sensor_bone_error_deg(&estimate, &frames, &body).unwrap();
+    assert_relative_eq!(error, 10.0, epsilon = 1e-4);
+    // An estimate whose frames are all flagged INVALID has nothing to score.
+    let invalid: Vec<MotionFrame> = estimate
+        .iter()
+        .map(|f| {
+            let mut g = *f;
+            g.header.flags |= flags::INVALID;
+            g
+        })
+        .collect();
+    assert_eq!(sensor_bone_error_deg(&invalid, &frames, &body), None);
+}
