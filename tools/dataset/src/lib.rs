@@ -34,7 +34,9 @@ pub use shard::{
     BYTES_PER_FRAME, BodyModelInfo, FRAME_TENSORS, METADATA_KEY, OFFSETS_TENSOR, SequenceInfo,
     ShardFile, ShardMetadata, SynthesisInfo,
 };
-pub use split::{Split, augmentation_seed, clip_key, fnv1a64, split_of};
+pub use split::{
+    HELD_OUT_CONTENTS, Split, augmentation_seed, clip_key, content_of, fnv1a64, split_of,
+};
 
 use shard::{SequenceData, ShardAccumulator};
 
@@ -165,7 +167,7 @@ pub struct Summary {
     /// `.bvh` files found (after `--limit`).
     pub found: usize,
     /// Per split, in [`Split::ALL`] order.
-    pub splits: [SplitSummary; 3],
+    pub splits: [SplitSummary; 4],
     /// Skipped clips.
     pub skipped: Vec<Skipped>,
     /// Every shard written.
@@ -272,6 +274,7 @@ struct SplitFile<'a> {
     train: Vec<&'a str>,
     validation: Vec<&'a str>,
     test: Vec<&'a str>,
+    holdout: Vec<&'a str>,
     skipped: Vec<SkippedInSplit<'a>>,
 }
 
@@ -283,7 +286,7 @@ struct SkippedInSplit<'a> {
 }
 
 /// The rule recorded in `split.json`.
-pub const SPLIT_RULE: &str = "FNV-1a 64 of the clip's path relative to --bvh-dir (UTF-8, '/' separators) mod 100: 0-79 train, 80-89 validation, 90-99 test";
+pub const SPLIT_RULE: &str = "held-out contents (bow, dance-long, dance-short, guide, kick, punch, slash: the content in a Bandai file name <dataset>_<content>_<style>_<nnn>.bvh) -> holdout; else FNV-1a 64 of the clip's path relative to --bvh-dir (UTF-8, '/' separators) mod 100: 0-79 train, 80-89 validation, 90-99 test";
 
 /// Build the dataset (see the crate docs). Shards and `split.json` of an earlier run in `out_dir` are
 /// removed first.
@@ -333,7 +336,7 @@ pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
         output_bytes: 0,
         elapsed: Duration::ZERO,
     };
-    let mut written: [Vec<&str>; 3] = Default::default();
+    let mut written: [Vec<&str>; 4] = Default::default();
     let mut skipped_split = Vec::new();
 
     let pb = if options.progress {
@@ -414,12 +417,13 @@ pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
         summary.output_bytes += f.bytes;
     }
 
-    let [train, validation, test] = written;
+    let [train, validation, test, holdout] = written;
     let split_file = SplitFile {
         rule: SPLIT_RULE,
         train,
         validation,
         test,
+        holdout,
         skipped: summary
             .skipped
             .iter()

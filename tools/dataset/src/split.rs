@@ -1,4 +1,5 @@
-//! Deterministic train/validation/test split by clip, from a stable hash of the clip's relative path.
+//! Deterministic split by clip: whole motion contents held out (protocol (b)), the rest
+//! train/validation/test from a stable hash of the clip's relative path.
 
 use std::fmt;
 
@@ -27,11 +28,38 @@ pub enum Split {
     Validation,
     /// 10 %; never used for training.
     Test,
+    /// Every clip of a held-out motion content ([`HELD_OUT_CONTENTS`]), whatever its hash: never
+    /// used for training or model selection. How the networks do on motions they never saw.
+    Holdout,
+}
+
+/// Motion contents kept out of training and model selection (the generalization protocol's set
+/// (b)): dataset-1's bow, guide, kick, punch, slash and dance, every style of them. What is left to
+/// train on is locomotion (walks, runs, dash), gestures (bye, call, respond, wave, raise) and their
+/// styles. The Bandai annotations name no performer, so there is no held-out-performer set.
+pub const HELD_OUT_CONTENTS: [&str; 7] = [
+    "bow",
+    "dance-long",
+    "dance-short",
+    "guide",
+    "kick",
+    "punch",
+    "slash",
+];
+
+/// A clip's motion content from its Bandai file name `<dataset>_<content>_<style>_<nnn>.bvh`
+/// (`dataset-1/data/dataset-1_kick_angry_001.bvh` → `kick`); `None` for other names.
+pub fn content_of(key: &str) -> Option<&str> {
+    let stem = key.rsplit('/').next()?.split('.').next()?;
+    let mut parts = stem.split('_');
+    let dataset = parts.next()?;
+    let content = parts.next()?;
+    (dataset.starts_with("dataset-") && parts.next().is_some()).then_some(content)
 }
 
 impl Split {
     /// All splits, in output order.
-    pub const ALL: [Split; 3] = [Split::Train, Split::Validation, Split::Test];
+    pub const ALL: [Split; 4] = [Split::Train, Split::Validation, Split::Test, Split::Holdout];
 
     /// The name used in file names and metadata.
     pub fn name(self) -> &'static str {
@@ -39,6 +67,7 @@ impl Split {
             Split::Train => "train",
             Split::Validation => "validation",
             Split::Test => "test",
+            Split::Holdout => "holdout",
         }
     }
 
@@ -64,9 +93,13 @@ pub fn clip_key(relative_path: &std::path::Path) -> String {
         .join("/")
 }
 
-/// The split of a clip: `fnv1a64(key) % 100` below 80 → train, below 90 → validation, else test.
-/// Depends on the key alone, so adding or removing other clips never moves a clip.
+/// The split of a clip: a held-out content ([`HELD_OUT_CONTENTS`]) → holdout; else
+/// `fnv1a64(key) % 100` below 80 → train, below 90 → validation, else test. Depends on the key
+/// alone, so adding or removing other clips never moves a clip.
 pub fn split_of(key: &str) -> Split {
+    if content_of(key).is_some_and(|c| HELD_OUT_CONTENTS.contains(&c)) {
+        return Split::Holdout;
+    }
     match fnv1a64(key.as_bytes()) % 100 {
         0..80 => Split::Train,
         80..90 => Split::Validation,
@@ -104,6 +137,26 @@ mod tests {
         assert!((7_700..8_300).contains(&counts[0]), "{counts:?}");
         assert!((800..1_200).contains(&counts[1]), "{counts:?}");
         assert!((800..1_200).contains(&counts[2]), "{counts:?}");
+    }
+
+    #[test]
+    fn held_out_contents_go_to_the_holdout_split_whatever_their_hash() {
+        let key = "dataset-1/data/dataset-1_kick_angry_001.bvh";
+        assert_eq!(content_of(key), Some("kick"));
+        assert_eq!(split_of(key), Split::Holdout);
+        assert_eq!(
+            content_of("dataset-2/data/dataset-2_walk-left_normal_003.bvh"),
+            Some("walk-left")
+        );
+        assert_eq!(content_of("my/clip_one.bvh"), None);
+        assert_eq!(content_of("dataset-1_kick.bvh"), None);
+        // Every other clip keeps the hash rule.
+        for i in 0..200 {
+            let walk = format!("dataset-1/data/dataset-1_walk_style{i}_001.bvh");
+            assert_ne!(split_of(&walk), Split::Holdout, "{walk}");
+            let dance = format!("dataset-1/data/dataset-1_dance-short_style{i}_001.bvh");
+            assert_eq!(split_of(&dance), Split::Holdout, "{dance}");
+        }
     }
 
     #[test]

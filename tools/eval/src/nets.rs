@@ -1,4 +1,4 @@
-//! `imuflow eval`: the nets over the dataset's **test** split, scored with the papers' pose metrics.
+//! `imuflow eval`: the nets over the dataset's **test** split (or its held-out contents), scored with the papers' pose metrics.
 //!
 //! Each test sequence is streamed frame by frame through the same [`Streamer`] the kinematics stage
 //! runs (calibrated IMU data in, as the calibration stage delivers it), seeded with the sequence's
@@ -15,6 +15,7 @@ use anyhow::Context;
 use imuflow_body::kinematics::{FkData, forward_kinematics};
 use imuflow_body::skeleton::NUM_IMUS;
 use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
+use imuflow_dataset::Split;
 use imuflow_kinematics::Method;
 use imuflow_kinematics::data::{FPS, pose_of};
 use imuflow_kinematics::features::ImuInput;
@@ -36,6 +37,8 @@ pub struct NetsEval {
     /// The methods to evaluate with their weight files, in table order.
     pub weights: Vec<(Method, PathBuf)>,
     pub copies: Copies,
+    /// The test split (in-distribution contents) or the held-out contents.
+    pub split: Split,
     /// Where the instrumented bones' orientations come from (the kinematics stage's
     /// `sensor_bones`).
     pub sensor_bones: SensorBones,
@@ -49,6 +52,7 @@ pub struct NetsEval {
 #[derive(Clone, Debug)]
 pub struct NetsReport {
     pub data: PathBuf,
+    pub split: Split,
     pub copies: Copies,
     pub sensor_bones: SensorBones,
     pub rows: Vec<(Method, Scores)>,
@@ -62,6 +66,7 @@ pub fn run(options: &NetsEval) -> anyhow::Result<NetsReport> {
             *method,
             weights,
             &options.data,
+            options.split,
             options.copies,
             options.sensor_bones,
             options.limit,
@@ -71,6 +76,7 @@ pub fn run(options: &NetsEval) -> anyhow::Result<NetsReport> {
     }
     Ok(NetsReport {
         data: options.data.clone(),
+        split: options.split,
         copies: options.copies,
         sensor_bones: options.sensor_bones,
         rows,
@@ -81,7 +87,8 @@ impl fmt::Display for NetsReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "test split of {} ({} copies; sensor bones {}; reduced protocol, reference §6)",
+            "{} split of {} ({} copies; sensor bones {}; reduced protocol, reference §6)",
+            self.split,
             self.data.display(),
             self.copies.name(),
             match self.sensor_bones {
@@ -115,6 +122,7 @@ pub fn evaluate(
     method: Method,
     weights: &Path,
     data: &Path,
+    split: Split,
     copies: Copies,
     sensor_bones: SensorBones,
     limit: usize,
@@ -129,7 +137,7 @@ pub fn evaluate(
     let mut totals = Scores::default();
     let (mut fk_pred, mut fk_true) = (FkData::new(), FkData::new());
     let mut infer_s = 0.0;
-    for_each_test_sequence(data, copies, 4, limit, &bar, |shard, a, b| {
+    for_each_test_sequence(data, split, copies, 4, limit, &bar, |shard, a, b| {
         streamer.set_start(pose_of(shard, a));
         let mut predicted_positions = Vec::with_capacity(b - a);
         let mut true_positions = Vec::with_capacity(b - a);

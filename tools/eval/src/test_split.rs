@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use anyhow::Context;
+use imuflow_dataset::Split;
 use imuflow_kinematics::data::{Shard, shard_files};
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -57,11 +58,12 @@ pub fn sequence_bar(label: &str, show: bool) -> ProgressBar {
     bar
 }
 
-/// Calls `f(shard, a, b)` for every sequence (frames `a..b` of its shard) of the test split in
-/// `data` with the chosen copies and at least `min_frames` frames, at most `limit` of them, advancing
+/// Calls `f(shard, a, b)` for every sequence (frames `a..b` of its shard) of `split` (the test
+/// split, or the held-out contents) in `data` with the chosen copies and at least `min_frames` frames, at most `limit` of them, advancing
 /// `bar`. Returns how many were visited; an error names the shard and the sequence.
 pub fn for_each_test_sequence(
     data: &Path,
+    split: Split,
     copies: Copies,
     min_frames: usize,
     limit: usize,
@@ -69,7 +71,22 @@ pub fn for_each_test_sequence(
     mut f: impl FnMut(&Shard, usize, usize) -> anyhow::Result<()>,
 ) -> anyhow::Result<usize> {
     let mut visited = 0;
-    for file in shard_files(data, "test")? {
+    anyhow::ensure!(
+        matches!(split, Split::Test | Split::Holdout),
+        "evaluation reads the test or holdout split, not {split} (the networks trained on it)"
+    );
+    let files = shard_files(data, split.name())?;
+    anyhow::ensure!(
+        !files.is_empty(),
+        "{}: no {split} shards (is it a dataset folder from `imuflow dataset build`?{})",
+        data.display(),
+        if split == Split::Holdout {
+            " A build from before the held-out contents existed has none: build it again."
+        } else {
+            ""
+        }
+    );
+    for file in files {
         let bytes = std::fs::read(&file).with_context(|| format!("reading {}", file.display()))?;
         let shard = Shard::parse(&bytes).with_context(|| format!("shard {}", file.display()))?;
         let augmented = sequence_flags(&shard);

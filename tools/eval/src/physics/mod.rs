@@ -132,6 +132,7 @@ pub fn evaluate(options: &PhysicsEval) -> anyhow::Result<PhysicsReport> {
     let bar = sequence_bar("physics", options.progress);
     let sequences = for_each_test_sequence(
         &options.data,
+        imuflow_dataset::Split::Test,
         Copies::Augmented,
         8,
         options.limit,
