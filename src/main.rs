@@ -106,9 +106,10 @@ enum BodyCommand {
 
 #[derive(Subcommand)]
 enum DatasetCommand {
-    /// Retarget every .bvh under --bvh-dir (Bandai Namco skeleton), resample to 60 Hz, synthesize the
-    /// six IMUs (ideal plus augmented copies) and write safetensors shards split 80/10/10 by clip
-    /// (see tools/dataset/README.md). Clips that fail are reported and skipped.
+    /// Retarget every .bvh under --bvh-dir (Bandai Namco skeleton, or any with --mapping), resample
+    /// to 60 Hz, synthesize the six IMUs (ideal plus augmented copies) and write safetensors shards:
+    /// held-out motion contents apart, the rest split 80/10/10 by clip (see
+    /// tools/dataset/README.md). Clips that fail are reported and skipped.
     Build {
         /// Directory searched recursively for .bvh files.
         #[arg(long, value_name = "DIR")]
@@ -125,6 +126,10 @@ enum DatasetCommand {
         /// Use only the first N clips (sorted by path).
         #[arg(long)]
         limit: Option<usize>,
+        /// Joint mapping TOML of the clips' skeleton (format: stages/body/mappings/bandai-namco.toml);
+        /// default: the built-in Bandai Namco mapping.
+        #[arg(long, value_name = "FILE")]
+        mapping: Option<PathBuf>,
         /// Close a shard before it exceeds this many frames (1,524 bytes each).
         #[arg(long, default_value_t = imuflow_dataset::DEFAULT_MAX_SHARD_FRAMES)]
         shard_frames: usize,
@@ -415,6 +420,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
         augment_copies,
         seed,
         limit,
+        mapping,
         shard_frames,
         no_progress,
     } = cmd;
@@ -422,6 +428,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
     options.augment_copies = augment_copies;
     options.seed = seed;
     options.limit = limit;
+    options.mapping = mapping;
     options.max_shard_frames = shard_frames;
     options.progress = !no_progress;
     match imuflow_dataset::build(&options) {

@@ -73,6 +73,9 @@ pub struct BuildOptions {
     pub seed: u64,
     /// Use only the first N clips (in sorted order).
     pub limit: Option<usize>,
+    /// Joint mapping of the clips' skeleton (`stages/body/mappings/bandai-namco.toml` documents the
+    /// format); `None`: the built-in Bandai Namco mapping.
+    pub mapping: Option<PathBuf>,
     /// A shard is closed before it would exceed this many frames.
     pub max_shard_frames: usize,
     /// Subject stature (m).
@@ -93,6 +96,7 @@ impl BuildOptions {
             augment_copies: 1,
             seed: 0,
             limit: None,
+            mapping: None,
             max_shard_frames: DEFAULT_MAX_SHARD_FRAMES,
             stature_m: DEFAULT_STATURE_M,
             mass_kg: DEFAULT_MASS_KG,
@@ -126,6 +130,9 @@ pub enum DatasetError {
     /// The body model could not be built.
     #[error("body model: {0}")]
     Body(String),
+    /// The joint mapping could not be read (the message names the file and line).
+    #[error("{0}")]
+    Mapping(String),
 }
 
 /// A clip that was skipped, with why.
@@ -304,7 +311,11 @@ pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
     let params = BodyParams::builtin().map_err(|e| DatasetError::Body(e.to_string()))?;
     let body = BodyModel::new(&params, options.stature_m, options.mass_kg)
         .map_err(|e| DatasetError::Body(e.to_string()))?;
-    let source = SourceSkeleton::bandai_namco().map_err(|e| DatasetError::Body(e.to_string()))?;
+    let source = match &options.mapping {
+        Some(path) => SourceSkeleton::load(path),
+        None => SourceSkeleton::bandai_namco(),
+    }
+    .map_err(|e| DatasetError::Mapping(format!("--mapping: {e}")))?;
     prepare_out_dir(&options.out_dir)?;
 
     let meta = ShardMetadata {

@@ -296,3 +296,89 @@ fn missing_input_and_all_failing_clips_are_errors() {
     assert!(matches!(e, DatasetError::AllFailed { count: 1, .. }), "{e}");
     assert!(e.to_string().contains("broken.bvh"), "{e}");
 }
+
+#[test]
+fn any_skeleton_builds_with_a_joint_mapping_and_gives_the_same_shards() {
+    // The Bandai fixture with every joint renamed is another skeleton: the built-in mapping
+    // cannot read it, the same mapping with the new names can, and the motion is the same.
+    let renamed = std::fs::read_to_string(fixture())
+        .unwrap()
+        .lines()
+        .map(|line| {
+            let t = line.trim_start();
+            match t.split_once(' ') {
+                Some((kw @ ("ROOT" | "JOINT"), name)) => {
+                    format!("{}{kw} mocap:{name}", &line[..line.len() - t.len()])
+                }
+                _ => line.to_owned(),
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let input = tempfile::tempdir().unwrap();
+    std::fs::write(input.path().join("walk.bvh"), &renamed).unwrap();
+    let original = input_dir(&["walk.bvh"]);
+    std::fs::remove_file(original.path().join("broken.bvh")).unwrap();
+
+    let out = tempfile::tempdir().unwrap();
+    let err = build(&options(input.path(), out.path())).unwrap_err();
+    assert!(matches!(err, DatasetError::AllFailed { .. }), "{err}");
+
+    let mut section = "";
+    let mapping_text = imuflow_body::retarget::BANDAI_NAMCO_MAPPING_TOML
+        .lines()
+        .map(|line| {
+            if line.starts_with('[') {
+                section = line;
+            }
+            match line.split_once(" = \"") {
+                Some((key, name)) if section == "[joints]" && !line.starts_with('#') => {
+                    format!("{key} = \"mocap:{name}")
+                }
+                _ => line.replace("\"joint_Root\"", "\"mocap:joint_Root\""),
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let mapping = input.path().join("mocap.toml");
+    std::fs::write(&mapping, mapping_text).unwrap();
+    let mut o = options(input.path(), out.path());
+    o.mapping = Some(mapping.clone());
+    let mapped = build(&o).unwrap();
+    assert_eq!(mapped.skipped.len(), 0);
+    let reference_out = tempfile::tempdir().unwrap();
+    build(&options(original.path(), reference_out.path())).unwrap();
+    let names = |dir: &Path| {
+        shard_files(dir)
+            .iter()
+            .map(|p| p.file_name().unwrap().to_owned())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(names(out.path()), names(reference_out.path()));
+    for (a, b) in shard_files(out.path())
+        .iter()
+        .zip(shard_files(reference_out.path()))
+    {
+        let (a, b) = (std::fs::read(a).unwrap(), std::fs::read(&b).unwrap());
+        let (a, b) = (
+            SafeTensors::deserialize(&a).unwrap(),
+            SafeTensors::deserialize(&b).unwrap(),
+        );
+        for (name, _) in FRAME_TENSORS {
+            assert_eq!(
+                a.tensor(name).unwrap().data(),
+                b.tensor(name).unwrap().data(),
+                "{name}"
+            );
+        }
+    }
+
+    // A mapping that names a joint we do not have is refused with its file and line.
+    std::fs::write(
+        &mapping,
+        "unit = \"cm\"\nup = \"y\"\n[joints]\ntail = \"Tail\"\n",
+    )
+    .unwrap();
+    let err = build(&o).unwrap_err().to_string();
+    assert!(err.contains("mocap.toml") && err.contains(":4"), "{err}");
+}
