@@ -24,7 +24,10 @@ use imuflow_body::imu_synthesis::{
     AccelStencil, Augmentation, AugmentationConfig, SynthesisOptions, SyntheticImus,
     synthesize_imus,
 };
-use imuflow_body::retarget::{MotionClip, RetargetOptions, SourceSkeleton, resample, retarget_bvh};
+use imuflow_body::npz::{AmassOptions, read_amass_npz};
+use imuflow_body::retarget::{
+    MotionClip, RetargetOptions, SourceSkeleton, median_lowest_foot_height, resample, retarget_bvh,
+};
 use imuflow_body::rotation::row_major_from_rotation;
 use imuflow_body::{BodyModel, BodyParams, FkData, forward_kinematics};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -111,8 +114,8 @@ pub enum DatasetError {
     /// The input directory does not exist or is not a directory.
     #[error("--bvh-dir {dir}: no such directory")]
     MissingInput { dir: String },
-    /// No `.bvh` file under the input directory.
-    #[error("--bvh-dir {dir}: no .bvh files found")]
+    /// No motion file (`.bvh`, `.npz`) under the input directory.
+    #[error("--bvh-dir {dir}: no .bvh or .npz files found")]
     NoClips { dir: String },
     /// Every clip failed.
     #[error("all {count} clips failed; first: {first}")]
@@ -240,6 +243,16 @@ fn row(name: &str, r: &SplitSummary) -> String {
 /// Every `.bvh` under `dir` (recursively; extension case-insensitive), sorted by [`clip_key`], with its
 /// key.
 pub fn find_bvh_files(dir: &Path) -> Result<Vec<(String, PathBuf)>, DatasetError> {
+    find_files(dir, &["bvh"])
+}
+
+/// Every motion file the builder reads under `dir`: `.bvh` and AMASS-style `.npz`, as
+/// [`find_bvh_files`].
+pub fn find_motion_files(dir: &Path) -> Result<Vec<(String, PathBuf)>, DatasetError> {
+    find_files(dir, &["bvh", "npz"])
+}
+
+fn find_files(dir: &Path, extensions: &[&str]) -> Result<Vec<(String, PathBuf)>, DatasetError> {
     if !dir.is_dir() {
         return Err(DatasetError::MissingInput {
             dir: dir.display().to_string(),
@@ -263,7 +276,7 @@ pub fn find_bvh_files(dir: &Path) -> Result<Vec<(String, PathBuf)>, DatasetError
                 stack.push(path);
             } else if path
                 .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("bvh"))
+                .is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x)))
             {
                 let rel = path.strip_prefix(dir).unwrap_or(&path);
                 out.push((clip_key(rel), path.clone()));
@@ -299,7 +312,7 @@ pub const SPLIT_RULE: &str = "held-out contents (bow, dance-long, dance-short, g
 /// removed first.
 pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
     let start = Instant::now();
-    let mut files = find_bvh_files(&options.bvh_dir)?;
+    let mut files = find_motion_files(&options.bvh_dir)?;
     if let Some(limit) = options.limit {
         files.truncate(limit);
     }
@@ -515,9 +528,7 @@ impl ClipWork {
         source: &SourceSkeleton,
         options: &BuildOptions,
     ) -> anyhow::Result<Vec<SequenceData>> {
-        let bvh = Bvh::read(path)?;
-        let clip = retarget_bvh(&bvh, source, body, &RetargetOptions::default())
-            .with_context(|| format!("{}: retargeting", path.display()))?;
+        let clip = read_clip(path, body, source)?;
         let clip =
             resample(&clip, FPS).with_context(|| format!("{}: resampling", path.display()))?;
         let motion = self.motion_tensors(body, &clip);
@@ -568,6 +579,29 @@ impl ClipWork {
         }
         [pose, root, joints]
     }
+}
+
+/// A motion file as a clip on the body model at its own rate: a BVH retargeted through `source`, or
+/// an AMASS-style `.npz` (SMPL joint order and body frame: no retargeting), both with the floor at
+/// the median lowest foot height.
+fn read_clip(path: &Path, body: &BodyModel, source: &SourceSkeleton) -> anyhow::Result<MotionClip> {
+    if !is_npz(path) {
+        let bvh = Bvh::read(path)?;
+        return retarget_bvh(&bvh, source, body, &RetargetOptions::default())
+            .with_context(|| format!("{}: retargeting", path.display()));
+    }
+    let mut clip = read_amass_npz(path, &AmassOptions::default())?;
+    // SMPL's body is not ours: the feet land near, not on, the AMASS floor.
+    let lift = -median_lowest_foot_height(body, &clip);
+    for pose in &mut clip.poses {
+        pose.root_in_world_m.y += lift;
+    }
+    Ok(clip)
+}
+
+fn is_npz(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("npz"))
 }
 
 /// `imu_orientation`, `imu_free_accel`, `imu_angular_velocity` bytes.

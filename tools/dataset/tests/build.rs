@@ -382,3 +382,51 @@ fn any_skeleton_builds_with_a_joint_mapping_and_gives_the_same_shards() {
     let err = build(&o).unwrap_err().to_string();
     assert!(err.contains("mocap.toml") && err.contains(":4"), "{err}");
 }
+
+#[test]
+fn amass_npz_clips_build_like_the_same_motion_in_bvh() {
+    // The fixture's motion, retargeted, written as an AMASS-style .npz at its 30 Hz (with
+    // imuflow_body::npz, which its own tests check against numpy's format), then built from
+    // there: the same poses as the BVH build (the floor is re-aligned the same way).
+    let bvh = Bvh::read(&fixture()).unwrap();
+    let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+    let source = SourceSkeleton::bandai_namco().unwrap();
+    let clip = retarget_bvh(&bvh, &source, &body, &RetargetOptions::default()).unwrap();
+    let input = tempfile::tempdir().unwrap();
+    let options_npz = imuflow_body::npz::AmassOptions::default();
+    imuflow_body::npz::write_amass_npz(&input.path().join("walk.npz"), &clip, &options_npz)
+        .unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let summary = build(&options(input.path(), out.path())).unwrap();
+    assert_eq!(summary.skipped.len(), 0, "{:?}", summary.skipped);
+    assert_eq!(summary.found, 1);
+
+    let reference = input_dir(&["walk.bvh"]);
+    std::fs::remove_file(reference.path().join("broken.bvh")).unwrap();
+    let reference_out = tempfile::tempdir().unwrap();
+    build(&options(reference.path(), reference_out.path())).unwrap();
+    let read = |dir: &Path| {
+        let file = shard_files(dir).into_iter().next().unwrap();
+        let bytes = std::fs::read(file).unwrap();
+        let t = SafeTensors::deserialize(&bytes).unwrap();
+        ["pose_local", "root_position"].map(|name| {
+            let data = t.tensor(name).unwrap().data().to_vec();
+            data.chunks(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect::<Vec<f32>>()
+        })
+    };
+    let (npz, bvh) = (read(out.path()), read(reference_out.path()));
+    for (name, (a, b)) in ["pose_local", "root_position"]
+        .iter()
+        .zip(npz.iter().zip(&bvh))
+    {
+        assert_eq!(a.len(), b.len(), "{name}");
+        let worst = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max);
+        assert!(worst < 1e-4, "{name}: differs by {worst}");
+    }
+}
