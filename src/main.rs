@@ -126,6 +126,14 @@ enum DatasetCommand {
         /// Use only the first N clips (sorted by path).
         #[arg(long)]
         limit: Option<usize>,
+        /// Training clips also enter mirrored left-right (validation, test and holdout stay as
+        /// recorded).
+        #[arg(long)]
+        mirror: bool,
+        /// Training clips also enter played at these speeds, comma-separated (e.g. 0.6,1.6: 40 %
+        /// slower and 60 % faster).
+        #[arg(long, value_delimiter = ',', value_name = "FACTORS")]
+        speeds: Vec<f64>,
         /// Joint mapping TOML of the clips' skeleton (format: stages/body/mappings/bandai-namco.toml);
         /// default: the built-in Bandai Namco mapping.
         #[arg(long, value_name = "FILE")]
@@ -420,6 +428,8 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
         augment_copies,
         seed,
         limit,
+        mirror,
+        speeds,
         mapping,
         shard_frames,
         no_progress,
@@ -429,6 +439,15 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
     options.seed = seed;
     options.limit = limit;
     options.mapping = mapping;
+    options.mirror = mirror;
+    if let Some(bad) = speeds
+        .iter()
+        .find(|s| !(s.is_finite() && (0.1..=10.0).contains(*s)))
+    {
+        eprintln!("error: --speeds: {bad} is not a speed factor between 0.1 and 10");
+        return ExitCode::FAILURE;
+    }
+    options.speeds = speeds;
     options.max_shard_frames = shard_frames;
     options.progress = !no_progress;
     match imuflow_dataset::build(&options) {

@@ -11,6 +11,7 @@
     deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)
 )]
 
+pub mod motion_augment;
 pub mod shard;
 pub mod split;
 
@@ -76,6 +77,11 @@ pub struct BuildOptions {
     pub seed: u64,
     /// Use only the first N clips (in sorted order).
     pub limit: Option<usize>,
+    /// Training clips also enter mirrored left–right ([`motion_augment::mirror`]).
+    pub mirror: bool,
+    /// Training clips also enter at each of these speeds ([`motion_augment::time_warp`]; 1 is
+    /// the clip itself).
+    pub speeds: Vec<f64>,
     /// Joint mapping of the clips' skeleton (`stages/body/mappings/bandai-namco.toml` documents the
     /// format); `None`: the built-in Bandai Namco mapping.
     pub mapping: Option<PathBuf>,
@@ -99,6 +105,8 @@ impl BuildOptions {
             augment_copies: 1,
             seed: 0,
             limit: None,
+            mirror: false,
+            speeds: Vec::new(),
             mapping: None,
             max_shard_frames: DEFAULT_MAX_SHARD_FRAMES,
             stature_m: DEFAULT_STATURE_M,
@@ -379,7 +387,7 @@ pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
     for (key, path) in &files {
         let split = split_of(key);
         pb.set_message(key.clone());
-        match clip_state.process(key, path, &body, &source, options) {
+        match clip_state.process(key, path, split, &body, &source, options) {
             Ok(sequences) => {
                 let s = &mut summary.splits[split.index()];
                 s.clips += 1;
@@ -519,21 +527,58 @@ impl ClipWork {
         ClipWork { fk: FkData::new() }
     }
 
-    /// The sequences of one clip: ideal first, then the augmented copies.
+    /// The sequences of one clip: ideal first, then the augmented copies; for a training clip the
+    /// same again for each motion augmentation (mirrored, each speed).
     fn process(
         &mut self,
         key: &str,
         path: &Path,
+        split: Split,
         body: &BodyModel,
         source: &SourceSkeleton,
         options: &BuildOptions,
     ) -> anyhow::Result<Vec<SequenceData>> {
-        let clip = read_clip(path, body, source)?;
+        let recorded = read_clip(path, body, source)?;
         let clip =
-            resample(&clip, FPS).with_context(|| format!("{}: resampling", path.display()))?;
-        let motion = self.motion_tensors(body, &clip);
-        let clip_hash = fnv1a64(key.as_bytes());
-        let mut out = Vec::with_capacity(1 + options.augment_copies as usize);
+            resample(&recorded, FPS).with_context(|| format!("{}: resampling", path.display()))?;
+        let mut motions = Vec::new();
+        if split == Split::Train {
+            if options.mirror {
+                motions.push(("mirrored".to_owned(), motion_augment::mirror(&clip)));
+            }
+            for &speed in &options.speeds {
+                let warped = motion_augment::time_warp(&recorded, speed, FPS)
+                    .with_context(|| format!("{}: time warp ×{speed}", path.display()))?;
+                motions.push((format!("speed {speed}"), warped));
+            }
+        }
+        motions.insert(0, (String::new(), clip));
+        let mut out = Vec::new();
+        for (motion, clip) in &motions {
+            self.sequences(key, path, motion, clip, body, options, &mut out)?;
+        }
+        Ok(out)
+    }
+
+    /// The ideal and augmented IMU copies of one motion (`motion`: "" for the recorded one).
+    #[allow(clippy::too_many_arguments)]
+    fn sequences(
+        &mut self,
+        key: &str,
+        path: &Path,
+        motion: &str,
+        clip: &MotionClip,
+        body: &BodyModel,
+        options: &BuildOptions,
+        out: &mut Vec<SequenceData>,
+    ) -> anyhow::Result<()> {
+        let motion_tensors = self.motion_tensors(body, clip);
+        // The recorded motion's seeds are the clip's (unchanged by augmentation options); each
+        // augmented motion gets its own.
+        let clip_hash = match motion {
+            "" => fnv1a64(key.as_bytes()),
+            m => fnv1a64(format!("{key}#{m}").as_bytes()),
+        };
         for copy in 0..=options.augment_copies {
             let seed = (copy > 0).then(|| augmentation_seed(options.seed, clip_hash, copy.into()));
             let synthesis = SynthesisOptions {
@@ -543,9 +588,9 @@ impl ClipWork {
                     seed,
                 }),
             };
-            let imus = synthesize_imus(&clip, body, &synthesis)
+            let imus = synthesize_imus(clip, body, &synthesis)
                 .with_context(|| format!("{}: IMU synthesis", path.display()))?;
-            let [pose, root, joints] = motion.clone();
+            let [pose, root, joints] = motion_tensors.clone();
             let [ori, acc, gyro] = imu_tensors(&imus);
             out.push(SequenceData {
                 info: SequenceInfo {
@@ -554,11 +599,12 @@ impl ClipWork {
                     augmented: copy > 0,
                     seed,
                     frames: clip.poses.len(),
+                    motion: motion.to_owned(),
                 },
                 tensors: [ori, acc, gyro, pose, root, joints],
             });
         }
-        Ok(out)
+        Ok(())
     }
 
     /// `pose_local`, `root_position`, `joint_position` bytes.

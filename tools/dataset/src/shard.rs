@@ -41,6 +41,10 @@ pub struct SequenceInfo {
     pub seed: Option<u64>,
     /// Frames at 60 Hz.
     pub frames: usize,
+    /// The motion augmentation this sequence carries: "" for the recorded motion, "mirrored",
+    /// "speed 0.7", … (training clips only).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub motion: String,
 }
 
 /// Everything in a shard's `imuflow` metadata entry (JSON).

@@ -430,3 +430,57 @@ fn amass_npz_clips_build_like_the_same_motion_in_bvh() {
         assert!(worst < 1e-4, "{name}: differs by {worst}");
     }
 }
+
+#[test]
+fn motion_augmentations_add_training_sequences_only() {
+    let input = input_dir(&GOOD);
+    let (plain_out, augmented_out) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let plain = build(&options(input.path(), plain_out.path())).unwrap();
+    let mut o = options(input.path(), augmented_out.path());
+    o.mirror = true;
+    o.speeds = vec![0.5, 2.0];
+    let augmented = build(&o).unwrap();
+    let frames = fixture_frames_at_60hz();
+    for s in Split::ALL {
+        let (p, a) = (&plain.splits[s.index()], &augmented.splits[s.index()]);
+        assert_eq!(p.clips, a.clips, "{s}");
+        if s == Split::Train {
+            // Per clip: recorded + mirrored + two speeds, each ideal + one augmented copy.
+            assert_eq!(a.sequences, 4 * p.sequences, "{s}");
+            // Half speed lasts twice as long, double speed half (within a frame).
+            let expected = 2 * (frames + frames + (2 * frames - 1) + frames.div_ceil(2));
+            let per_clip = a.frames / a.clips;
+            assert!(per_clip.abs_diff(expected) <= 4, "{per_clip} vs {expected}");
+        } else {
+            assert_eq!(p, a, "{s} must not change");
+        }
+    }
+    // Each sequence says which motion it carries.
+    let shard = shard_files(augmented_out.path())
+        .into_iter()
+        .find(|p| {
+            p.file_name()
+                .unwrap()
+                .to_string_lossy()
+                .starts_with("train")
+        })
+        .unwrap();
+    let bytes = std::fs::read(shard).unwrap();
+    let (_, metadata) = SafeTensors::read_metadata(&bytes).unwrap();
+    let meta: ShardMetadata =
+        serde_json::from_str(&metadata.metadata().as_ref().unwrap()[METADATA_KEY]).unwrap();
+    let motions: Vec<&str> = meta.sequences.iter().map(|s| s.motion.as_str()).collect();
+    assert_eq!(
+        &motions[..8],
+        [
+            "",
+            "",
+            "mirrored",
+            "mirrored",
+            "speed 0.5",
+            "speed 0.5",
+            "speed 2",
+            "speed 2"
+        ]
+    );
+}
