@@ -62,16 +62,7 @@ pub struct NetsReport {
 pub fn run(options: &NetsEval) -> anyhow::Result<NetsReport> {
     let mut rows = Vec::with_capacity(options.weights.len());
     for (method, weights) in &options.weights {
-        let scores = evaluate(
-            *method,
-            weights,
-            &options.data,
-            options.split,
-            options.copies,
-            options.sensor_bones,
-            options.limit,
-            options.progress,
-        )?;
+        let scores = evaluate(*method, weights, options)?;
         rows.push((*method, scores));
     }
     Ok(NetsReport {
@@ -117,17 +108,20 @@ pub struct Scores {
     pub us_per_frame: f64,
 }
 
-/// Evaluate `weights` on the test shards in `data`.
-pub fn evaluate(
-    method: Method,
-    weights: &Path,
-    data: &Path,
-    split: Split,
-    copies: Copies,
-    sensor_bones: SensorBones,
-    limit: usize,
-    progress: bool,
-) -> anyhow::Result<Scores> {
+/// Evaluate `weights` of `method` as `options` say (its data, split, copies, sensor bones, limit,
+/// progress; its own weight list is not used).
+pub fn evaluate(method: Method, weights: &Path, options: &NetsEval) -> anyhow::Result<Scores> {
+    let NetsEval {
+        data,
+        split,
+        copies,
+        sensor_bones,
+        limit,
+        progress,
+        ..
+    } = options;
+    let (split, copies, sensor_bones, limit, progress) =
+        (*split, *copies, *sensor_bones, *limit, *progress);
     let loaded = Weights::load(weights, method)
         .with_context(|| format!("loading weights {}", weights.display()))?;
     let mut streamer = Streamer::new(loaded, Pose::t_pose(Vector3::zeros()))?;
