@@ -17,13 +17,20 @@
 //!   validation stage's simulated body is a MotionFrame: wire it to an input named `validation`
 //!   and it is drawn in its own colour with its floor forces as arrows.
 //! - Errors against the truth: with an input named `truth` (a MotionFrame), every other motion
-//!   input named `motion` (or `<group>__motion`) gets its root-aligned mean joint position error
-//!   (cm) and its root distance (m) per frame under `plots/error_vs_truth/<entity>/`. Without a
+//!   input named `motion` (or `<group>__motion`) gets its SIP error (deg), root-aligned mean joint
+//!   position error (cm) and its root distance (m) per frame under `plots/error_vs_truth/<entity>/`. Without a
 //!   truth, a comparison's variants get the same against the first variant, under
-//!   `plots/disagreement_vs_<first>/<group>/`. With a truth, each variant's latency from the
-//!   source publishing a frame to the variant publishing its motion: `plots/latency_ms/<group>`.
+//!   `plots/disagreement_vs_<first>/<group>/`. With a truth, each estimate's latency from the
+//!   source publishing a frame to the estimate's publishing: `plots/latency_ms/<group or input>`.
 //! - Every frame type: each small field (up to 6 scalars, e.g. stationary probabilities, root
-//!   velocity) as a time series under `plots/<input>/<field>`, and the INVALID flag.
+//!   velocity) as a time series under `plots/<input>/<field>`, once it has changed (a constant
+//!   series is never logged: [`Plots`]); the INVALID flag as text events under `<input>/events`
+//!   where it turns on and off.
+//!
+//! A single run's recording carries a blueprint ([`send_single_run_blueprint`]): the scene and a
+//! view that follows the estimate's pelvis (entity `follow`), a legend (`legend`, markdown), and
+//! tabs of time series (the errors against the truth first). Fixed colours: `motion` blue,
+//! `kinematics` pink (drawn at the estimate's root), `truth` green, `validation` orange.
 //!
 //! Groups (A/B comparisons, `imuflow compare`): an input named `<group>__<what>` is logged under
 //! `<group>/<what>`, every group's skeletons get their own colour (its simulated body a lighter
@@ -34,6 +41,8 @@
 //! coordinates so the viewer shows "up" correctly.
 
 use anyhow::{Context, bail};
+use imuflow_body::rotation::angle_between;
+use imuflow_body::skeleton::SIP_JOINTS;
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose, forward_kinematics};
 use imuflow_graph::combine::GROUP_SEPARATOR;
 use imuflow_graph::frames::{
@@ -71,8 +80,12 @@ const JOINT_RADIUS_M: f32 = 0.015;
 const JOINT_RADIUS_M_PER_NM: f32 = 2e-4;
 /// Radius of drawn bones, m.
 const BONE_RADIUS_M: f32 = 0.008;
-/// Colour of the skeleton drawn from an input named `validation` (the simulated body) and of one
-/// named `truth`; other skeletons get rerun's automatic colours, or their group's.
+/// Fixed colours of a single run's skeletons, by input name (the legend names them): `motion` (the
+/// estimate: physics, or the integrated networks), `kinematics` (the networks' pose), `truth`,
+/// `validation` (the simulated body). Other skeletons get rerun's automatic colours, or their
+/// group's. Okabe & Ito's colour-blind-safe palette (2008), green kept for the truth.
+const MOTION_RGB: [u8; 3] = [0, 114, 178];
+const NETWORK_RGB: [u8; 3] = [204, 121, 167];
 const VALIDATION_RGB: [u8; 3] = [240, 150, 30];
 const TRUTH_RGB: [u8; 3] = [120, 200, 120];
 /// Group colours, in the order the groups first appear among the inputs (a colour-blind-safe
@@ -85,6 +98,10 @@ const GROUP_PALETTE: [[u8; 3]; 6] = [
     [86, 180, 233],
     [240, 228, 66],
 ];
+/// The input whose pelvis the follow view moves with (a single run's estimate), and the entity
+/// that carries its position.
+const FOLLOWED: &str = "motion";
+const FOLLOW_ENTITY: &str = "follow";
 /// Truth frames kept for the error series (motion arrives a pipeline's latency after its truth).
 const TRUTH_FRAMES_KEPT: usize = 1200;
 
@@ -104,6 +121,8 @@ fn skeleton_colour(entity: &str, groups: &[String]) -> Option<rerun::Color> {
     let [r, g, b] = match (group_of(entity), what) {
         (None, "validation") => VALIDATION_RGB,
         (None, "truth") => TRUTH_RGB,
+        (None, "motion") => MOTION_RGB,
+        (None, "kinematics") => NETWORK_RGB,
         (None, _) => return None,
         (Some(group), what) => {
             let index = groups.iter().position(|g| g == group)?;
@@ -235,7 +254,13 @@ pub fn run() -> anyhow::Result<()> {
         .filter(|g| !g.is_empty())
         .collect();
     groups.sort_by_key(|g| order.iter().position(|o| o == g).unwrap_or(order.len()));
-    if !groups.is_empty() {
+    if groups.is_empty() {
+        rec.log_static(
+            LEGEND_ENTITY,
+            &rerun::TextDocument::from_markdown(legend(&inputs)),
+        )?;
+        send_single_run_blueprint(&rec, &inputs)?;
+    } else {
         let overlaid = params.str("views") == Some("overlaid");
         send_blueprint(&rec, &groups, overlaid, &inputs)?;
     }
@@ -294,22 +319,20 @@ fn log_frames(
     live: bool,
     drawer: &mut SkeletonDrawer,
 ) -> anyhow::Result<()> {
+    let mut plots = Plots::default();
     while let Some(index) = ctx.next_any()? {
         let (Some(held), Some((name, frame))) = (ctx.held(index), inputs.get(index)) else {
             continue;
         };
         let header = *held.header();
-        rec.set_time_sequence("seq", header.seq as i64);
-        if live {
-            rec.set_timestamp_nanos_since_epoch("capture_time", header.capture_ns as i64);
-        } else {
-            rec.set_duration_secs("capture_time", header.capture_ns as f64 * 1e-9);
-        }
-        let invalid = if header.has(flags::INVALID) { 1.0 } else { 0.0 };
-        rec.log(
-            format!("plots/{name}/invalid"),
-            &rerun::Scalars::single(invalid),
-        )?;
+        let time = FrameTime {
+            seq: header.seq,
+            capture_ns: header.capture_ns,
+            live,
+        };
+        time.set(rec);
+        plots.now = time;
+        plots.flag_transition(rec, name, header.seq, header.has(flags::INVALID))?;
         match frame {
             FrameType::Imu => {
                 if let Some(f) = frame_ref::<ImuFrame>(held) {
@@ -344,7 +367,12 @@ fn log_frames(
             }
             FrameType::Kinematics => {
                 if let Some(f) = frame_ref::<KinematicsFrame>(held) {
-                    drawer.log_joints(rec, name, &f.joint_position_m, None)?;
+                    // Root-relative: drawn where the estimate's root last was (else at the origin).
+                    let root = drawer.estimate_root.unwrap_or([0.0; 3]);
+                    let joints = f
+                        .joint_position_m
+                        .map(|p| [p[0] + root[0], p[1] + root[1], p[2] + root[2]]);
+                    drawer.log_joints(rec, name, &joints, None)?;
                 }
             }
             FrameType::Contact => {
@@ -367,7 +395,7 @@ fn log_frames(
                 }
             }
         }
-        log_small_fields(rec, name, frame.layout(), held)?;
+        log_small_fields(rec, &mut plots, name, frame.layout(), held)?;
     }
     Ok(())
 }
@@ -407,9 +435,11 @@ fn log_sensors(
     Ok(())
 }
 
-/// Logs every field with few scalars (probabilities, velocities, counters) as a time series.
+/// Logs every field with few scalars (probabilities, velocities, counters) as a time series, once
+/// it has changed (see [`Plots`]).
 fn log_small_fields(
     rec: &rerun::RecordingStream,
+    plots: &mut Plots,
     input: &str,
     layout: &FrameLayout,
     held: &dyn HeldFrame,
@@ -432,13 +462,107 @@ fn log_small_fields(
             })
             .collect();
         if values.iter().all(|v| v.is_finite()) {
-            rec.log(
-                format!("plots/{input}/{}", field.name),
-                &rerun::Scalars::new(values),
-            )?;
+            plots.series(rec, format!("plots/{input}/{}", field.name), values)?;
         }
     }
     Ok(())
+}
+
+/// When a frame was captured, on the recording's two timelines.
+#[derive(Clone, Copy, Debug, Default)]
+struct FrameTime {
+    seq: u64,
+    capture_ns: u64,
+    live: bool,
+}
+
+impl FrameTime {
+    fn set(&self, rec: &rerun::RecordingStream) {
+        rec.set_time_sequence("seq", self.seq as i64);
+        if self.live {
+            rec.set_timestamp_nanos_since_epoch("capture_time", self.capture_ns as i64);
+        } else {
+            rec.set_duration_secs("capture_time", self.capture_ns as f64 * 1e-9);
+        }
+    }
+}
+
+/// The time series of a run, logged only once they say something: a series whose values never
+/// change (a probability stuck at 0, an unused force, the truth's empty torques) would be a flat
+/// plot taking screen space. Each series' first values are held back until a different value
+/// arrives; then the held values are logged at their own time and the series is logged from then
+/// on. The INVALID flag becomes text events at its changes instead of a 0/1 plot.
+#[derive(Default)]
+struct Plots {
+    now: FrameTime,
+    /// Series not yet logged: their first values and when they came.
+    held: std::collections::HashMap<String, (FrameTime, Vec<f64>)>,
+    logged: std::collections::HashSet<String>,
+    /// Inputs whose last frame was flagged INVALID.
+    invalid: std::collections::HashSet<String>,
+}
+
+impl Plots {
+    fn series(
+        &mut self,
+        rec: &rerun::RecordingStream,
+        path: String,
+        values: Vec<f64>,
+    ) -> anyhow::Result<()> {
+        if self.logged.contains(&path) {
+            rec.log(path, &rerun::Scalars::new(values))?;
+            return Ok(());
+        }
+        match self.held.get(&path) {
+            None => {
+                self.held.insert(path, (self.now, values));
+            }
+            Some((_, first)) if *first == values => {}
+            Some(_) => {
+                let (then, first) = self.held.remove(&path).expect("held");
+                then.set(rec);
+                rec.log(path.clone(), &rerun::Scalars::new(first))?;
+                self.now.set(rec);
+                rec.log(path.clone(), &rerun::Scalars::new(values))?;
+                self.logged.insert(path);
+            }
+        }
+        Ok(())
+    }
+
+    /// A text event where an input's INVALID flag turns on or off.
+    fn flag_transition(
+        &mut self,
+        rec: &rerun::RecordingStream,
+        input: &str,
+        seq: u64,
+        invalid: bool,
+    ) -> anyhow::Result<()> {
+        let was = self.invalid.contains(input);
+        if invalid == was {
+            return Ok(());
+        }
+        let (text, level) = if invalid {
+            self.invalid.insert(input.to_owned());
+            (
+                format!(
+                    "frame {seq}: {input} flagged INVALID (calibrating, a sensor missing, or a fallback)"
+                ),
+                rerun::TextLogLevel::WARN,
+            )
+        } else {
+            self.invalid.remove(input);
+            (
+                format!("frame {seq}: {input} valid again"),
+                rerun::TextLogLevel::INFO,
+            )
+        };
+        rec.log(
+            format!("{input}/events"),
+            &rerun::TextLog::new(text).with_level(level),
+        )?;
+        Ok(())
+    }
 }
 
 fn params_stature(ctx: &StageContext) -> f64 {
@@ -455,10 +579,17 @@ struct SkeletonDrawer {
     reference: Option<Reference>,
     /// The source's publish time of each seq (the truth's frames), for the latency series.
     source_publish_ns: std::collections::BTreeMap<u64, u64>,
+    /// The last root position of the followed estimate ([`FOLLOWED`]).
+    estimate_root: Option<[f32; 3]>,
 }
 
-/// World positions of the 24 joints, m.
-type Joints = [[f32; 3]; NUM_JOINTS];
+/// What the error series compare of one frame: the world positions of the 24 joints (m) and the
+/// global rotations of the SIP joints (hips, shoulders).
+#[derive(Clone, Copy)]
+struct Posed {
+    joints: [[f32; 3]; NUM_JOINTS],
+    sip: [nalgebra::Rotation3<f64>; SIP_JOINTS.len()],
+}
 
 /// The stream estimates are compared with, and its joints by seq.
 struct Reference {
@@ -466,10 +597,10 @@ struct Reference {
     entity: String,
     /// Where the series go: `plots/error_vs_truth` or `plots/disagreement_vs_<group>`.
     plots: String,
-    joints: std::collections::BTreeMap<u64, [[f32; 3]; NUM_JOINTS]>,
+    joints: std::collections::BTreeMap<u64, Posed>,
     /// Estimates that arrived before the reference's frame of their seq (variants finish frames
     /// in any order), logged when it comes.
-    pending: std::collections::BTreeMap<u64, Vec<(String, Joints)>>,
+    pending: std::collections::BTreeMap<u64, Vec<(String, Posed)>>,
 }
 
 impl SkeletonDrawer {
@@ -499,6 +630,7 @@ impl SkeletonDrawer {
             groups,
             reference,
             source_publish_ns: Default::default(),
+            estimate_root: None,
         }
     }
 
@@ -509,7 +641,7 @@ impl SkeletonDrawer {
         rec: &rerun::RecordingStream,
         entity: &str,
         header: &imuflow_graph::frames::FrameHeader,
-        joints: &[[f32; 3]; NUM_JOINTS],
+        posed: &Posed,
     ) -> anyhow::Result<()> {
         let seq = header.seq;
         if entity == "truth" {
@@ -519,8 +651,8 @@ impl SkeletonDrawer {
             }
         }
         let is_estimate = entity == "motion" || entity.ends_with("/motion");
+        let group = group_of(entity).unwrap_or(entity);
         if is_estimate
-            && let Some(group) = group_of(entity)
             && let Some(published) = self.source_publish_ns.get(&seq)
             && header.publish_ns >= *published
         {
@@ -535,12 +667,12 @@ impl SkeletonDrawer {
             return Ok(());
         };
         if entity == reference.entity {
-            reference.joints.insert(seq, *joints);
+            reference.joints.insert(seq, *posed);
             while reference.joints.len() > TRUTH_FRAMES_KEPT {
                 reference.joints.pop_first();
             }
             for (waiting, estimate) in reference.pending.remove(&seq).unwrap_or_default() {
-                log_difference(rec, &reference.plots, &waiting, &estimate, joints)?;
+                log_difference(rec, &reference.plots, &waiting, &estimate, posed)?;
             }
             return Ok(());
         }
@@ -548,13 +680,13 @@ impl SkeletonDrawer {
             return Ok(());
         }
         match reference.joints.get(&seq) {
-            Some(true_joints) => log_difference(rec, &reference.plots, entity, joints, true_joints),
+            Some(truth) => log_difference(rec, &reference.plots, entity, posed, truth),
             None => {
                 reference
                     .pending
                     .entry(seq)
                     .or_default()
-                    .push((entity.to_owned(), *joints));
+                    .push((entity.to_owned(), *posed));
                 while reference.pending.len() > TRUTH_FRAMES_KEPT {
                     reference.pending.pop_first();
                 }
@@ -584,11 +716,27 @@ impl SkeletonDrawer {
             })
             .collect();
         self.log_joints(rec, input, &joints, Some(&torque))?;
-        self.track_error(rec, input, &f.header, &joints)?;
-        rec.log(
-            format!("plots/{input}/torque_norm_nm"),
-            &rerun::BarChart::new(torque),
-        )?;
+        let posed = Posed {
+            joints,
+            sip: SIP_JOINTS.map(|j| *self.fk.world_from(j)),
+        };
+        self.track_error(rec, input, &f.header, &posed)?;
+        if torque.iter().any(|t| *t != 0.0) {
+            // Physics estimates only: the truth and the networks carry no torques.
+            rec.log(
+                format!("plots/{input}/torque_norm_nm"),
+                &rerun::BarChart::new(torque),
+            )?;
+        }
+        if input == FOLLOWED {
+            // The follow view's origin: the estimate's pelvis, on the floor's height axis.
+            let root = joints[JointId::ROOT.index()];
+            rec.log(
+                FOLLOW_ENTITY,
+                &rerun::Transform3D::from_translation([root[0], 0.0, root[2]]),
+            )?;
+            self.estimate_root = Some(root);
+        }
         let (origins, vectors): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..NUM_JOINTS)
             .filter(|&j| f.ground_reaction_force_n[j].iter().any(|v| *v != 0.0))
             .map(|j| {
@@ -658,18 +806,26 @@ fn log_contacts(rec: &rerun::RecordingStream, input: &str, f: &ContactFrame) -> 
     Ok(())
 }
 
-/// Mean joint position error after aligning the roots (cm), and the roots' distance (m).
-/// Logs an estimate's root-aligned mean joint distance (cm) and root distance (m) from the
-/// reference's joints under `<plots>/<group>/`.
+/// Logs an estimate's SIP error (deg: the mean angle between its and the reference's global
+/// rotations of hips and shoulders, as `imuflow compare`), root-aligned mean joint distance (cm)
+/// and root distance (m) from the reference under `<plots>/<group>/`.
 fn log_difference(
     rec: &rerun::RecordingStream,
     plots: &str,
     entity: &str,
-    joints: &[[f32; 3]; NUM_JOINTS],
-    reference: &[[f32; 3]; NUM_JOINTS],
+    estimate: &Posed,
+    reference: &Posed,
 ) -> anyhow::Result<()> {
-    let (joint_cm, root_m) = error_against_truth(joints, reference);
+    let (joint_cm, root_m) = error_against_truth(&estimate.joints, &reference.joints);
+    let sip_deg = estimate
+        .sip
+        .iter()
+        .zip(&reference.sip)
+        .map(|(a, b)| angle_between(a, b).to_degrees())
+        .sum::<f64>()
+        / SIP_JOINTS.len() as f64;
     let base = format!("{plots}/{}", group_of(entity).unwrap_or(entity));
+    rec.log(format!("{base}/sip_deg"), &rerun::Scalars::single(sip_deg))?;
     rec.log(
         format!("{base}/joint_position_cm"),
         &rerun::Scalars::single(joint_cm),
@@ -681,6 +837,7 @@ fn log_difference(
     Ok(())
 }
 
+/// Mean joint position error after aligning the roots (cm), and the roots' distance (m).
 fn error_against_truth(
     joints: &[[f32; 3]; NUM_JOINTS],
     truth: &[[f32; 3]; NUM_JOINTS],
@@ -696,6 +853,161 @@ fn error_against_truth(
     }
     let root_m = offset.iter().map(|x| x * x).sum::<f64>().sqrt();
     (100.0 * sum_m / NUM_JOINTS as f64, root_m)
+}
+
+/// Where the legend (a markdown text document) is logged.
+const LEGEND_ENTITY: &str = "legend";
+
+/// A colour's name and swatch for the legend.
+fn colour_name(rgb: [u8; 3]) -> &'static str {
+    match rgb {
+        MOTION_RGB => "blue",
+        NETWORK_RGB => "pink",
+        VALIDATION_RGB => "orange",
+        TRUTH_RGB => "green",
+        _ => "",
+    }
+}
+
+/// The legend of a single run: what each skeleton's colour is, what the views and tabs show.
+fn legend(inputs: &[(String, FrameType)]) -> String {
+    let has = |name: &str| inputs.iter().any(|(e, _)| e == name);
+    let mut text = String::from("## imuflow\n\n");
+    let skeletons = [
+        (
+            "motion",
+            MOTION_RGB,
+            "the estimate: the physics optimizer's output (or the integrated networks without physics); joint spheres grow with joint torque, red arrows are ground-reaction forces",
+        ),
+        (
+            "kinematics",
+            NETWORK_RGB,
+            "the networks' pose alone, drawn at the estimate's root",
+        ),
+        (
+            "truth",
+            TRUTH_RGB,
+            "the true motion, when the source has it",
+        ),
+        (
+            "validation",
+            VALIDATION_RGB,
+            "the rapier simulation that tried to perform the estimate with joint torques only (the judge)",
+        ),
+    ];
+    for (name, rgb, what) in skeletons.iter().filter(|(name, _, _)| has(name)) {
+        text.push_str(&format!("- **{}** `{name}`: {what}\n", colour_name(*rgb)));
+    }
+    if has("contacts") {
+        text.push_str("- light blue points and arrows `contacts`: the contacts the physics used, with their forces\n");
+    }
+    text.push_str("\n**scene**: the world, floor at y = 0. **follow**: the same, the camera moving with the estimate's pelvis.\n");
+    if has("truth") {
+        text.push_str("\n**errors** tab: per frame against the truth: SIP error (hips and shoulders, deg), mean joint position error (cm, roots aligned), root distance (m), and the latency from the source to the estimate (ms).\n");
+    }
+    text.push_str("\nOther tabs: each input's small fields over time (contact and stationary probabilities, root velocity, validation scores, ...). A series that never changes is not logged. Times: `seq` (frame) and `capture_time`.\n");
+    text
+}
+
+/// The layout of a single run, derived from its inputs: the scene and a view that follows the
+/// estimate side by side (with the legend), above tabs of time series: the errors against the truth
+/// when there is one, then one tab per input with plotted fields, the joint torques of a physics
+/// estimate.
+fn send_single_run_blueprint(
+    rec: &rerun::RecordingStream,
+    inputs: &[(String, FrameType)],
+) -> anyhow::Result<()> {
+    use rerun::blueprint::components::PanelState;
+    use rerun::blueprint::{
+        BarChartView, Blueprint, BlueprintActivation, BlueprintPanel, ContainerLike, Horizontal,
+        SelectionPanel, Spatial3DView, Tabs, TextDocumentView, TimePanel, TimeSeriesView, Vertical,
+    };
+    let has = |name: &str| inputs.iter().any(|(e, _)| e == name);
+    let scene_contents = ["+ /**", "- /plots/**", "- /legend"];
+    let mut top: Vec<ContainerLike> = vec![
+        Spatial3DView::new("scene")
+            .with_origin("/")
+            .with_contents(scene_contents)
+            .into(),
+    ];
+    if has(FOLLOWED) {
+        top.push(
+            Spatial3DView::new("follow")
+                .with_origin(format!("/{FOLLOW_ENTITY}"))
+                .with_contents(scene_contents)
+                .into(),
+        );
+    }
+    top.push(
+        TextDocumentView::new("legend")
+            .with_origin(format!("/{LEGEND_ENTITY}"))
+            .into(),
+    );
+    let shares: Vec<f32> = match top.len() {
+        3 => vec![3.0, 3.0, 1.2],
+        _ => vec![5.0, 1.2],
+    };
+    let mut tabs: Vec<ContainerLike> = Vec::new();
+    if has("truth") && has(FOLLOWED) {
+        tabs.push(
+            Vertical::new([
+                TimeSeriesView::new("SIP error vs truth (deg)")
+                    .with_contents(["+ /plots/error_vs_truth/*/sip_deg"])
+                    .into(),
+                TimeSeriesView::new("joint position error vs truth (cm)")
+                    .with_contents(["+ /plots/error_vs_truth/*/joint_position_cm"])
+                    .into(),
+                TimeSeriesView::new("root distance from truth (m)")
+                    .with_contents(["+ /plots/error_vs_truth/*/root_distance_m"])
+                    .into(),
+                TimeSeriesView::new("latency, source to estimate (ms)")
+                    .with_contents(["+ /plots/latency_ms/**"])
+                    .into(),
+            ])
+            .with_name("errors")
+            .into(),
+        );
+    }
+    for (name, frame) in inputs {
+        let plotted = match frame {
+            FrameType::Imu | FrameType::BodyImu => "IMU signals",
+            FrameType::Motion if name == "truth" => continue,
+            _ => "fields",
+        };
+        let series = TimeSeriesView::new(format!("{name}: {plotted}"))
+            .with_origin(format!("/plots/{name}"))
+            .with_contents(["+ $origin/**"]);
+        let tab: ContainerLike = if *frame == FrameType::Motion {
+            Horizontal::new([
+                series.into(),
+                BarChartView::new(format!("{name}: joint torque (N·m)"))
+                    .with_origin(format!("/plots/{name}/torque_norm_nm"))
+                    .into(),
+            ])
+            .with_name(name.as_str())
+            .into()
+        } else {
+            Vertical::new([series.into()])
+                .with_name(name.as_str())
+                .into()
+        };
+        tabs.push(tab);
+    }
+    let top: ContainerLike = Horizontal::new(top).with_column_shares(shares).into();
+    let root: ContainerLike = if tabs.is_empty() {
+        top
+    } else {
+        Vertical::new([top, Tabs::new(tabs).into()])
+            .with_row_shares([3.0, 2.0])
+            .into()
+    };
+    // The views get the screen: the viewer's own side panels start collapsed (a click opens them).
+    Blueprint::new(root)
+        .with_blueprint_panel(BlueprintPanel::new().with_state(PanelState::Collapsed))
+        .with_selection_panel(SelectionPanel::new().with_state(PanelState::Collapsed))
+        .with_time_panel(TimePanel::new().with_timeline("seq"))
+        .send(rec, BlueprintActivation::default())?;
+    Ok(())
 }
 
 /// The layout of a grouped recording: a 3D view per group (each with the truth) or one overlaid
@@ -799,7 +1111,9 @@ mod tests {
         assert_eq!(rgb("pip/validation"), Some([128, 185, 217, 255]));
         assert_eq!(rgb("truth"), Some([120, 200, 120, 255]));
         assert_eq!(rgb("validation"), Some([240, 150, 30, 255]));
-        assert_eq!(rgb("motion"), None);
+        assert_eq!(rgb("motion"), Some([0, 114, 178, 255]));
+        assert_eq!(rgb("kinematics"), Some([204, 121, 167, 255]));
+        assert_eq!(rgb("my_filter"), None);
         assert_eq!(rgb("other/motion"), None);
     }
 
