@@ -650,7 +650,9 @@ impl SkeletonDrawer {
                 self.source_publish_ns.pop_first();
             }
         }
-        let is_estimate = entity == "motion" || entity.ends_with("/motion");
+        // Calibrating and invalid frames are not estimates of the motion: no error for them.
+        let is_estimate = (entity == "motion" || entity.ends_with("/motion"))
+            && header.flags & (flags::INVALID | flags::CALIBRATING) == 0;
         let group = group_of(entity).unwrap_or(entity);
         if is_estimate
             && let Some(published) = self.source_publish_ns.get(&seq)
@@ -952,13 +954,17 @@ fn send_single_run_blueprint(
         tabs.push(
             Vertical::new([
                 TimeSeriesView::new("SIP error vs truth (deg)")
-                    .with_contents(["+ /plots/error_vs_truth/*/sip_deg"])
+                    .with_contents([format!("+ /plots/error_vs_truth/{FOLLOWED}/sip_deg")])
                     .into(),
                 TimeSeriesView::new("joint position error vs truth (cm)")
-                    .with_contents(["+ /plots/error_vs_truth/*/joint_position_cm"])
+                    .with_contents([format!(
+                        "+ /plots/error_vs_truth/{FOLLOWED}/joint_position_cm"
+                    )])
                     .into(),
                 TimeSeriesView::new("root distance from truth (m)")
-                    .with_contents(["+ /plots/error_vs_truth/*/root_distance_m"])
+                    .with_contents([format!(
+                        "+ /plots/error_vs_truth/{FOLLOWED}/root_distance_m"
+                    )])
                     .into(),
                 TimeSeriesView::new("latency, source to estimate (ms)")
                     .with_contents(["+ /plots/latency_ms/**"])
@@ -1054,7 +1060,11 @@ fn send_blueprint(
     if has_truth {
         series.push(
             TimeSeriesView::new("joint position error vs truth (cm)")
-                .with_contents(["+ /plots/error_vs_truth/*/joint_position_cm"])
+                .with_contents(
+                    groups
+                        .iter()
+                        .map(|g| format!("+ /plots/error_vs_truth/{g}/joint_position_cm")),
+                )
                 .into(),
         );
         series.push(
@@ -1065,9 +1075,12 @@ fn send_blueprint(
     } else if let Some(first) = groups.first().filter(|_| groups.len() > 1) {
         series.push(
             TimeSeriesView::new(format!("joint position difference vs {first} (cm)"))
-                .with_contents([format!(
-                    "+ /plots/disagreement_vs_{first}/*/joint_position_cm"
-                )])
+                .with_contents(
+                    groups
+                        .iter()
+                        .skip(1)
+                        .map(|g| format!("+ /plots/disagreement_vs_{first}/{g}/joint_position_cm")),
+                )
                 .into(),
         );
     }
