@@ -29,8 +29,8 @@ pub struct CompareArgs {
     /// and paired differences with 95 % bootstrap intervals. Resumes an interrupted batch in --out.
     #[arg(long, value_name = "DIR", conflicts_with_all = ["input", "print_graph", "overlaid"])]
     data: Option<PathBuf>,
-    /// Batch mode: which split of --data.
-    #[arg(long, default_value = "test", value_parser = ["train", "validation", "test"], requires = "data")]
+    /// Batch mode: which split of --data (holdout: the motion contents never trained on).
+    #[arg(long, default_value = "test", value_parser = ["train", "validation", "test", "holdout"], requires = "data")]
     split: String,
     /// Batch mode: at most N clips, spread evenly over the split's sorted clips.
     #[arg(long, value_name = "N", requires = "data")]
