@@ -487,13 +487,19 @@ mod tests {
         Rotation3::from_axis_angle(&axis, 0.2 + 0.37 * k as f64)
     }
 
-    #[test]
-    fn measured_bones_take_their_sensor_orientation_and_nothing_else_moves() {
-        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+    /// Every joint turned by its own [`some_rotation`].
+    fn some_pose() -> Pose {
         let mut pose = Pose::t_pose(Vector3::zeros());
         for (j, r) in pose.parent_from_joint.iter_mut().enumerate() {
             *r = some_rotation(j);
         }
+        pose
+    }
+
+    #[test]
+    fn measured_bones_take_their_sensor_orientation_and_nothing_else_moves() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let mut pose = some_pose();
         let mut imu = ImuInput::default();
         for sensor in 0..6 {
             imu.orientation[sensor] = row_major(&some_rotation(40 + sensor));
@@ -535,10 +541,7 @@ mod tests {
     #[test]
     fn within_a_tolerance_a_bone_moves_onto_the_cone_around_its_sensor_or_not_at_all() {
         let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
-        let mut pose = Pose::t_pose(Vector3::zeros());
-        for (j, r) in pose.parent_from_joint.iter_mut().enumerate() {
-            *r = some_rotation(j);
-        }
+        let mut pose = some_pose();
         let mut fk = FkData::new();
         forward_kinematics(&body.skeleton, &pose, &mut fk);
         // Sensor 0 (left forearm) 20° from its bone about some axis; sensor 1 (right forearm) 3°.
@@ -570,10 +573,7 @@ mod tests {
 
     /// The left forearm's world orientation in the test pose before any change.
     fn bone_before_left(body: &BodyModel) -> Rotation3<f64> {
-        let mut pose = Pose::t_pose(Vector3::zeros());
-        for (j, r) in pose.parent_from_joint.iter_mut().enumerate() {
-            *r = some_rotation(j);
-        }
+        let pose = some_pose();
         let mut fk = FkData::new();
         forward_kinematics(&body.skeleton, &pose, &mut fk);
         *fk.world_from(JointId::LEFT_ELBOW)
@@ -582,10 +582,7 @@ mod tests {
     #[test]
     fn global_rotations_match_forward_kinematics() {
         let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
-        let mut pose = Pose::t_pose(Vector3::zeros());
-        for (j, r) in pose.parent_from_joint.iter_mut().enumerate() {
-            *r = some_rotation(j);
-        }
+        let pose = some_pose();
         let mut fk = FkData::new();
         forward_kinematics(&body.skeleton, &pose, &mut fk);
         let global = global_rotations(&pose.parent_from_joint);
