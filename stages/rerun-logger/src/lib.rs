@@ -338,6 +338,7 @@ fn log_frames(
                 if let Some(f) = frame_ref::<ImuFrame>(held) {
                     log_sensors(
                         rec,
+                        &mut plots,
                         name,
                         &f.orientation_wxyz,
                         &f.specific_force_mps2,
@@ -351,6 +352,7 @@ fn log_frames(
                 if let Some(f) = frame_ref::<BodyImuFrame>(held) {
                     log_sensors(
                         rec,
+                        &mut plots,
                         name,
                         &f.bone_orientation_wxyz,
                         &f.free_acceleration_mps2,
@@ -403,6 +405,7 @@ fn log_frames(
 #[allow(clippy::too_many_arguments)]
 fn log_sensors(
     rec: &rerun::RecordingStream,
+    plots: &mut Plots,
     input: &str,
     orientation_wxyz: &[[f32; 4]; NUM_IMUS],
     accel: &[[f32; 3]; NUM_IMUS],
@@ -427,9 +430,10 @@ fn log_sensors(
                 &rerun::Scalars::new(rate[k]),
             )?;
         }
-        rec.log(
+        plots.series(
+            rec,
             format!("plots/{input}/{sensor}/valid"),
-            &rerun::Scalars::single(if valid { 1.0 } else { 0.0 }),
+            vec![if valid { 1.0 } else { 0.0 }],
         )?;
     }
     Ok(())
