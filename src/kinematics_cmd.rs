@@ -47,7 +47,8 @@ pub struct TrainArgs {
     /// Clip the global gradient norm to this.
     #[arg(long, default_value_t = 1.0)]
     clip_norm: f64,
-    /// Use at most this many training frames (the first shards).
+    /// Use about this many training frames: a uniform sample of the sequences of all shards (memory:
+    /// about 1.3 KB per frame for pip, 2.3 KB for globalpose)
     #[arg(long, default_value_t = usize::MAX)]
     max_train_frames: usize,
     /// Use at most this many validation frames.

@@ -90,7 +90,13 @@ pub fn shard_files(dir: &Path, split: &str) -> anyhow::Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// Load `split` of the dataset in `dir` for `method`, stopping after about `max_frames` frames.
+/// Load `split` of the dataset in `dir` for `method`: every sequence, or, when the split holds more
+/// than `max_frames` frames, a uniform sample of its sequences across all shards (a fixed hash of
+/// shard and sequence index picks them, so a resumed run sees the same set) of about `max_frames`.
+///
+/// The sample is chosen from the shards' headers and clip offsets before any frame is read, and
+/// every array is reserved at its exact final size: a split of millions of frames takes its size in
+/// memory once, not a growing vector's up to twice that.
 pub fn load_split(
     dir: &Path,
     split: &str,
@@ -99,31 +105,133 @@ pub fn load_split(
     mut progress: impl FnMut(usize, usize),
 ) -> anyhow::Result<TrainSet> {
     let files = shard_files(dir, split)?;
+    let indexes = files
+        .iter()
+        .map(|f| ShardIndex::read(f).with_context(|| format!("shard {}", f.display())))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let total: usize = indexes.iter().map(|i| i.usable_frames()).sum();
+    let fraction = if total > max_frames {
+        max_frames as f64 / total as f64
+    } else {
+        1.0
+    };
+    let chosen: Vec<Vec<bool>> = indexes
+        .iter()
+        .enumerate()
+        .map(|(i, index)| {
+            (0..index.sequences())
+                .map(|s| index.length(s) >= 2 && sampled(i, s, fraction))
+                .collect()
+        })
+        .collect();
+    let frames: usize = indexes
+        .iter()
+        .zip(&chosen)
+        .flat_map(|(index, keep)| {
+            (0..keep.len())
+                .filter(|&s| keep[s])
+                .map(|s| index.length(s))
+        })
+        .sum();
+
     let mut set = TrainSet::default();
     let mut builder = Builder::new(method)?;
+    builder.reserve(frames);
     for (i, file) in files.iter().enumerate() {
         progress(i, files.len());
+        if !chosen[i].contains(&true) {
+            continue;
+        }
         let bytes = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
         let shard = Shard::parse(&bytes).with_context(|| format!("shard {}", file.display()))?;
+        if shard.offsets != indexes[i].offsets {
+            bail!("shard {} changed while loading", file.display());
+        }
         if let Some(meta) = shard.metadata.clone() {
             set.shard_metadata.push(meta);
         }
-        for s in 0..shard.offsets.len() - 1 {
+        for s in (0..shard.offsets.len() - 1).filter(|&s| chosen[i][s]) {
             let (a, b) = (shard.offsets[s], shard.offsets[s + 1]);
-            if b - a < 2 {
-                continue;
-            }
             set.sequences.push((set.frames, b - a));
             builder.push_sequence(&shard, a, b)?;
             set.frames += b - a;
-        }
-        if set.frames >= max_frames {
-            break;
         }
     }
     progress(files.len(), files.len());
     set.arrays = builder.arrays;
     Ok(set)
+}
+
+/// Whether sequence `sequence` of shard `shard` is in a sample of `fraction` of all sequences: a
+/// SplitMix64 hash of the pair, as a number in [0, 1), below the fraction.
+fn sampled(shard: usize, sequence: usize, fraction: f64) -> bool {
+    if fraction >= 1.0 {
+        return true;
+    }
+    let mut z = ((shard as u64) << 32 | sequence as u64).wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^= z >> 31;
+    ((z >> 11) as f64 / (1u64 << 53) as f64) < fraction
+}
+
+/// A shard's sequence boundaries, read from its safetensors header and `clip_offsets` tensor alone
+/// (a few kilobytes of a 150 MB file).
+struct ShardIndex {
+    offsets: Vec<usize>,
+}
+
+impl ShardIndex {
+    fn read(path: &Path) -> anyhow::Result<ShardIndex> {
+        use std::io::{Read, Seek, SeekFrom};
+        let mut file = std::fs::File::open(path)?;
+        let mut len = [0u8; 8];
+        file.read_exact(&mut len)
+            .context("safetensors header length")?;
+        let len = u64::from_le_bytes(len);
+        if len > 100_000_000 {
+            bail!("safetensors header of {len} bytes");
+        }
+        let mut header = vec![0u8; len as usize];
+        file.read_exact(&mut header).context("safetensors header")?;
+        let header: serde_json::Value =
+            serde_json::from_slice(&header).context("safetensors header JSON")?;
+        let info = &header["clip_offsets"];
+        if info["dtype"] != "I64" {
+            bail!("tensor 'clip_offsets' missing or not I64");
+        }
+        let range = info["data_offsets"]
+            .as_array()
+            .and_then(|r| Some((r.first()?.as_u64()?, r.get(1)?.as_u64()?)))
+            .context("tensor 'clip_offsets' has no data_offsets")?;
+        let mut raw = vec![0u8; range.1.saturating_sub(range.0) as usize];
+        file.seek(SeekFrom::Start(8 + len + range.0))?;
+        file.read_exact(&mut raw).context("tensor 'clip_offsets'")?;
+        let offsets = raw
+            .chunks_exact(8)
+            .map(|c| i64::from_le_bytes(c.try_into().expect("8 bytes")).max(0) as usize)
+            .collect::<Vec<_>>();
+        if offsets.first() != Some(&0) || offsets.windows(2).any(|w| w[1] < w[0]) {
+            bail!("clip_offsets are not increasing from 0");
+        }
+        Ok(ShardIndex { offsets })
+    }
+
+    fn sequences(&self) -> usize {
+        self.offsets.len().saturating_sub(1)
+    }
+
+    fn length(&self, sequence: usize) -> usize {
+        self.offsets[sequence + 1] - self.offsets[sequence]
+    }
+
+    /// Frames in sequences long enough to train on (two frames or more).
+    fn usable_frames(&self) -> usize {
+        (0..self.sequences())
+            .map(|s| self.length(s))
+            .filter(|&n| n >= 2)
+            .sum()
+    }
 }
 
 pub struct Shard<'a> {
@@ -311,6 +419,13 @@ impl Builder {
             body,
             arrays,
         })
+    }
+
+    /// Room for exactly `frames` more frames in every array.
+    fn reserve(&mut self, frames: usize) {
+        for a in self.arrays.values_mut() {
+            a.data.reserve_exact(frames * a.dim);
+        }
     }
 
     fn put(&mut self, name: &'static str, values: &[f32]) {

@@ -431,11 +431,17 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
         options.max_val_frames,
         |_, _| {},
     )?;
+    let bytes: usize = [&train_set, &val_set]
+        .iter()
+        .flat_map(|set| set.arrays.values())
+        .map(|a| a.data.len() * std::mem::size_of::<f32>())
+        .sum();
     eprintln!(
-        "  {} train frames in {} sequences, {} validation frames ({:.0} s)",
+        "  {} train frames in {} sequences, {} validation frames, {:.1} GB in memory ({:.0} s)",
         train_set.frames,
         train_set.sequences.len(),
         val_set.frames,
+        bytes as f64 / 1e9,
         started.elapsed().as_secs_f64()
     );
 

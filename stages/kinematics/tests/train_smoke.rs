@@ -132,3 +132,58 @@ fn training_lowers_the_loss_resumes_and_exports_loadable_weights() {
     };
     assert!(err.contains("pip") || err.contains("method"), "{err}");
 }
+
+/// `--max-train-frames` takes a uniform sample of sequences across all shards (not the first
+/// shards), the same sample every time, and the arrays hold exactly the frames loaded.
+#[test]
+fn a_frame_budget_samples_sequences_across_all_shards() {
+    use imuflow_kinematics::data::load_split;
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("bvh");
+    for name in NAMES {
+        let p = input.join(name);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::copy(fixture(), &p).unwrap();
+    }
+    let out = dir.path().join("dataset");
+    let mut build = imuflow_dataset::BuildOptions::new(&input, &out);
+    build.progress = false;
+    build.augment_copies = 3;
+    build.max_shard_frames = 1; // one clip (its four sequences) per shard
+    imuflow_dataset::build(&build).unwrap();
+
+    let all = load_split(&out, "train", Method::Pip, usize::MAX, |_, _| {}).unwrap();
+    assert!(
+        all.shard_metadata.len() >= 3,
+        "{} shards",
+        all.shard_metadata.len()
+    );
+    let budget = all.frames / 2;
+    let half = load_split(&out, "train", Method::Pip, budget, |_, _| {}).unwrap();
+    let again = load_split(&out, "train", Method::Pip, budget, |_, _| {}).unwrap();
+    assert_eq!(
+        half.sequences, again.sequences,
+        "the sample is deterministic"
+    );
+    assert!(
+        half.frames > 0 && half.frames < all.frames,
+        "{} of {}",
+        half.frames,
+        all.frames
+    );
+    // Not the first shards: the last shard contributes too (the first-shards rule would stop
+    // after the shard that crosses the budget).
+    assert!(
+        half.shard_metadata
+            .contains(all.shard_metadata.last().unwrap()),
+        "the last shard is in the sample"
+    );
+    for (name, a) in half.arrays.iter().chain(all.arrays.iter()) {
+        assert_eq!(a.data.len() % a.dim, 0, "{name}");
+        assert_eq!(a.data.capacity(), a.data.len(), "{name}: reserved exactly");
+    }
+    assert_eq!(
+        half.arrays["imu"].data.len() / half.arrays["imu"].dim,
+        half.frames
+    );
+}
