@@ -50,6 +50,24 @@ pub enum BenchCommand {
         #[arg(long, default_value = "models/sample/walk.mcap")]
         input: String,
     },
+    /// A whole graph, twice: live for --seconds (sources paced at their sensor rate) for the
+    /// end-to-end latency from capture to every sink input and each stage's cost per frame, then
+    /// offline over its whole input for frames per second. Recordings go to a temporary folder,
+    /// not the graph's paths. Build with --release.
+    Graph {
+        /// The graph file.
+        file: std::path::PathBuf,
+        /// Override any graph key, as `imuflow run --set` (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        sets: Vec<String>,
+        /// Length of the live run, s of input (0: skip it).
+        #[arg(long, default_value_t = 20.0)]
+        seconds: f64,
+        /// Skip the offline run.
+        #[arg(long)]
+        no_offline: bool,
+    },
+    /// Per-frame inference time of the kinematics networks (see `physics`), both methods.
     Kinematics {
         /// PIP weights ("none" to skip).
         #[arg(long, default_value = "models/pip.safetensors")]
@@ -293,6 +311,12 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         } => return bench_kinematics(&pip, &globalpose, frames),
         BenchCommand::Physics { frames } => return bench_physics(frames),
         BenchCommand::Validation { input } => return bench_validation(Path::new(&input)),
+        BenchCommand::Graph {
+            file,
+            sets,
+            seconds,
+            no_offline,
+        } => return bench_graph(&file, &sets, seconds, !no_offline),
     };
     if stages < 2 {
         bail!("--stages must be at least 2 (a source and a relay)");
@@ -469,6 +493,77 @@ fn bench_validation(input: &Path) -> anyhow::Result<()> {
     }
     if cfg!(debug_assertions) {
         println!("(a debug build: use --release for the real numbers)");
+    }
+    Ok(())
+}
+
+/// `imuflow bench graph`: the graph live (paced sources, `seconds` of input), then offline.
+fn bench_graph(file: &Path, sets: &[String], seconds: f64, offline: bool) -> anyhow::Result<()> {
+    let registry = crate::registry::registry();
+    let load = |extra: &[String]| -> anyhow::Result<Graph> {
+        let all: Vec<String> = sets.iter().chain(extra).cloned().collect();
+        Graph::load(file, &all, &registry).map_err(|e| anyhow::anyhow!("{e}"))
+    };
+    let graph = load(&[])?;
+    let scratch = tempfile::tempdir().context("temporary folder for the recordings")?;
+    // Recordings into the scratch folder, so that a benchmark never overwrites a user's files.
+    let mut redirect = Vec::new();
+    let mut sources = Vec::new();
+    for node in graph.topological_order() {
+        let kind = node.kind_label();
+        let ext = match kind.as_str() {
+            "recorder" => Some("mcap"),
+            "rerun-logger" if node.params.contains_key("path") => Some("rrd"),
+            _ => None,
+        };
+        if let Some(ext) = ext {
+            let path = scratch.path().join(format!("{}.{ext}", node.id));
+            redirect.push(format!("stages.{}.params.path={}", node.id, path.display()));
+        }
+        if kind == "imu-source" {
+            sources.push(node.id.clone());
+        }
+    }
+    let exe = std::env::current_exe().context("finding the imuflow executable")?;
+    let options = LaunchOptions {
+        imuflow_exe: exe,
+        progress: false,
+        forward_logs: false,
+    };
+    println!("graph benchmark: {} ({})", graph.name, file.display());
+
+    if seconds > 0.0 {
+        // imuflow-source frames are at 60 Hz (the networks' rate).
+        let frames = (seconds * 60.0).round().max(1.0) as u64;
+        let mut extra = redirect.clone();
+        extra.push("mode=live".into());
+        for id in &sources {
+            extra.push(format!("stages.{id}.params.realtime=true"));
+            extra.push(format!("stages.{id}.params.frames={frames}"));
+        }
+        let live = load(&extra)?;
+        println!(
+            "\nlive: sources paced at their sensor rate, {frames} frames ({seconds} s of input)"
+        );
+        let report = launch::run(&live, &options).map_err(|e| anyhow::anyhow!("{e}"))?;
+        crate::print_summary(&live, &report);
+    }
+    if offline {
+        let offline = load(&redirect)?;
+        println!("\noffline: the whole input as fast as the stages go");
+        let report = launch::run(&offline, &options).map_err(|e| anyhow::anyhow!("{e}"))?;
+        crate::print_summary(&offline, &report);
+        let frames = sources
+            .iter()
+            .filter_map(|id| report.stages.get(id))
+            .map(|(_, s)| s.frames_in)
+            .max()
+            .unwrap_or(0);
+        let wall = report.wall.as_secs_f64();
+        println!(
+            "offline: {frames} frames in {wall:.2} s (start-up included): {:.0} frames/s",
+            frames as f64 / wall.max(1e-9)
+        );
     }
     Ok(())
 }

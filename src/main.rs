@@ -367,7 +367,7 @@ fn run(args: &GraphArgs, progress: bool, forward_logs: bool, connect: Option<&st
     }
 }
 
-fn print_summary(graph: &Graph, report: &launch::RunReport) {
+pub(crate) fn print_summary(graph: &Graph, report: &launch::RunReport) {
     println!(
         "graph '{}' finished in {:.2} s (run {})",
         graph.name,
@@ -404,6 +404,7 @@ fn print_summary(graph: &Graph, report: &launch::RunReport) {
             );
         }
     }
+    print_from_capture(graph, report);
     for node in graph.topological_order() {
         if let Some((_, s)) = report.stages.get(&node.id)
             && !s.detail.is_empty()
@@ -417,6 +418,38 @@ fn print_summary(graph: &Graph, report: &launch::RunReport) {
             branch.root,
             branch.stage,
             branch.stopped.join(", ")
+        );
+    }
+}
+
+/// Live runs: each sink input's end-to-end latency, from the source's capture to arrival.
+fn print_from_capture(graph: &Graph, report: &launch::RunReport) {
+    let rows: Vec<(String, &imuflow_graph::stats::InputLatency)> = graph
+        .topological_order()
+        .into_iter()
+        .filter(|node| node.role == imuflow_graph::spec::Role::Sink)
+        .filter_map(|node| report.stages.get(&node.id).map(|(_, s)| (node, s)))
+        .flat_map(|(node, s)| {
+            s.from_capture
+                .iter()
+                .map(move |l| (format!("{}.{}", node.id, l.input), l))
+        })
+        .collect();
+    if rows.is_empty() {
+        return;
+    }
+    println!(
+        "{:<28} {:>9} {:>10} {:>10} {:>10}",
+        "end to end (capture→sink)", "frames", "p50 ms", "p99 ms", "max ms"
+    );
+    for (input, l) in rows {
+        println!(
+            "{:<28} {:>9} {:>10.2} {:>10.2} {:>10.2}",
+            input,
+            l.frames,
+            l.p50_us * 1e-3,
+            l.p99_us * 1e-3,
+            l.max_us * 1e-3
         );
     }
 }

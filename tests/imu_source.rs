@@ -391,3 +391,86 @@ fn imuflow_run_without_a_graph_replays_the_bundled_sample() {
     assert!(std::fs::metadata(&rrd).map(|m| m.len()).unwrap_or(0) > 10_000);
     assert_clean(&sb);
 }
+
+/// A live replay is a live source: capture times on the Unix epoch (the instant each sample is
+/// due, its recorded spacing kept, IMU and truth of one sample alike), so the run's summary
+/// reports every sink input's latency from capture.
+#[test]
+fn a_live_replay_stamps_capture_on_the_epoch_and_the_summary_reports_latency_from_capture() {
+    let sb = Sandbox::new("live-replay");
+    let graph = synth_graph(&sb, "a.mcap");
+    run_ok(&sb, &graph);
+    let replay = sb.graph(
+        "replay.toml",
+        r#"
+name = "live-replay-test"
+mode = "live"
+[stages.player]
+kind = "imu-source"
+params = { mode = "replay", path = "{dir}/a.mcap" }
+[stages.record]
+kind = "recorder"
+inputs = { imu = "player.imu", truth = "player.truth" }
+params = { path = "{dir}/b.mcap" }
+"#,
+    );
+    let before = now_ns();
+    let out = sb.run(&["run", replay.to_str().expect("utf8"), "--no-progress"]);
+    let after = now_ns();
+    assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
+
+    let header = |bytes: &Vec<u8>| frame_from_bytes::<ImuFrame>(bytes).expect("imu").header;
+    let a = mcap_messages(&sb.path("a.mcap"));
+    let b = mcap_messages(&sb.path("b.mcap"));
+    let recorded: Vec<FrameHeader> = frames_of(&a, "source.imu").iter().map(header).collect();
+    let live: Vec<FrameHeader> = frames_of(&b, "player.imu").iter().map(header).collect();
+    // A live graph may drop a frame under load; what arrived is compared by seq.
+    assert!(
+        live.len() * 10 >= recorded.len() * 9,
+        "{}",
+        text(&out.stdout)
+    );
+    let first = live[0];
+    for l in &live {
+        let r = recorded[l.seq as usize];
+        assert!(
+            (before..=after).contains(&l.capture_ns),
+            "seq {}: capture {} not within the run",
+            l.seq,
+            l.capture_ns
+        );
+        // The recorded spacing, shifted onto the epoch.
+        assert_eq!(
+            l.capture_ns - first.capture_ns,
+            r.capture_ns - recorded[first.seq as usize].capture_ns
+        );
+    }
+    let imu_capture: std::collections::BTreeMap<u64, u64> =
+        live.iter().map(|h| (h.seq, h.capture_ns)).collect();
+    for bytes in frames_of(&b, "player.truth") {
+        let h = frame_from_bytes::<MotionFrame>(&bytes)
+            .expect("truth")
+            .header;
+        if let Some(capture) = imu_capture.get(&h.seq) {
+            assert_eq!(h.capture_ns, *capture, "truth of seq {}", h.seq);
+        }
+    }
+
+    let summary = text(&out.stdout);
+    assert!(summary.contains("end to end (capture→sink)"), "{summary}");
+    let row = summary
+        .lines()
+        .find(|l| l.starts_with("record.imu "))
+        .unwrap_or_else(|| panic!("no record.imu row:\n{summary}"));
+    let cols: Vec<&str> = row.split_whitespace().collect();
+    assert_eq!(cols[1], live.len().to_string(), "{row}");
+    let p50_ms: f64 = cols[2].parse().expect("p50");
+    assert!(p50_ms > 0.0 && p50_ms < 1000.0, "{row}");
+}
+
+fn now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .expect("clock")
+        .as_nanos() as u64
+}

@@ -366,6 +366,7 @@ fn empty_summary() -> StageSummary {
         latency_p50_us: 0.0,
         latency_p99_us: 0.0,
         detail: String::new(),
+        from_capture: Vec::new(),
     }
 }
 

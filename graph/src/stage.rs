@@ -465,7 +465,15 @@ impl StageContext {
                     .filter_map(|s| s.current.as_ref().map(|f| f.header().publish_ns))
                     .max()
                     .unwrap_or(0);
-                self.stats.record_latency(published, transport::now_ns());
+                let now = transport::now_ns();
+                self.stats.record_latency(published, now);
+                if self.graph.mode == Mode::Live {
+                    // Live sources stamp capture on the Unix epoch: end-to-end per input.
+                    for slot in self.inputs.iter().filter(|s| !s.feedback) {
+                        self.stats
+                            .record_from_capture(&slot.name, step.capture_ns, now);
+                    }
+                }
                 self.waiter.arrived(Instant::now());
                 self.last_step = Some(step);
                 self.advance(step.seq);
@@ -516,8 +524,12 @@ impl StageContext {
                 }
                 slot.last_seq = Some(header.seq);
                 slot.current = Some(frame);
-                self.stats
-                    .record_latency(header.publish_ns, transport::now_ns());
+                let now = transport::now_ns();
+                self.stats.record_latency(header.publish_ns, now);
+                if self.graph.mode == Mode::Live {
+                    let name = &self.inputs[i].name;
+                    self.stats.record_from_capture(name, header.capture_ns, now);
+                }
                 self.any_cursor = i + 1;
                 self.stats.frames_in += 1;
                 self.advance(header.seq);

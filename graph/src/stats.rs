@@ -17,6 +17,8 @@ pub struct StageStats {
     pub detail: String,
     processing_us: Vec<f32>,
     latency_us: Vec<f32>,
+    /// Live graphs: capture (the source's Unix-epoch capture time) to arrival here, per input.
+    from_capture_us: std::collections::BTreeMap<String, Vec<f32>>,
 }
 
 impl StageStats {
@@ -30,6 +32,21 @@ impl StageStats {
         if publish_ns > 0 {
             self.latency_us
                 .push(received_ns.saturating_sub(publish_ns) as f32 / 1e3);
+        }
+    }
+
+    /// Records how long an input frame took from its capture (a live source's Unix-epoch
+    /// `capture_ns`) to its arrival at this stage on input `input`: the end-to-end latency.
+    pub fn record_from_capture(&mut self, input: &str, capture_ns: u64, received_ns: u64) {
+        if capture_ns == 0 {
+            return;
+        }
+        let us = received_ns.saturating_sub(capture_ns) as f32 / 1e3;
+        match self.from_capture_us.get_mut(input) {
+            Some(v) => v.push(us),
+            None => {
+                self.from_capture_us.insert(input.to_owned(), vec![us]);
+            }
         }
     }
 
@@ -62,6 +79,21 @@ impl StageStats {
             max_us: f64::from(sorted.last().copied().unwrap_or(0.0)),
             wall_s: wall.as_secs_f64(),
             detail: self.detail.clone(),
+            from_capture: self
+                .from_capture_us
+                .iter()
+                .map(|(input, values)| {
+                    let mut sorted = values.clone();
+                    sorted.sort_by(f32::total_cmp);
+                    InputLatency {
+                        input: input.clone(),
+                        frames: sorted.len() as u64,
+                        p50_us: f64::from(percentile(&sorted, 0.5)),
+                        p99_us: f64::from(percentile(&sorted, 0.99)),
+                        max_us: f64::from(sorted.last().copied().unwrap_or(0.0)),
+                    }
+                })
+                .collect(),
         }
     }
 }
@@ -100,6 +132,19 @@ pub struct StageSummary {
     /// The stage's own end-of-run result in one line (e.g. the validation scores); empty if none.
     #[serde(default)]
     pub detail: String,
+    /// Live graphs: end-to-end latency of each input, from the source's capture to arrival here.
+    #[serde(default)]
+    pub from_capture: Vec<InputLatency>,
+}
+
+/// Latency of one input's frames from capture to arrival, µs.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct InputLatency {
+    pub input: String,
+    pub frames: u64,
+    pub p50_us: f64,
+    pub p99_us: f64,
+    pub max_us: f64,
 }
 
 #[cfg(test)]
@@ -132,5 +177,27 @@ mod tests {
         // 60 µs of work in one second.
         assert!((sum.busy_fraction - 60e-6).abs() < 1e-9);
         assert_eq!(s.summary(Duration::ZERO).busy_fraction, 0.0);
+    }
+
+    #[test]
+    fn capture_latency_per_input() {
+        let mut s = StageStats::default();
+        // Captured at 1 s; arrivals 1..=100 µs later on `motion`, 5 ms later on `truth`.
+        let capture = 1_000_000_000;
+        for us in 1..=100u64 {
+            s.record_from_capture("motion", capture, capture + us * 1000);
+        }
+        s.record_from_capture("truth", capture, capture + 5_000_000);
+        s.record_from_capture("truth", 0, capture); // no capture clock: not recorded
+        let sum = s.summary(Duration::from_secs(1));
+        assert_eq!(sum.from_capture.len(), 2);
+        let motion = &sum.from_capture[0];
+        assert_eq!((motion.input.as_str(), motion.frames), ("motion", 100));
+        assert_eq!(
+            (motion.p50_us, motion.p99_us, motion.max_us),
+            (50.0, 99.0, 100.0)
+        );
+        let truth = &sum.from_capture[1];
+        assert_eq!((truth.frames, truth.max_us), (1, 5000.0));
     }
 }

@@ -47,7 +47,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("rrd")
     ap.add_argument("out")
-    ap.add_argument("--seq", type=int, default=None, help="frame to show (the `seq` timeline)")
+    ap.add_argument("--seq", type=int, default=None, help="frame to ask for (the `seq` timeline; the web viewer of rerun 0.36 ends a streamed recording at its last frame regardless: to show a moment, record up to it, e.g. --set stages.source.params.frames=640)")
     ap.add_argument("--wait", type=float, default=40.0, help="seconds to let the viewer load")
     ap.add_argument("--size", default="1600x1000")
     ap.add_argument("--rerun", default=shutil.which("rerun") or os.path.expanduser(
@@ -91,7 +91,7 @@ def main():
     finally:
         viewer.terminate()
         viewer.wait(timeout=10)
-    print(f"rrd_screenshot: {args.out} ({args.rrd} at seq {args.seq})")
+    print(f"rrd_screenshot: {args.out} ({args.rrd})")
 
 
 if __name__ == "__main__":

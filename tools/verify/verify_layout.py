@@ -29,7 +29,7 @@ def display_names(reader, path):
     if not blueprints:
         fail(f"{path}: no blueprint (the viewer would fall back to its automatic layout)")
     names = set()
-    for chunk in reader.store(store=blueprints[0]).stream().to_chunks():
+    for chunk in reader.stream(store=blueprints[0]).to_chunks():
         batch = chunk.to_record_batch()
         for field, column in zip(batch.schema, batch.columns):
             if field.name.endswith(":display_name"):
@@ -40,7 +40,7 @@ def display_names(reader, path):
 def constant_series(reader):
     """Entity paths under /plots whose Scalars never change."""
     values = {}
-    for chunk in reader.store().stream().to_chunks():
+    for chunk in reader.stream().to_chunks():
         entity = str(chunk.entity_path)
         if not entity.startswith("/plots/"):
             continue

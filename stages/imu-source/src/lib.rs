@@ -350,6 +350,8 @@ pub(crate) struct Publisher {
     pub imu: Output<ImuFrame>,
     pub truth: Output<MotionFrame>,
     start: Instant,
+    /// Live graphs: the Unix-epoch time of `start`, the clock capture times are stamped on.
+    live_start_ns: Option<u64>,
     total: u64,
     published: u64,
 }
@@ -365,6 +367,7 @@ impl Publisher {
             imu,
             truth,
             start: Instant::now(),
+            live_start_ns: None,
             total,
             published: 0,
         };
@@ -373,7 +376,20 @@ impl Publisher {
             return Ok(None);
         }
         p.start = Instant::now();
+        if p.ctx.mode() == Mode::Live {
+            p.live_start_ns = Some(imuflow_graph::transport::now_ns());
+        }
         Ok(Some(p))
+    }
+
+    /// The capture time of a sample due `offset` after the start of the stream: in a live graph
+    /// the Unix-epoch instant it is due, as a live sensor's capture time is (every stage then
+    /// measures its latency from capture); offline `recorded_ns`, its time in the recording.
+    pub fn capture_ns(&self, offset: Duration, recorded_ns: u64) -> u64 {
+        match self.live_start_ns {
+            Some(start) => start + offset.as_nanos() as u64,
+            None => recorded_ns,
+        }
     }
 
     /// Sleeps until `offset` after the start of the stream.

@@ -322,14 +322,23 @@ pub fn run(
         }
         // Truth frames are paced like their IMU frame (the same capture time), so that truth and
         // estimate of one sample leave together instead of the truth a frame early.
-        if realtime && let Some(first) = first_capture {
-            out.pace(Duration::from_nanos(
-                header.capture_ns.saturating_sub(first),
-            ));
+        let offset =
+            Duration::from_nanos(header.capture_ns.saturating_sub(first_capture.unwrap_or(0)));
+        if realtime && first_capture.is_some() {
+            out.pace(offset);
         }
+        let capture_ns = out.capture_ns(offset, header.capture_ns);
         match frame {
-            Recorded::Imu(f) => out.publish_imu(f, Instant::now())?,
-            Recorded::Truth(f) => out.publish_truth(f)?,
+            Recorded::Imu(f) => {
+                let mut f = **f;
+                f.header.capture_ns = capture_ns;
+                out.publish_imu(&f, Instant::now())?
+            }
+            Recorded::Truth(f) => {
+                let mut f = **f;
+                f.header.capture_ns = capture_ns;
+                out.publish_truth(&f)?
+            }
         }
     }
     out.finish()

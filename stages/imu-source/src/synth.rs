@@ -308,13 +308,18 @@ pub fn run(ctx: StageContext, motion: &Motion, realtime: bool) -> anyhow::Result
         if out.ctx.should_stop() {
             break;
         }
+        let offset = period.mul_f64(seq as f64);
         if realtime {
-            out.pace(period.mul_f64(seq as f64));
+            out.pace(offset);
         }
         let t0 = Instant::now();
-        let (Some(imu), Some(truth)) = (motion.imu_frame(seq), motion.truth_frame(seq)) else {
+        let (Some(mut imu), Some(mut truth)) = (motion.imu_frame(seq), motion.truth_frame(seq))
+        else {
             break;
         };
+        let capture_ns = out.capture_ns(offset, imu.header.capture_ns);
+        imu.header.capture_ns = capture_ns;
+        truth.header.capture_ns = capture_ns;
         out.publish_truth(&truth)?;
         out.publish_imu(&imu, t0)?;
     }

@@ -102,6 +102,9 @@ const GROUP_PALETTE: [[u8; 3]; 6] = [
 /// that carries its position.
 const FOLLOWED: &str = "motion";
 const FOLLOW_ENTITY: &str = "follow";
+/// With `truth = "beside"`: the truth's pose is drawn this far along +x from the estimate's root,
+/// a body width and a half apart, so the two skeletons never overlap.
+const TRUTH_BESIDE_M: f32 = 0.8;
 /// Truth frames kept for the error series (motion arrives a pipeline's latency after its truth).
 const TRUTH_FRAMES_KEPT: usize = 1200;
 
@@ -180,6 +183,13 @@ pub const SPEC: StageSpec = StageSpec {
             default: "",
             doc: "with grouped inputs: the groups in order, comma-separated (colours, views; the first is the reference without truth); default: by name",
         },
+        ParamSpec {
+            name: "truth",
+            ty: ParamType::Choice(&["overlaid", "beside"]),
+            required: false,
+            default: "overlaid",
+            doc: "a single run's truth skeleton: where it is (over the estimate), or its pose beside the estimate (TRUTH_BESIDE_M along +x from the estimate's root, same seq), to compare poses without overlap",
+        },
     ],
 };
 
@@ -254,10 +264,17 @@ pub fn run() -> anyhow::Result<()> {
         .filter(|g| !g.is_empty())
         .collect();
     groups.sort_by_key(|g| order.iter().position(|o| o == g).unwrap_or(order.len()));
+    // Beside the estimate needs an estimate to stand beside (and a single run: a comparison has a
+    // truth in every variant's view already).
+    let truth_beside = params.str("truth") == Some("beside")
+        && groups.is_empty()
+        && inputs
+            .iter()
+            .any(|(e, f)| e == FOLLOWED && *f == FrameType::Motion);
     if groups.is_empty() {
         rec.log_static(
             LEGEND_ENTITY,
-            &rerun::TextDocument::from_markdown(legend(&inputs)),
+            &rerun::TextDocument::from_markdown(legend(&inputs, truth_beside)),
         )?;
         send_single_run_blueprint(&rec, &inputs)?;
     } else {
@@ -285,6 +302,7 @@ pub fn run() -> anyhow::Result<()> {
         .iter()
         .any(|(e, f)| e == "truth" && *f == FrameType::Motion);
     let mut drawer = SkeletonDrawer::new(body, groups, has_truth);
+    drawer.truth_beside = truth_beside && has_truth;
     let live = ctx.mode() == Mode::Live;
     let logged = if ctx.ready()? {
         log_frames(&mut ctx, &rec, &inputs, live, &mut drawer)
@@ -585,6 +603,8 @@ struct SkeletonDrawer {
     source_publish_ns: std::collections::BTreeMap<u64, u64>,
     /// The last root position of the followed estimate ([`FOLLOWED`]).
     estimate_root: Option<[f32; 3]>,
+    /// `truth = "beside"`: the truth is drawn with the followed estimate of its seq, moved beside it.
+    truth_beside: bool,
 }
 
 /// What the error series compare of one frame: the world positions of the 24 joints (m) and the
@@ -635,6 +655,7 @@ impl SkeletonDrawer {
             reference,
             source_publish_ns: Default::default(),
             estimate_root: None,
+            truth_beside: false,
         }
     }
 
@@ -721,7 +742,10 @@ impl SkeletonDrawer {
                 (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt()
             })
             .collect();
-        self.log_joints(rec, input, &joints, Some(&torque))?;
+        // Beside: the truth waits for the estimate of its seq (drawn below, next to it).
+        if !(self.truth_beside && input == "truth") {
+            self.log_joints(rec, input, &joints, Some(&torque))?;
+        }
         let posed = Posed {
             joints,
             sip: SIP_JOINTS.map(|j| *self.fk.world_from(j)),
@@ -742,6 +766,9 @@ impl SkeletonDrawer {
                 &rerun::Transform3D::from_translation([root[0], 0.0, root[2]]),
             )?;
             self.estimate_root = Some(root);
+            if self.truth_beside {
+                self.log_truth_beside(rec, f.header.seq, root)?;
+            }
         }
         let (origins, vectors): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..NUM_JOINTS)
             .filter(|&j| f.ground_reaction_force_n[j].iter().any(|v| *v != 0.0))
@@ -759,6 +786,26 @@ impl SkeletonDrawer {
                 .with_colors([rerun::Color::from_rgb(230, 80, 40)]),
         )?;
         Ok(())
+    }
+
+    /// The truth's pose of `seq`, its root moved horizontally to [`TRUTH_BESIDE_M`] along +x from the
+    /// estimate's root (heights kept: both stand on the same floor).
+    fn log_truth_beside(
+        &self,
+        rec: &rerun::RecordingStream,
+        seq: u64,
+        estimate_root: [f32; 3],
+    ) -> anyhow::Result<()> {
+        let Some(truth) = self
+            .reference
+            .as_ref()
+            .filter(|r| r.entity == "truth")
+            .and_then(|r| r.joints.get(&seq))
+        else {
+            return Ok(());
+        };
+        let joints = placed_beside(&truth.joints, estimate_root);
+        self.log_joints(rec, "truth", &joints, None)
     }
 
     /// Joints as points (radius from `torque` when given) and bones as lines.
@@ -787,6 +834,21 @@ impl SkeletonDrawer {
         rec.log(format!("{input}/skeleton/bones"), &lines)?;
         Ok(())
     }
+}
+
+/// `joints` moved horizontally so that their root stands [`TRUTH_BESIDE_M`] along +x from
+/// `estimate_root` (heights kept: both stand on the same floor).
+fn placed_beside(
+    joints: &[[f32; 3]; NUM_JOINTS],
+    estimate_root: [f32; 3],
+) -> [[f32; 3]; NUM_JOINTS] {
+    let root = joints[JointId::ROOT.index()];
+    let shift = [
+        estimate_root[0] + TRUTH_BESIDE_M - root[0],
+        0.0,
+        estimate_root[2] - root[2],
+    ];
+    joints.map(|p| [p[0] + shift[0], p[1] + shift[1], p[2] + shift[2]])
 }
 
 /// Contact points and their forces.
@@ -876,9 +938,16 @@ fn colour_name(rgb: [u8; 3]) -> &'static str {
 }
 
 /// The legend of a single run: what each skeleton's colour is, what the views and tabs show.
-fn legend(inputs: &[(String, FrameType)]) -> String {
+fn legend(inputs: &[(String, FrameType)], truth_beside: bool) -> String {
     let has = |name: &str| inputs.iter().any(|(e, _)| e == name);
     let mut text = String::from("## imuflow\n\n");
+    let truth_text = if truth_beside {
+        format!(
+            "the true motion's pose, drawn beside the estimate ({TRUTH_BESIDE_M} m along +x from its root; the root's own error is in the errors tab)"
+        )
+    } else {
+        "the true motion, when the source has it".to_owned()
+    };
     let skeletons = [
         (
             "motion",
@@ -890,11 +959,7 @@ fn legend(inputs: &[(String, FrameType)]) -> String {
             NETWORK_RGB,
             "the networks' pose alone, drawn at the estimate's root",
         ),
-        (
-            "truth",
-            TRUTH_RGB,
-            "the true motion, when the source has it",
-        ),
+        ("truth", TRUTH_RGB, truth_text.as_str()),
         (
             "validation",
             VALIDATION_RGB,
@@ -1132,6 +1197,33 @@ mod tests {
         assert_eq!(rgb("kinematics"), Some([204, 121, 167, 255]));
         assert_eq!(rgb("my_filter"), None);
         assert_eq!(rgb("other/motion"), None);
+    }
+
+    #[test]
+    fn the_truth_beside_keeps_its_pose_and_heights_next_to_the_estimate_root() {
+        let truth: [[f32; 3]; NUM_JOINTS] = std::array::from_fn(|j| {
+            [
+                3.0 + 0.01 * j as f32,
+                0.9 + 0.02 * j as f32,
+                -2.0 + 0.03 * j as f32,
+            ]
+        });
+        let estimate_root = [10.0, 0.95, 4.0];
+        let beside = placed_beside(&truth, estimate_root);
+        let root = beside[JointId::ROOT.index()];
+        // Hand-derived: x = 10 + 0.8, the truth's own height, z = 4.
+        assert!(
+            (root[0] - 10.8).abs() < 1e-5 && (root[2] - 4.0).abs() < 1e-5,
+            "{root:?}"
+        );
+        for j in 0..NUM_JOINTS {
+            assert_eq!(beside[j][1], truth[j][1], "heights kept");
+            for k in [0, 2] {
+                let moved = beside[j][k] - root[k];
+                let original = truth[j][k] - truth[JointId::ROOT.index()][k];
+                assert!((moved - original).abs() < 1e-5, "the pose is kept");
+            }
+        }
     }
 
     #[test]
