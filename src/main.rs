@@ -134,6 +134,10 @@ enum DatasetCommand {
         /// slower and 60 % faster).
         #[arg(long, value_delimiter = ',', value_name = "FACTORS")]
         speeds: Vec<f64>,
+        /// Training clips also enter with the upper body (spine, head, arms) of another training
+        /// clip: new combinations of recorded poses (a punch while walking)
+        #[arg(long)]
+        recombine: bool,
         /// Joint mapping TOML of the clips' skeleton (format: stages/body/mappings/bandai-namco.toml);
         /// default: the built-in Bandai Namco mapping.
         #[arg(long, value_name = "FILE")]
@@ -463,6 +467,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
         limit,
         mirror,
         speeds,
+        recombine,
         mapping,
         shard_frames,
         no_progress,
@@ -481,6 +486,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
         return ExitCode::FAILURE;
     }
     options.speeds = speeds;
+    options.recombine = recombine;
     options.max_shard_frames = shard_frames;
     options.progress = !no_progress;
     match imuflow_dataset::build(&options) {

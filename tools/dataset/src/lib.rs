@@ -82,6 +82,9 @@ pub struct BuildOptions {
     /// Training clips also enter at each of these speeds ([`motion_augment::time_warp`]; 1 is
     /// the clip itself).
     pub speeds: Vec<f64>,
+    /// Training clips also enter with the upper body of another training clip
+    /// ([`motion_augment::recombine`]; the partner is picked by a hash of the clip and the seed).
+    pub recombine: bool,
     /// Joint mapping of the clips' skeleton (`stages/body/mappings/bandai-namco.toml` documents the
     /// format); `None`: the built-in Bandai Namco mapping.
     pub mapping: Option<PathBuf>,
@@ -107,6 +110,7 @@ impl BuildOptions {
             limit: None,
             mirror: false,
             speeds: Vec::new(),
+            recombine: false,
             mapping: None,
             max_shard_frames: DEFAULT_MAX_SHARD_FRAMES,
             stature_m: DEFAULT_STATURE_M,
@@ -383,7 +387,14 @@ pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
         ProgressBar::hidden()
     };
 
-    let mut clip_state = ClipWork::new();
+    // Upper bodies for `recombine` come from training clips only: no validation, test or holdout
+    // motion leaks into training.
+    let partners: Vec<(String, PathBuf)> = files
+        .iter()
+        .filter(|(key, _)| split_of(key) == Split::Train)
+        .cloned()
+        .collect();
+    let mut clip_state = ClipWork::new(partners);
     for (key, path) in &files {
         let split = split_of(key);
         pb.set_message(key.clone());
@@ -520,11 +531,42 @@ fn is_shard_name(name: &str) -> bool {
 /// Per-clip work buffers, reused between clips.
 struct ClipWork {
     fk: FkData,
+    /// The training clips, for `recombine`'s upper bodies.
+    partners: Vec<(String, PathBuf)>,
 }
 
 impl ClipWork {
-    fn new() -> ClipWork {
-        ClipWork { fk: FkData::new() }
+    fn new(partners: Vec<(String, PathBuf)>) -> ClipWork {
+        ClipWork {
+            fk: FkData::new(),
+            partners,
+        }
+    }
+
+    /// The training clip whose upper body `key` gets with `--recombine`, loaded at the shard
+    /// rate: a hash of the key and the seed picks it, never the clip itself; a candidate that
+    /// does not load (reported on its own turn) passes to the next, a few at most.
+    fn upper_body_for(
+        &self,
+        key: &str,
+        seed: u64,
+        body: &BodyModel,
+        source: &SourceSkeleton,
+    ) -> Option<(&str, MotionClip)> {
+        let n = self.partners.len();
+        if n < 2 {
+            return None;
+        }
+        let start =
+            (fnv1a64(key.as_bytes()) ^ seed.wrapping_mul(0x9e37_79b9_7f4a_7c15)) as usize % n;
+        (0..n)
+            .map(|k| &self.partners[(start + k) % n])
+            .filter(|(other, _)| other != key)
+            .take(4)
+            .find_map(|(other, path)| {
+                let clip = read_clip(path, body, source).ok()?;
+                Some((other.as_str(), resample(&clip, FPS).ok()?))
+            })
     }
 
     /// The sequences of one clip: ideal first, then the augmented copies; for a training clip the
@@ -550,6 +592,15 @@ impl ClipWork {
                 let warped = motion_augment::time_warp(&recorded, speed, FPS)
                     .with_context(|| format!("{}: time warp ×{speed}", path.display()))?;
                 motions.push((format!("speed {speed}"), warped));
+            }
+            if options.recombine
+                && let Some((partner, upper)) = self.upper_body_for(key, options.seed, body, source)
+            {
+                let mixed = motion_augment::recombine(&clip, &upper);
+                // Under a second together: too short to teach anything.
+                if mixed.poses.len() as f64 >= FPS {
+                    motions.push((format!("upper body of {partner}"), mixed));
+                }
             }
         }
         motions.insert(0, (String::new(), clip));

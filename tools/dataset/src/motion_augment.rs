@@ -5,6 +5,9 @@
 //!   right-handed one, a turn to the left a turn to the right.
 //! - [`time_warp`]: the clip played `speed` times faster (slower below 1), then resampled to the
 //!   shard rate; the body moves through the same poses at other velocities and accelerations.
+//! - [`recombine`]: the legs and pelvis of one clip under the spine, head and arms of another: a
+//!   punch while walking, a wave while turning. Every joint keeps a rotation some person made, so
+//!   the new poses stay within joint limits; only their combination is new.
 
 use imuflow_body::JointId;
 use imuflow_body::retarget::{MotionClip, ResampleError, resample};
@@ -50,6 +53,35 @@ pub fn mirror(clip: &MotionClip) -> MotionClip {
         .collect();
     MotionClip {
         frame_time_s: clip.frame_time_s,
+        poses,
+    }
+}
+
+/// The joints [`recombine`] takes from the upper-body clip, SMPL order: spine1 3, spine2 6, spine3 9,
+/// neck 12, collars 13/14, head 15, shoulders 16/17, elbows 18/19, wrists 20/21, hands 22/23. The
+/// rest (pelvis 0 with the root's path and heading, hips 1/2, knees 4/5, ankles 7/8, feet 10/11)
+/// come from the lower-body clip.
+pub const UPPER_BODY: [usize; 15] = [3, 6, 9, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23];
+
+/// The lower body (root path, pelvis, legs) of `lower` with the upper body ([`UPPER_BODY`]: local
+/// rotations from the first spine joint up) of `upper`, frame by frame; as long as the shorter of
+/// the two. Both clips must have the same frame time (resample them to the shard rate first).
+pub fn recombine(lower: &MotionClip, upper: &MotionClip) -> MotionClip {
+    debug_assert!((lower.frame_time_s - upper.frame_time_s).abs() < 1e-9);
+    let poses = lower
+        .poses
+        .iter()
+        .zip(&upper.poses)
+        .map(|(l, u)| {
+            let mut pose = l.clone();
+            for &j in &UPPER_BODY {
+                pose.parent_from_joint[j] = u.parent_from_joint[j];
+            }
+            pose
+        })
+        .collect();
+    MotionClip {
+        frame_time_s: lower.frame_time_s,
         poses,
     }
 }
@@ -108,6 +140,51 @@ mod tests {
             .zip(&clip.poses[0].parent_from_joint)
         {
             assert!((a.matrix() - b.matrix()).norm() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn recombined_legs_follow_the_lower_clip_and_arms_the_upper_clip() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let lower = MotionClip {
+            frame_time_s: 1.0 / 60.0,
+            poses: vec![some_pose(), some_pose(), some_pose()],
+        };
+        let mut other = Pose::t_pose(Vector3::new(-4.0, 1.1, 7.0));
+        for (j, r) in other.parent_from_joint.iter_mut().enumerate() {
+            *r = Rotation3::from_axis_angle(&Vector3::y_axis(), -0.3 + 0.02 * j as f64);
+        }
+        let upper = MotionClip {
+            frame_time_s: 1.0 / 60.0,
+            poses: vec![other.clone(), other.clone()],
+        };
+        let mixed = recombine(&lower, &upper);
+        assert_eq!(mixed.poses.len(), 2, "as long as the shorter clip");
+        let (mut fk_l, mut fk_u, mut fk_m) = (FkData::new(), FkData::new(), FkData::new());
+        forward_kinematics(&body.skeleton, &lower.poses[0], &mut fk_l);
+        forward_kinematics(&body.skeleton, &other, &mut fk_u);
+        forward_kinematics(&body.skeleton, &mixed.poses[0], &mut fk_m);
+        // The legs stand where the lower clip's stand (same root, pelvis and leg rotations).
+        for j in [0, 1, 2, 4, 5, 7, 8, 10, 11] {
+            let j = JointId::from_index(j).unwrap();
+            assert!(
+                (fk_m.position(j) - fk_l.position(j)).norm() < 1e-12,
+                "{}",
+                j.name()
+            );
+        }
+        // The arms hold the upper clip's posture relative to the chest (spine3's frame).
+        let chest = JointId::from_index(9).unwrap();
+        for j in [16, 18, 20, 15] {
+            let j = JointId::from_index(j).unwrap();
+            let in_chest = |fk: &FkData| {
+                fk.world_from(chest).inverse() * (fk.position(j) - fk.position(chest))
+            };
+            assert!(
+                (in_chest(&fk_m) - in_chest(&fk_u)).norm() < 1e-9,
+                "{}",
+                j.name()
+            );
         }
     }
 

@@ -484,3 +484,42 @@ fn motion_augmentations_add_training_sequences_only() {
         ]
     );
 }
+
+#[test]
+fn recombined_upper_bodies_come_from_other_training_clips_only() {
+    let input = input_dir(&GOOD);
+    let (plain_out, mixed_out) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let plain = build(&options(input.path(), plain_out.path())).unwrap();
+    let mut o = options(input.path(), mixed_out.path());
+    o.recombine = true;
+    let mixed = build(&o).unwrap();
+    let train = &plain.splits[Split::Train.index()];
+    assert!(train.clips >= 2, "the fixture set needs two training clips");
+    for s in Split::ALL {
+        let (p, m) = (&plain.splits[s.index()], &mixed.splits[s.index()]);
+        if s == Split::Train {
+            // Per clip: recorded + recombined, each ideal + one augmented copy.
+            assert_eq!(m.sequences, 2 * p.sequences, "{s}");
+        } else {
+            assert_eq!(p, m, "{s} must not change");
+        }
+    }
+    let split = split_json(mixed_out.path());
+    let by_split = clips_by_split(&split);
+    for shard in shard_files(mixed_out.path()) {
+        let bytes = std::fs::read(&shard).unwrap();
+        let (_, metadata) = SafeTensors::read_metadata(&bytes).unwrap();
+        let meta: ShardMetadata =
+            serde_json::from_str(&metadata.metadata().as_ref().unwrap()[METADATA_KEY]).unwrap();
+        for seq in &meta.sequences {
+            if let Some(partner) = seq.motion.strip_prefix("upper body of ") {
+                assert_ne!(partner, seq.clip, "a clip is not its own partner");
+                assert_eq!(
+                    by_split.get(partner).map(String::as_str),
+                    Some("train"),
+                    "{partner} is a training clip"
+                );
+            }
+        }
+    }
+}
