@@ -6,6 +6,7 @@ mod eval_cmd;
 mod kinematics_cmd;
 mod registry;
 
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -56,13 +57,19 @@ enum Command {
     Graph(GraphCommand),
     /// Run one stage process (used by `imuflow run`; not for direct use).
     ///
-    /// With --list, prints every built-in stage kind with its ports and parameters.
+    /// With --list, prints every built-in stage kind with its ports and parameters; with
+    /// --layouts, every frame type's byte layout as JSON (what stages in other languages and
+    /// readers of recordings build their views from).
     Stage {
         /// The stage kind to run.
         kind: Option<String>,
         /// List the built-in stage kinds.
         #[arg(long)]
         list: bool,
+        /// Print every frame layout as JSON (type name, size, fields with offset, scalar type,
+        /// shape and meaning).
+        #[arg(long)]
+        layouts: bool,
     },
     /// Remove shared-memory files left by imuflow processes that died (a crash, kill -9).
     Clean,
@@ -235,6 +242,23 @@ fn main() -> ExitCode {
         Command::Stage { list: true, .. } => {
             print!("{}", registry::describe_kinds());
             ExitCode::SUCCESS
+        }
+        Command::Stage { layouts: true, .. } => {
+            let layouts: Vec<_> = imuflow_graph::FrameType::ALL
+                .iter()
+                .map(|t| t.layout())
+                .collect();
+            match serde_json::to_string_pretty(&layouts) {
+                Ok(text) => {
+                    // A closed pipe (`| head`) ends the output, not in a panic.
+                    let _ = writeln!(std::io::stdout(), "{text}");
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    ExitCode::FAILURE
+                }
+            }
         }
         Command::Stage {
             kind: Some(kind), ..
