@@ -52,6 +52,20 @@ params = {{ path = "{{dir}}/{out}" }}
     )
 }
 
+/// A graph replaying `{dir}/a.mcap` into `{dir}/b.mcap`, under the graph-level keys `head`.
+fn replay_graph(sb: &Sandbox, head: &str) -> PathBuf {
+    let stages = r#"
+[stages.player]
+kind = "imu-source"
+params = { mode = "replay", path = "{dir}/a.mcap" }
+[stages.record]
+kind = "recorder"
+inputs = { imu = "player.imu", truth = "player.truth" }
+params = { path = "{dir}/b.mcap" }
+"#;
+    sb.graph("replay.toml", &format!("{head}\n{stages}"))
+}
+
 fn run_ok(sb: &Sandbox, graph: &Path) {
     let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
@@ -133,19 +147,7 @@ fn replay_republishes_a_recording_byte_for_byte() {
     let sb = Sandbox::new("replay");
     let graph = synth_graph(&sb, "a.mcap");
     run_ok(&sb, &graph);
-    let replay = sb.graph(
-        "replay.toml",
-        r#"
-name = "replay-test"
-[stages.player]
-kind = "imu-source"
-params = { mode = "replay", path = "{dir}/a.mcap" }
-[stages.record]
-kind = "recorder"
-inputs = { imu = "player.imu", truth = "player.truth" }
-params = { path = "{dir}/b.mcap" }
-"#,
-    );
+    let replay = replay_graph(&sb, "name = \"replay-test\"");
     run_ok(&sb, &replay);
     let a = mcap_messages(&sb.path("a.mcap"));
     let b = mcap_messages(&sb.path("b.mcap"));
@@ -400,20 +402,7 @@ fn a_live_replay_stamps_capture_on_the_epoch_and_the_summary_reports_latency_fro
     let sb = Sandbox::new("live-replay");
     let graph = synth_graph(&sb, "a.mcap");
     run_ok(&sb, &graph);
-    let replay = sb.graph(
-        "replay.toml",
-        r#"
-name = "live-replay-test"
-mode = "live"
-[stages.player]
-kind = "imu-source"
-params = { mode = "replay", path = "{dir}/a.mcap" }
-[stages.record]
-kind = "recorder"
-inputs = { imu = "player.imu", truth = "player.truth" }
-params = { path = "{dir}/b.mcap" }
-"#,
-    );
+    let replay = replay_graph(&sb, "name = \"live-replay-test\"\nmode = \"live\"");
     let before = now_ns();
     let out = sb.run(&["run", replay.to_str().expect("utf8"), "--no-progress"]);
     let after = now_ns();
