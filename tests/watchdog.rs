@@ -204,3 +204,56 @@ fn stall_timeouts_must_be_positive() {
         "{stderr}"
     );
 }
+
+/// A stage that exits 0 in the middle of its stream (no END_OF_STREAM) is a failure named as
+/// such, found at once (not after the stall timeout's wait on its readers), with the recording
+/// finalized to its last frame.
+#[test]
+fn a_stage_that_exits_0_early_is_named_and_the_recording_is_finalized() {
+    let sb = Sandbox::new("exit-early");
+    let file = graph(&sb, 1500, r#"["--exit-at", "200"]"#, "");
+    let started = Instant::now();
+    let out = sb.run(&["run", file.to_str().expect("utf8"), "--no-progress"]);
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("'counter'"), "{stderr}");
+    assert!(
+        stderr.contains("exited without ending its stream"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("exiting 0 at frame 200"),
+        "its stderr tail: {stderr}"
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(20),
+        "{:?}",
+        started.elapsed()
+    );
+    let messages = mcap_messages(&sb.path("all.mcap"));
+    assert_eq!(count(&messages, "counter.count"), 201);
+    assert_clean(&sb);
+}
+
+/// A stage that floods stderr (hundreds of lines per frame) neither blocks on a full pipe nor
+/// slows the graph into a stall: the run ends normally with every frame.
+#[test]
+fn a_stage_that_floods_stderr_does_not_block_the_graph() {
+    let sb = Sandbox::new("flood");
+    let file = graph(&sb, 600, r#"["--flood-stderr", "300"]"#, "");
+    let out = sb.run(&[
+        "run",
+        file.to_str().expect("utf8"),
+        "--no-progress",
+        "--quiet",
+    ]);
+    let stderr = text(&out.stderr);
+    assert!(
+        out.status.success(),
+        "{}",
+        &stderr[stderr.len().saturating_sub(2000)..]
+    );
+    let messages = mcap_messages(&sb.path("all.mcap"));
+    assert_eq!(count(&messages, "counter.count"), 600);
+    assert_clean(&sb);
+}

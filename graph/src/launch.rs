@@ -469,6 +469,10 @@ fn spawn_all(
     Ok(())
 }
 
+/// How a stage that exits 0 mid-stream is reported.
+const EXITED_EARLY: &str =
+    "exited without ending its stream (exit status 0, no END_OF_STREAM/summary)";
+
 /// What the supervision loop needs besides the stages: the graph (for branches), the run's
 /// shared-memory domain (for dead-node cleanup) and what failed so far.
 /// How a stage failed.
@@ -566,6 +570,7 @@ impl Supervisor<'_> {
             handle_events(stages, rx, &bar, &log)?;
             self.reap(stages)?;
             if stop_requested_at.is_none() {
+                self.catch_early_exits(stages, rx, &bar, &log)?;
                 self.watch_for_stalls(stages)?;
             }
             for s in stages.iter() {
@@ -619,7 +624,7 @@ impl Supervisor<'_> {
             // A stage that exits 0 without finishing its stream would leave readers waiting forever.
             return Err(RunError::StageFailed {
                 stage: s.id.clone(),
-                status: "exited without ending its stream (no END_OF_STREAM/summary)".into(),
+                status: EXITED_EARLY.into(),
                 stderr_tail: s.tail(),
             });
         }
@@ -666,6 +671,38 @@ impl Supervisor<'_> {
             let stage = stages[i].id.clone();
             let stderr_tail = stages[i].tail();
             let failure = Failure::Ended(describe_status(status));
+            self.handle_failure(stages, stage, failure, stderr_tail)?;
+        }
+        Ok(())
+    }
+
+    /// A stage that exited 0 without ending its stream (no END_OF_STREAM, no summary) leaves its
+    /// readers waiting forever: it failed, now, not when the rest of the graph ends. Its summary
+    /// may still be in the pipe when its exit is seen, so its output is read to the end first.
+    fn catch_early_exits(
+        &mut self,
+        stages: &mut [Running],
+        rx: &Receiver<Event>,
+        bar: &indicatif::ProgressBar,
+        log: &impl Fn(&[Running], usize, &str),
+    ) -> Result<(), RunError> {
+        let quit = |s: &Running| {
+            s.exit.is_some_and(|e| e.success())
+                && s.summary.is_none()
+                && s.branch_stopped_at.is_none()
+        };
+        while let Some(i) = stages.iter().position(quit) {
+            // Its readers end at the pipes' end: then every line it wrote is in the channel.
+            for handle in stages[i].readers.drain(..) {
+                let _ = handle.join();
+            }
+            handle_events(stages, rx, bar, log)?;
+            if stages[i].summary.is_some() {
+                continue;
+            }
+            let stage = stages[i].id.clone();
+            let stderr_tail = stages[i].tail();
+            let failure = Failure::Ended(EXITED_EARLY.to_owned());
             self.handle_failure(stages, stage, failure, stderr_tail)?;
         }
         Ok(())
