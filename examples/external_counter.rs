@@ -21,6 +21,7 @@
 //! degrees (about the knee's x axis), a variant that is worse by construction for the comparison
 //! tests. `args = ["--hang-at", "N"]` makes it hang after publishing frame N: alive, taking no
 //! more frames, deaf to SIGTERM (a stage stuck in its own code), for the stall watchdog's tests.
+//! `args = ["--fail-from", "N"]` fails at the first frame N or later (again after a restart).
 //! `args = ["--exit-at", "N"]` makes it exit 0 after publishing frame N without ending its stream
 //! (a stage that quits early by mistake); `args = ["--flood-stderr", "K"]` writes K lines of
 //! log to stderr per frame (a stage that floods its log).
@@ -46,18 +47,20 @@ fn run() -> anyhow::Result<()> {
     let mut fail_at: Option<u64> = None;
     let mut hang_at: Option<u64> = None;
     let mut exit_at: Option<u64> = None;
+    let mut fail_from: Option<u64> = None;
     let mut flood_lines = 0usize;
     let mut bend_knee_deg = 0.0f32;
     let args: Vec<String> = std::env::args().skip(1).collect();
     for pair in args.chunks(2) {
         match pair {
             [flag, n] if flag == "--fail-at" => fail_at = Some(n.parse()?),
+            [flag, n] if flag == "--fail-from" => fail_from = Some(n.parse()?),
             [flag, n] if flag == "--hang-at" => hang_at = Some(n.parse()?),
             [flag, d] if flag == "--bend-knee-deg" => bend_knee_deg = d.parse()?,
             [flag, n] if flag == "--exit-at" => exit_at = Some(n.parse()?),
             [flag, k] if flag == "--flood-stderr" => flood_lines = k.parse()?,
             other => anyhow::bail!(
-                "unknown arguments {other:?} (expected --fail-at N, --hang-at N, --exit-at N, --flood-stderr K, --bend-knee-deg D)"
+                "unknown arguments {other:?} (expected --fail-at N, --fail-from N, --hang-at N, --exit-at N, --flood-stderr K, --bend-knee-deg D)"
             ),
         }
     }
@@ -104,7 +107,7 @@ fn run() -> anyhow::Result<()> {
                 eprintln!("external_counter: exiting 0 at frame {} as asked", step.seq);
                 std::process::exit(0);
             }
-            if fail_at == Some(step.seq) {
+            if fail_at == Some(step.seq) || fail_from.is_some_and(|n| step.seq >= n) {
                 eprintln!("external_counter: failing at frame {} as asked", step.seq);
                 std::process::exit(3);
             }

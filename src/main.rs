@@ -440,6 +440,13 @@ pub(crate) fn print_summary(graph: &Graph, report: &launch::RunReport) {
             println!("{}: {}", node.id, s.detail);
         }
     }
+    for (stage, why) in &report.restarts {
+        println!(
+            "restarted '{stage}' {} time(s): {}",
+            why.len(),
+            why.join("; ")
+        );
+    }
     for branch in &report.failed_branches {
         println!(
             "branch of '{}' stopped ({} failed): {}",

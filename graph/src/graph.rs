@@ -69,6 +69,27 @@ impl OnFailure {
     }
 }
 
+/// A stage's restart policy (`restart = { max = 3, within_s = 60, backoff_ms = 200 }`): a stage
+/// that fails is started again, up to `max` times within any `within_s` seconds, each after
+/// `backoff_ms`; one failure more is handled by `on_failure`. No restarts by default: offline, a
+/// crash is a bug to report; a live graph may opt in per stage.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RestartPolicy {
+    pub max: u32,
+    pub within_s: f64,
+    pub backoff_ms: u64,
+}
+
+impl Default for RestartPolicy {
+    fn default() -> Self {
+        RestartPolicy {
+            max: 3,
+            within_s: 60.0,
+            backoff_ms: 200,
+        }
+    }
+}
+
 /// One stage of a validated graph.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct StageNode {
@@ -85,6 +106,9 @@ pub struct StageNode {
     /// Overrides the graph's `stall_timeout_s` for this stage.
     #[serde(default)]
     pub stall_timeout_s: Option<f64>,
+    /// Started again when it fails ([`RestartPolicy`]); `None`: never.
+    #[serde(default)]
+    pub restart: Option<RestartPolicy>,
 }
 
 /// The watchdog's default for offline graphs (live: [`DEFAULT_LIVE_STALL_TIMEOUT_S`]). Generous:
@@ -398,6 +422,7 @@ mod tests {
             params: toml::Table::new(),
             on_failure,
             stall_timeout_s: None,
+            restart: None,
         }
     }
 

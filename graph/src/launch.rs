@@ -21,7 +21,9 @@ use std::time::{Duration, Instant};
 
 use crate::graph::{Graph, Runner};
 use crate::spec::Role;
-use crate::stage::{ControlMessage, ENV_RUN_DIR, ENV_RUN_ID, ENV_STAGE_ID, GRAPH_JSON};
+use crate::stage::{
+    ControlMessage, ENV_RESTART, ENV_RUN_DIR, ENV_RUN_ID, ENV_STAGE_ID, GRAPH_JSON,
+};
 use crate::stats::StageSummary;
 use crate::transport;
 use std::collections::BTreeSet;
@@ -60,6 +62,8 @@ pub struct RunReport {
     pub interrupted: bool,
     /// Isolated branches that failed and were stopped while the rest of the graph ran on.
     pub failed_branches: Vec<FailedBranch>,
+    /// Stages that failed and were started again (`restart` policy): how often, and why.
+    pub restarts: BTreeMap<String, Vec<String>>,
 }
 
 /// A branch stopped because one of its stages failed (`on_failure = "stop-branch"`).
@@ -172,6 +176,19 @@ struct Running {
     position: u64,
     moved_at: Instant,
     heard_at: Instant,
+    /// Restart policy: when each restart happened, when the next start is due (after the
+    /// backoff), and whether a restarted process is still in its handshake (ready → connect →
+    /// go, on its own while the rest of the graph runs).
+    restarted_at: Vec<Instant>,
+    restart_due: Option<Instant>,
+    rejoining: Option<Rejoin>,
+}
+
+/// Where a restarted stage is in its handshake.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Rejoin {
+    Starting,
+    ConnectSent,
 }
 
 impl Running {
@@ -313,20 +330,21 @@ fn run_in(
         }
     }
     let (tx, rx) = mpsc::channel();
-    let mut stages = Vec::new();
-    let spawned = spawn_all(
-        graph,
+    let spawner = Spawner {
         options,
         run_id,
         run_dir,
         shm_prefix,
-        &tx,
-        &mut stages,
-    );
+        tx,
+    };
+    let mut stages = Vec::new();
+    let spawned = spawn_all(graph, &spawner, &mut stages);
     let mut supervisor = Supervisor {
         graph,
         shm_prefix,
+        spawner: &spawner,
         failed_branches: Vec::new(),
+        restarts: BTreeMap::new(),
         stopping: false,
     };
     let result =
@@ -349,6 +367,7 @@ fn run_in(
         wall,
         interrupted: was_interrupted,
         failed_branches: supervisor.failed_branches,
+        restarts: supervisor.restarts,
     })
 }
 
@@ -370,16 +389,33 @@ fn empty_summary() -> StageSummary {
     }
 }
 
-fn spawn_all(
-    graph: &Graph,
-    options: &LaunchOptions,
-    run_id: &str,
-    run_dir: &Path,
-    shm_prefix: &str,
-    tx: &Sender<Event>,
-    stages: &mut Vec<Running>,
-) -> Result<(), RunError> {
+fn spawn_all(graph: &Graph, spawner: &Spawner, stages: &mut Vec<Running>) -> Result<(), RunError> {
     for node in graph.topological_order() {
+        let index = stages.len();
+        stages.push(spawner.spawn(node, index, 0)?);
+    }
+    Ok(())
+}
+
+/// What starting a stage process needs: the run's identity and where its events go.
+struct Spawner<'a> {
+    options: &'a LaunchOptions,
+    run_id: &'a str,
+    run_dir: &'a Path,
+    shm_prefix: &'a str,
+    tx: Sender<Event>,
+}
+
+impl Spawner<'_> {
+    /// Starts `node`'s process as stage number `index` (`restart`: how many times it was started
+    /// before in this run).
+    fn spawn(
+        &self,
+        node: &crate::graph::StageNode,
+        index: usize,
+        restart: u32,
+    ) -> Result<Running, RunError> {
+        let options = self.options;
         let mut command = match &node.runner {
             Runner::Builtin { kind } => {
                 let mut c = Command::new(&options.imuflow_exe);
@@ -393,13 +429,16 @@ fn spawn_all(
             }
         };
         command
-            .env(ENV_RUN_DIR, run_dir)
-            .env(ENV_RUN_ID, run_id)
+            .env(ENV_RUN_DIR, self.run_dir)
+            .env(ENV_RUN_ID, self.run_id)
             .env(ENV_STAGE_ID, &node.id)
-            .env(transport::ENV_RUN_SHM_PREFIX, shm_prefix)
+            .env(transport::ENV_RUN_SHM_PREFIX, self.shm_prefix)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
+        if restart > 0 {
+            command.env(ENV_RESTART, restart.to_string());
+        }
         // Every stage is its own process, so thread pools inside stages (candle's rayon pool in the
         // kinematics stage) would oversubscribe the cores the other stages need: one thread each
         // unless the user chose otherwise (measured, release, configs/pip.toml on 2
@@ -416,11 +455,10 @@ fn spawn_all(
             program,
             source,
         })?;
-        let index = stages.len();
         let stderr_tail = Arc::new(Mutex::new(VecDeque::new()));
         let mut readers = Vec::new();
         if let Some(stdout) = child.stdout.take() {
-            let tx = tx.clone();
+            let tx = self.tx.clone();
             readers.push(std::thread::spawn(move || {
                 for line in BufReader::new(stdout).lines().map_while(Result::ok) {
                     let event = match ControlMessage::parse(&line) {
@@ -434,7 +472,7 @@ fn spawn_all(
             }));
         }
         if let Some(stderr) = child.stderr.take() {
-            let tx = tx.clone();
+            let tx = self.tx.clone();
             let tail = stderr_tail.clone();
             readers.push(std::thread::spawn(move || {
                 for line in BufReader::new(stderr).lines().map_while(Result::ok) {
@@ -448,7 +486,7 @@ fn spawn_all(
                 }
             }));
         }
-        stages.push(Running {
+        Ok(Running {
             id: node.id.clone(),
             kind: node.kind_label(),
             role: node.role,
@@ -464,9 +502,11 @@ fn spawn_all(
             position: 0,
             moved_at: Instant::now(),
             heard_at: Instant::now(),
-        });
+            restarted_at: Vec::new(),
+            restart_due: None,
+            rejoining: None,
+        })
     }
-    Ok(())
 }
 
 /// How a stage that exits 0 mid-stream is reported.
@@ -486,7 +526,11 @@ enum Failure {
 struct Supervisor<'a> {
     graph: &'a Graph,
     shm_prefix: &'a str,
+    /// Starts restarted stages.
+    spawner: &'a Spawner<'a>,
     failed_branches: Vec<FailedBranch>,
+    /// Per restarted stage: why, each time.
+    restarts: BTreeMap<String, Vec<String>>,
     /// The user asked the run to stop (Ctrl-C): stages ending with errors are part of stopping.
     stopping: bool,
 }
@@ -566,12 +610,22 @@ impl Supervisor<'_> {
         }
         let mut stop_requested_at: Option<Instant> = None;
         let mut terminated_at: Option<Instant> = None;
-        while stages.iter().any(|s| s.exit.is_none()) {
+        while stages
+            .iter()
+            .any(|s| s.exit.is_none() || s.restart_due.is_some())
+        {
             handle_events(stages, rx, &bar, &log)?;
             self.reap(stages)?;
             if stop_requested_at.is_none() {
                 self.catch_early_exits(stages, rx, &bar, &log)?;
                 self.watch_for_stalls(stages)?;
+                self.restart_due_stages(stages)?;
+                self.rejoin(stages);
+            } else {
+                // Stopping: nothing is started again.
+                for s in stages.iter_mut() {
+                    s.restart_due = None;
+                }
             }
             for s in stages.iter() {
                 if s.branch_stopped_at
@@ -668,10 +722,116 @@ impl Supervisor<'_> {
                 );
                 continue;
             }
-            let stage = stages[i].id.clone();
             let stderr_tail = stages[i].tail();
             let failure = Failure::Ended(describe_status(status));
-            self.handle_failure(stages, stage, failure, stderr_tail)?;
+            self.fail_or_restart(stages, i, failure, stderr_tail)?;
+        }
+        Ok(())
+    }
+
+    /// A failed stage with a `restart` policy that allows one more is started again after its
+    /// backoff; otherwise (or once the policy is spent) its failure policy applies.
+    fn fail_or_restart(
+        &mut self,
+        stages: &mut [Running],
+        i: usize,
+        failure: Failure,
+        stderr_tail: Vec<String>,
+    ) -> Result<(), RunError> {
+        let stage = stages[i].id.clone();
+        let why = match &failure {
+            Failure::Ended(status) => status.clone(),
+            Failure::Stalled(detail) => format!("stalled: {detail}"),
+        };
+        let policy = self.graph.stages.get(&stage).and_then(|n| n.restart);
+        if let (Some(policy), Failure::Ended(_)) = (policy, &failure)
+            && !self.stopping
+        {
+            let now = Instant::now();
+            let window = Duration::from_secs_f64(policy.within_s);
+            let s = &mut stages[i];
+            s.restarted_at.retain(|t| now.duration_since(*t) < window);
+            if (s.restarted_at.len() as u32) < policy.max {
+                s.restarted_at.push(now);
+                s.restart_due = Some(now + Duration::from_millis(policy.backoff_ms));
+                let n = s.restarted_at.len();
+                tracing::warn!(
+                    "stage '{stage}' {why}; restarting it ({n} of {} within {} s)",
+                    policy.max,
+                    policy.within_s
+                );
+                self.restarts.entry(stage).or_default().push(why);
+                return Ok(());
+            }
+            let failure = Failure::Ended(format!(
+                "{why}, after {} restart(s) within {} s (restart.max = {})",
+                s.restarted_at.len(),
+                policy.within_s,
+                policy.max
+            ));
+            return self.handle_failure(stages, stage, failure, stderr_tail);
+        }
+        self.handle_failure(stages, stage, failure, stderr_tail)
+    }
+
+    /// Walks restarted stages through their handshake on their own: once ready they connect, once
+    /// connected they go (the rest of the graph is running already), told which of their
+    /// producers have finished meanwhile (their END_OF_STREAM went out before the new process
+    /// was there to read it).
+    fn rejoin(&self, stages: &mut [Running]) {
+        let finished: BTreeSet<String> = stages
+            .iter()
+            .filter(|s| s.summary.is_some() || s.branch_stopped_at.is_some())
+            .map(|s| s.id.clone())
+            .collect();
+        for s in stages.iter_mut() {
+            match s.rejoining {
+                Some(Rejoin::Starting) if s.ready => {
+                    s.send("connect");
+                    s.rejoining = Some(Rejoin::ConnectSent);
+                }
+                Some(Rejoin::ConnectSent) if s.connected => {
+                    s.send("go");
+                    let producers: BTreeSet<String> = self
+                        .graph
+                        .stages
+                        .get(&s.id)
+                        .map(|n| n.inputs.values().map(|e| e.from_stage.clone()).collect())
+                        .unwrap_or_default();
+                    for from in producers.intersection(&finished) {
+                        s.send(&format!("ended {from}"));
+                    }
+                    s.rejoining = None;
+                    s.moved_at = Instant::now();
+                    s.heard_at = Instant::now();
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Starts every stage whose restart is due: the dead process's ports are cleaned up first (so
+    /// its writers and readers move on), then a new process joins the running graph.
+    fn restart_due_stages(&mut self, stages: &mut [Running]) -> Result<(), RunError> {
+        let now = Instant::now();
+        for (i, stage) in stages.iter_mut().enumerate() {
+            if stage.restart_due.is_none_or(|due| due > now) {
+                continue;
+            }
+            self.disconnect_dead_readers();
+            let Some(node) = self.graph.stages.get(&stage.id) else {
+                continue;
+            };
+            let count = stage.restarted_at.len() as u32;
+            for handle in stage.readers.drain(..) {
+                let _ = handle.join();
+            }
+            let fresh = self.spawner.spawn(node, i, count)?;
+            *stage = Running {
+                restarted_at: std::mem::take(&mut stage.restarted_at),
+                rejoining: Some(Rejoin::Starting),
+                ..fresh
+            };
         }
         Ok(())
     }
@@ -690,6 +850,7 @@ impl Supervisor<'_> {
             s.exit.is_some_and(|e| e.success())
                 && s.summary.is_none()
                 && s.branch_stopped_at.is_none()
+                && s.restart_due.is_none()
         };
         while let Some(i) = stages.iter().position(quit) {
             // Its readers end at the pipes' end: then every line it wrote is in the channel.
@@ -700,10 +861,9 @@ impl Supervisor<'_> {
             if stages[i].summary.is_some() {
                 continue;
             }
-            let stage = stages[i].id.clone();
             let stderr_tail = stages[i].tail();
             let failure = Failure::Ended(EXITED_EARLY.to_owned());
-            self.handle_failure(stages, stage, failure, stderr_tail)?;
+            self.fail_or_restart(stages, i, failure, stderr_tail)?;
         }
         Ok(())
     }

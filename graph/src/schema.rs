@@ -56,4 +56,7 @@ pub struct StageEntry {
     /// This stage's stall timeout (overrides the graph's `stall_timeout_s`).
     #[serde(default)]
     pub stall_timeout_s: Option<toml::Value>,
+    /// Restart policy: `{ max = 3, within_s = 60, backoff_ms = 200 }` (none by default).
+    #[serde(default)]
+    pub restart: Option<toml::Value>,
 }

@@ -44,6 +44,9 @@ pub const ENV_RUN_DIR: &str = "IMUFLOW_RUN_DIR";
 pub const ENV_RUN_ID: &str = "IMUFLOW_RUN_ID";
 /// Environment variable: this process's stage id.
 pub const ENV_STAGE_ID: &str = "IMUFLOW_STAGE_ID";
+/// Set by the launcher when it starts a stage again after a failure (its `restart` policy): how
+/// many times it was started before. The stage's first output frames carry `RESTARTED`.
+pub const ENV_RESTART: &str = "IMUFLOW_RESTART";
 /// File in the run directory holding the validated graph as JSON.
 pub const GRAPH_JSON: &str = "graph.json";
 
@@ -170,6 +173,9 @@ pub struct StageContext {
     /// The frames taken so far, as the seq after the newest one (0: none). The heartbeat thread
     /// reports it to the launcher's stall watchdog.
     position: Arc<AtomicU64>,
+    /// Started again after a failure ([`ENV_RESTART`]) and no step taken yet: the first step's
+    /// outputs carry `RESTARTED` (the process starts with fresh state, rebuilt from that frame).
+    restarted: bool,
 }
 
 impl StageContext {
@@ -258,6 +264,7 @@ impl StageContext {
             any_cursor: 0,
             waiter: ArrivalWaiter::default(),
             position: Arc::new(AtomicU64::new(0)),
+            restarted: std::env::var_os(ENV_RESTART).is_some(),
         })
     }
 
@@ -478,8 +485,13 @@ impl StageContext {
                 self.last_step = Some(step);
                 self.advance(step.seq);
                 self.step_started = Some(Instant::now());
+                let restarted = if std::mem::take(&mut self.restarted) {
+                    flags::RESTARTED
+                } else {
+                    0
+                };
                 return Ok(Some(Step {
-                    flags: step.flags & (flags::INVALID | flags::CALIBRATING),
+                    flags: step.flags & (flags::INVALID | flags::CALIBRATING) | restarted,
                     ..step
                 }));
             }

@@ -7,7 +7,9 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use crate::frames::FrameType;
-use crate::graph::{Graph, InputEdge, Mode, OnFailure, Problem, Reader, Runner, StageNode};
+use crate::graph::{
+    Graph, InputEdge, Mode, OnFailure, Problem, Reader, RestartPolicy, Runner, StageNode,
+};
 use crate::schema::{GraphFile, StageEntry};
 use crate::spec::{InputsSpec, Registry, Role, StageSpec};
 
@@ -57,6 +59,53 @@ fn seconds(
     s
 }
 
+/// A stage's `restart` table: `{ max = N, within_s = S, backoff_ms = M }`, each key optional
+/// ([`RestartPolicy::default`] fills the rest); `None` when invalid (the problem recorded).
+fn restart_policy(
+    id: &str,
+    role: Role,
+    value: &toml::Value,
+    problems: &mut Problems,
+) -> Option<RestartPolicy> {
+    let mut bad = |message: String| {
+        problems.stage(id, Some("restart"), message);
+        None
+    };
+    if role == Role::Source {
+        return bad(
+            "a source cannot restart (it would start its stream again from the beginning)".into(),
+        );
+    }
+    let Some(table) = value.as_table() else {
+        return bad(format!(
+            "must be a table like {{ max = 3, within_s = 60, backoff_ms = 200 }} (got {value})"
+        ));
+    };
+    let mut policy = RestartPolicy::default();
+    for (key, v) in table {
+        match (key.as_str(), v) {
+            ("max", toml::Value::Integer(n)) if (1..=1000).contains(n) => policy.max = *n as u32,
+            ("within_s", _) if positive_number(v).is_some() => {
+                policy.within_s = positive_number(v).unwrap_or(policy.within_s)
+            }
+            ("backoff_ms", toml::Value::Integer(n)) if (0..=600_000).contains(n) => {
+                policy.backoff_ms = *n as u64
+            }
+            ("max" | "within_s" | "backoff_ms", _) => {
+                return bad(format!(
+                    "{key} = {v} is out of range (max: 1 to 1000 restarts, within_s: positive seconds, backoff_ms: 0 to 600000)"
+                ));
+            }
+            _ => {
+                return bad(format!(
+                    "unknown key '{key}' (keys: max, within_s, backoff_ms)"
+                ));
+            }
+        }
+    }
+    Some(policy)
+}
+
 /// A stage after the per-stage layer: its declared ports and parsed (not yet resolved) inputs.
 struct Declared<'a> {
     id: &'a str,
@@ -70,6 +119,7 @@ struct Declared<'a> {
     params: toml::Table,
     on_failure: OnFailure,
     stall_timeout_s: Option<f64>,
+    restart: Option<RestartPolicy>,
 }
 
 pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Graph, Vec<Problem>> {
@@ -192,6 +242,7 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
                 params: d.params.clone(),
                 on_failure: d.on_failure,
                 stall_timeout_s: d.stall_timeout_s,
+                restart: d.restart,
             },
         );
     }
@@ -471,6 +522,10 @@ fn declare<'a>(
         "stall_timeout_s",
         &entry.stall_timeout_s,
     );
+    let restart = entry
+        .restart
+        .as_ref()
+        .and_then(|v| restart_policy(id, role, v, problems));
     Some(Declared {
         id,
         runner,
@@ -482,6 +537,7 @@ fn declare<'a>(
         params: entry.params.clone(),
         on_failure,
         stall_timeout_s,
+        restart,
     })
 }
 

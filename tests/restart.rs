@@ -1,0 +1,162 @@
+//! Restart policies: a live stage with `restart = { ... }` that crashes is started again and
+//! rejoins the running graph (its first frame flagged RESTARTED, the run goes on, the summary
+//! lists the restart); one failure more than the policy allows is handled like any crash; the
+//! graph file's `restart` table is checked.
+
+mod common;
+
+use common::{Sandbox, assert_clean, example_exe, mcap_messages, text};
+use imuflow_graph::frames::{MotionFrame, flags, frame_from_bytes};
+
+/// A live graph at 60 Hz (4 s): source → counter (user stage, `args`, restart policy `restart`) →
+/// recorder of both.
+fn graph(sb: &Sandbox, args: &str, restart: &str) -> std::path::PathBuf {
+    sb.graph(
+        "restart.toml",
+        &format!(
+            r#"
+name = "restart-test"
+mode = "live"
+rate_hz = 60.0
+[stages.source]
+kind = "test-source"
+params = {{ frames = 240 }}
+[stages.counter]
+exec = "{}"
+args = {args}
+inputs = {{ imu = "source.imu", prev = "counter.count", feedback = ["prev"] }}
+outputs = {{ count = "MotionFrame" }}
+restart = {restart}
+[stages.all]
+kind = "recorder"
+inputs = {{ imu = "source.imu", count = "counter.count" }}
+params = {{ path = "{{dir}}/all.mcap" }}
+"#,
+            example_exe("external_counter").display()
+        ),
+    )
+}
+
+fn counts(sb: &Sandbox) -> Vec<(u64, u32)> {
+    mcap_messages(&sb.path("all.mcap"))
+        .into_iter()
+        .filter(|m| m.0 == "counter.count")
+        .map(|m| {
+            let h = frame_from_bytes::<MotionFrame>(&m.2)
+                .expect("a MotionFrame")
+                .header;
+            (h.seq, h.flags)
+        })
+        .collect()
+}
+
+#[test]
+fn a_crashed_live_stage_restarts_and_rejoins_the_running_graph() {
+    let sb = Sandbox::new("restart");
+    let file = graph(
+        &sb,
+        r#"["--fail-at", "60"]"#,
+        "{ max = 2, within_s = 60, backoff_ms = 50 }",
+    );
+    let out = sb.run(&["run", file.to_str().expect("utf8"), "--no-progress"]);
+    let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("restarted 'counter' 1 time(s): exited with code 3"),
+        "{stdout}"
+    );
+
+    // A live graph may drop a frame under load: counts with some room.
+    let frames = counts(&sb);
+    let before: Vec<_> = frames.iter().filter(|(seq, _)| *seq <= 60).collect();
+    let after: Vec<_> = frames.iter().filter(|(seq, _)| *seq > 60).collect();
+    assert!(
+        before.len() >= 55,
+        "{} frames up to the crash",
+        before.len()
+    );
+    assert!(before.iter().all(|(_, f)| f & flags::RESTARTED == 0));
+    // The restarted process took over within a fraction of the 4 s stream and ran to the end.
+    assert!(
+        after.len() > 120,
+        "{} frames after the restart",
+        after.len()
+    );
+    assert!(
+        after.last().is_some_and(|(seq, _)| *seq == 239),
+        "it ran to the end"
+    );
+    let flagged: Vec<_> = after
+        .iter()
+        .filter(|(_, f)| f & flags::RESTARTED != 0)
+        .collect();
+    assert_eq!(flagged.len(), 1, "one RESTARTED frame: {:?}", &after[..5]);
+    assert!(
+        flagged[0].0 - after[0].0 < 5,
+        "the restart's first frames: {:?}",
+        &after[..5]
+    );
+    assert_clean(&sb);
+}
+
+#[test]
+fn a_stage_failing_more_often_than_its_policy_allows_stops_the_run() {
+    let sb = Sandbox::new("restart-spent");
+    let file = graph(
+        &sb,
+        r#"["--fail-from", "30"]"#,
+        "{ max = 2, backoff_ms = 20 }",
+    );
+    let out = sb.run(&["run", file.to_str().expect("utf8"), "--no-progress"]);
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("'counter'"), "{stderr}");
+    assert!(
+        stderr.contains("after 2 restart(s) within 60 s (restart.max = 2)"),
+        "{stderr}"
+    );
+    assert!(
+        counts(&sb).len() >= 25,
+        "the recording is finalized with what came"
+    );
+    assert_clean(&sb);
+}
+
+#[test]
+fn bad_restart_tables_are_named() {
+    let sb = Sandbox::new("restart-bad");
+    for (restart, expected) in [
+        ("{ max = 0 }", "max = 0 is out of range"),
+        ("{ tries = 3 }", "unknown key 'tries'"),
+        ("3", "must be a table"),
+    ] {
+        let file = graph(&sb, "[]", restart);
+        let out = sb.run(&["graph", "check", file.to_str().expect("utf8")]);
+        let stderr = text(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{restart}: {stderr}");
+        assert!(
+            stderr.contains("counter") && stderr.contains(expected),
+            "{restart}: {stderr}"
+        );
+    }
+    let source = sb.graph(
+        "source.toml",
+        r#"
+name = "restart-source"
+[stages.source]
+kind = "test-source"
+restart = { max = 1 }
+[stages.all]
+kind = "recorder"
+inputs = { imu = "source.imu" }
+params = { path = "{dir}/x.mcap" }
+"#,
+    );
+    let out = sb.run(&["graph", "check", source.to_str().expect("utf8")]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        text(&out.stderr).contains("a source cannot restart"),
+        "{}",
+        text(&out.stderr)
+    );
+}
