@@ -737,6 +737,28 @@ fn resume(
     Ok(state)
 }
 
+/// What the weights' provenance says about the split (tools/dataset/README.md, "Split").
+const SPLIT_PROVENANCE: &str = "train: FNV-1a clip hash mod 100 < 80, held-out contents excluded; validation 80-89 for model selection; test 90-99 and the holdout split (dataset-1's bow, dance, guide, kick, punch, slash) never read";
+
+/// The motion augmentations among the training sequences (`mirrored`, `speed 0.6`, ...; the
+/// recombinations as one entry), from the shards' metadata.
+fn motion_augmentations(train_set: &TrainSet) -> Vec<String> {
+    let mut motions = std::collections::BTreeSet::new();
+    for meta in &train_set.shard_metadata {
+        for seq in meta["sequences"].as_array().into_iter().flatten() {
+            if let Some(m) = seq["motion"].as_str().filter(|m| !m.is_empty()) {
+                let m = if m.starts_with("upper body of ") {
+                    "upper body of another clip"
+                } else {
+                    m
+                };
+                motions.insert(m.to_owned());
+            }
+        }
+    }
+    motions.into_iter().collect()
+}
+
 fn export(
     options: &TrainOptions,
     specs: &[RnnSpec],
@@ -768,7 +790,8 @@ fn export(
             "dataset_format": first_meta.get("format"),
             "body_model": first_meta.get("body_model"),
             "synthesis": first_meta.get("synthesis"),
-            "split": "train (FNV-1a clip hash mod 100 < 80); validation 80-89 for model selection; test 90-99 never used",
+            "split": SPLIT_PROVENANCE,
+            "motion_augmentations": motion_augmentations(train_set),
             "train_frames": train_set.frames,
             "epochs": state.epoch,
             "steps": state.step,
