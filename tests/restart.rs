@@ -160,3 +160,78 @@ params = { path = "{dir}/x.mcap" }
         text(&out.stderr)
     );
 }
+
+/// A restarted calibration stage reloads the calibration it had reached (kept in the run folder),
+/// so the subject need not calibrate again: after a kill -9 mid-walk, its frames are calibrated
+/// again from the restart on (without the reload they would stay CALIBRATING: the T-pose is over).
+#[test]
+fn a_restarted_calibration_reloads_its_calibration() {
+    use common::{wait_for_stage, wait_with_timeout};
+    use imuflow_graph::frames::BodyImuFrame;
+    use std::time::Duration;
+    let sb = Sandbox::new("restart-calib");
+    let sample = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/sample/walk.mcap");
+    let file = sb.graph(
+        "calib.toml",
+        &format!(
+            r#"
+name = "restart-calibration"
+mode = "live"
+[stages.source]
+kind = "imu-source"
+params = {{ mode = "replay", path = "{}", frames = 540 }}
+[stages.calib]
+kind = "calibration"
+inputs = {{ imu = "source.imu" }}
+params = {{ method = "tpose", frame = "z-up", heading_deg = 30.0 }}
+restart = {{ max = 1, backoff_ms = 50 }}
+[stages.all]
+kind = "recorder"
+inputs = {{ body = "calib.body_imu" }}
+params = {{ path = "{{dir}}/all.mcap" }}
+"#,
+            sample.display()
+        ),
+    );
+    let child = sb.spawn(&["run", file.to_str().expect("utf8"), "--no-progress"]);
+    let pid = wait_for_stage(&sb, "calib", Duration::from_secs(10)).expect("the calibration stage");
+    // 6 s in: the T-pose hold is over and calibrated, the subject is walking.
+    std::thread::sleep(Duration::from_secs(6));
+    // SAFETY: kill(2) of a process this test's graph started.
+    unsafe {
+        libc::kill(pid, libc::SIGKILL);
+    }
+    let out = wait_with_timeout(child, Duration::from_secs(60));
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
+    assert!(stdout.contains("restarted 'calib' 1 time(s)"), "{stdout}");
+    let frames: Vec<(u64, u32)> = mcap_messages(&sb.path("all.mcap"))
+        .into_iter()
+        .filter(|m| m.0 == "calib.body_imu")
+        .map(|m| {
+            let h = frame_from_bytes::<BodyImuFrame>(&m.2)
+                .expect("a BodyImuFrame")
+                .header;
+            (h.seq, h.flags)
+        })
+        .collect();
+    let restart = frames
+        .iter()
+        .position(|(_, f)| f & flags::RESTARTED != 0)
+        .expect("a RESTARTED frame");
+    let (before, after) = frames.split_at(restart);
+    assert!(
+        before.iter().any(|(_, f)| f & flags::CALIBRATING == 0),
+        "calibrated before the kill"
+    );
+    assert!(
+        after.len() > 100,
+        "{} frames after the restart",
+        after.len()
+    );
+    assert!(
+        after.iter().all(|(_, f)| f & flags::CALIBRATING == 0),
+        "calibrated from the restart on"
+    );
+    assert_clean(&sb);
+}

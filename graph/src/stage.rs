@@ -269,6 +269,22 @@ impl StageContext {
     }
 
     /// This stage's id.
+    /// How many times the launcher started this stage before in this run (its `restart`
+    /// policy); 0 for the first start.
+    pub fn restarts(&self) -> u32 {
+        std::env::var(ENV_RESTART)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0)
+    }
+
+    /// A file of this stage in the run's own folder (removed when the run ends): where a stage
+    /// keeps what a restart of it should find (the calibration stage: its calibration).
+    pub fn run_file(&self, name: &str) -> Option<PathBuf> {
+        std::env::var_os(ENV_RUN_DIR)
+            .map(|dir| PathBuf::from(dir).join(format!("{}.{name}", self.stage.id)))
+    }
+
     pub fn id(&self) -> &str {
         &self.stage.id
     }

@@ -233,8 +233,14 @@ pub fn run() -> anyhow::Result<()> {
     let params = Params(ctx.params());
     let config = config_from_params(&params, ctx.graph().rate_hz)
         .with_context(|| format!("stage '{stage}'"))?;
-    let from_file = path_param(&params, "from_file");
     let save_to = path_param(&params, "save_to");
+    // A restart (the graph's `restart` policy) reloads the calibration the stage had reached
+    // before it failed, instead of asking the subject to calibrate again.
+    let kept = ctx.run_file("calibration.json");
+    let from_file = match &kept {
+        Some(path) if ctx.restarts() > 0 && path.exists() => Some(path.clone()),
+        _ => path_param(&params, "from_file"),
+    };
     let mut calibrator = match &from_file {
         Some(path) => {
             let calibration =
@@ -261,6 +267,7 @@ pub fn run() -> anyhow::Result<()> {
         let mut body = BodyImuFrame::default();
         if let Some(event) = calibrator.push(&frame, &mut body) {
             on_event(&stage, &event, calibrator.calibration(), save_to.as_deref())?;
+            keep_for_restart(&event, calibrator.calibration(), kept.as_deref());
         }
         output
             .publish(step.header(), |f| *f = body)
@@ -332,6 +339,23 @@ fn on_event(
         tracing::info!(stage, "calibration saved to {}", path.display());
     }
     Ok(())
+}
+
+/// Every accepted or updated calibration goes to the run folder too, for a restart of this stage
+/// to reload (best effort: a run folder that cannot be written only costs a recalibration).
+fn keep_for_restart(event: &Event, current: Option<&Calibration>, path: Option<&std::path::Path>) {
+    let changed = matches!(
+        event,
+        Event::Calibrated { .. } | Event::HeadingUpdated { .. }
+    );
+    if let (true, Some(path), Some(calibration)) = (changed, path, current)
+        && let Err(e) = file::save(calibration, path)
+    {
+        tracing::warn!(
+            "cannot keep the calibration for a restart in {}: {e:#}",
+            path.display()
+        );
+    }
 }
 
 fn log_calibration(stage: &str, c: &Calibration) {
