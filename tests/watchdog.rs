@@ -36,6 +36,19 @@ params = {{ path = "{{dir}}/all.mcap" }}
     )
 }
 
+/// The failure was found within seconds (not at some global timeout), the recording holds the
+/// counter's `frames` frames, and nothing is left behind.
+fn ended_quickly_with_a_finalized_recording(sb: &Sandbox, started: Instant, frames: usize) {
+    assert!(
+        started.elapsed() < Duration::from_secs(20),
+        "{:?}",
+        started.elapsed()
+    );
+    let messages = mcap_messages(&sb.path("all.mcap"));
+    assert_eq!(count(&messages, "counter.count"), frames);
+    assert_clean(sb);
+}
+
 #[test]
 fn a_hung_stage_stops_the_run_with_its_name_and_the_recording_is_finalized() {
     let sb = Sandbox::new("stall-run");
@@ -55,14 +68,7 @@ fn a_hung_stage_stops_the_run_with_its_name_and_the_recording_is_finalized() {
         "its stderr tail: {stderr}"
     );
     // Found within about a second of the hang, not at some global timeout.
-    assert!(
-        started.elapsed() < Duration::from_secs(20),
-        "{:?}",
-        started.elapsed()
-    );
-    let messages = mcap_messages(&sb.path("all.mcap"));
-    assert_eq!(count(&messages, "counter.count"), 101);
-    assert_clean(&sb);
+    ended_quickly_with_a_finalized_recording(&sb, started, 101);
 }
 
 #[test]
@@ -225,14 +231,7 @@ fn a_stage_that_exits_0_early_is_named_and_the_recording_is_finalized() {
         stderr.contains("exiting 0 at frame 200"),
         "its stderr tail: {stderr}"
     );
-    assert!(
-        started.elapsed() < Duration::from_secs(20),
-        "{:?}",
-        started.elapsed()
-    );
-    let messages = mcap_messages(&sb.path("all.mcap"));
-    assert_eq!(count(&messages, "counter.count"), 201);
-    assert_clean(&sb);
+    ended_quickly_with_a_finalized_recording(&sb, started, 201);
 }
 
 /// A stage that floods stderr (hundreds of lines per frame) neither blocks on a full pipe nor
