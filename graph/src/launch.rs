@@ -670,18 +670,8 @@ impl Supervisor<'_> {
         }
         handle_events(stages, rx, &bar, &log)?;
         bar.finish_and_clear();
-        if stop_requested_at.is_none()
-            && let Some(s) = stages
-                .iter_mut()
-                .find(|s| s.summary.is_none() && s.branch_stopped_at.is_none())
-        {
-            // A stage that exits 0 without finishing its stream would leave readers waiting forever.
-            return Err(RunError::StageFailed {
-                stage: s.id.clone(),
-                status: EXITED_EARLY.into(),
-                stderr_tail: s.tail(),
-            });
-        }
+        // (A stage that exited 0 without ending its stream was caught in the loop, by
+        // `catch_early_exits`, right after it was reaped.)
         Ok((start.elapsed(), stop_requested_at.is_some()))
     }
 
@@ -779,6 +769,9 @@ impl Supervisor<'_> {
     /// producers have finished meanwhile (their END_OF_STREAM went out before the new process
     /// was there to read it).
     fn rejoin(&self, stages: &mut [Running]) {
+        if stages.iter().all(|s| s.rejoining.is_none()) {
+            return; // the usual case, checked every poll
+        }
         let finished: BTreeSet<String> = stages
             .iter()
             .filter(|s| s.summary.is_some() || s.branch_stopped_at.is_some())

@@ -173,9 +173,11 @@ pub struct StageContext {
     /// The frames taken so far, as the seq after the newest one (0: none). The heartbeat thread
     /// reports it to the launcher's stall watchdog.
     position: Arc<AtomicU64>,
-    /// Started again after a failure ([`ENV_RESTART`]) and no step taken yet: the first step's
-    /// outputs carry `RESTARTED` (the process starts with fresh state, rebuilt from that frame).
-    restarted: bool,
+    /// How many times the launcher started this stage before ([`ENV_RESTART`]; 0: first start).
+    restarts: u32,
+    /// Restarted and no step taken yet: the first step's outputs carry `RESTARTED` (the process
+    /// starts with fresh state, rebuilt from that frame).
+    restart_flag_pending: bool,
 }
 
 impl StageContext {
@@ -203,6 +205,10 @@ impl StageContext {
             .get(stage_id)
             .cloned()
             .ok_or_else(|| StageError::UnknownStage(stage_id.to_owned()))?;
+        let restarts = std::env::var(ENV_RESTART)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0);
         let stop = Arc::new(AtomicBool::new(false));
         let commands = Arc::new(AtomicU8::new(0));
         for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
@@ -264,18 +270,15 @@ impl StageContext {
             any_cursor: 0,
             waiter: ArrivalWaiter::default(),
             position: Arc::new(AtomicU64::new(0)),
-            restarted: std::env::var_os(ENV_RESTART).is_some(),
+            restarts,
+            restart_flag_pending: restarts > 0,
         })
     }
 
-    /// This stage's id.
     /// How many times the launcher started this stage before in this run (its `restart`
     /// policy); 0 for the first start.
     pub fn restarts(&self) -> u32 {
-        std::env::var(ENV_RESTART)
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0)
+        self.restarts
     }
 
     /// A file of this stage in the run's own folder (removed when the run ends): where a stage
@@ -285,6 +288,7 @@ impl StageContext {
             .map(|dir| PathBuf::from(dir).join(format!("{}.{name}", self.stage.id)))
     }
 
+    /// This stage's id.
     pub fn id(&self) -> &str {
         &self.stage.id
     }
@@ -501,7 +505,7 @@ impl StageContext {
                 self.last_step = Some(step);
                 self.advance(step.seq);
                 self.step_started = Some(Instant::now());
-                let restarted = if std::mem::take(&mut self.restarted) {
+                let restarted = if std::mem::take(&mut self.restart_flag_pending) {
                     flags::RESTARTED
                 } else {
                     0

@@ -83,24 +83,27 @@ fn restart_policy(
     };
     let mut policy = RestartPolicy::default();
     for (key, v) in table {
-        match (key.as_str(), v) {
-            ("max", toml::Value::Integer(n)) if (1..=1000).contains(n) => policy.max = *n as u32,
-            ("within_s", _) if positive_number(v).is_some() => {
-                policy.within_s = positive_number(v).unwrap_or(policy.within_s)
+        let in_range = match (key.as_str(), v) {
+            ("max", toml::Value::Integer(n)) if (1..=1000).contains(n) => {
+                policy.max = *n as u32;
+                true
             }
+            ("within_s", _) => positive_number(v).map(|s| policy.within_s = s).is_some(),
             ("backoff_ms", toml::Value::Integer(n)) if (0..=600_000).contains(n) => {
-                policy.backoff_ms = *n as u64
+                policy.backoff_ms = *n as u64;
+                true
             }
-            ("max" | "within_s" | "backoff_ms", _) => {
-                return bad(format!(
-                    "{key} = {v} is out of range (max: 1 to 1000 restarts, within_s: positive seconds, backoff_ms: 0 to 600000)"
-                ));
-            }
+            ("max" | "backoff_ms", _) => false,
             _ => {
                 return bad(format!(
                     "unknown key '{key}' (keys: max, within_s, backoff_ms)"
                 ));
             }
+        };
+        if !in_range {
+            return bad(format!(
+                "{key} = {v} is out of range (max: 1 to 1000 restarts, within_s: positive seconds, backoff_ms: 0 to 600000)"
+            ));
         }
     }
     Some(policy)
