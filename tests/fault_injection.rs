@@ -7,7 +7,9 @@
 //! - any other stage: the run stops with an error naming the stage and how it died, and exits
 //!   non-zero; the recording is readable to its last message (finalized, unless the recorder
 //!   itself was the one killed, whose file is read as a killed writer's: no footer);
-//! - either way nothing is left behind: no shared-memory files, no stage processes.
+//! - either way nothing is left behind: no shared-memory files, no stage processes;
+//! - a stage with a `restart` policy (here the pip graph live, its kinematics or optimizer): it is
+//!   started again and the run ends normally with the stream recorded to its end.
 
 mod common;
 
@@ -113,4 +115,74 @@ fn killing_any_stage_of_the_globalpose_graph_fails_or_isolates_as_declared() {
         "globalpose",
         &["source", "calib", "kin", "opt", "val", "viz", "record"],
     );
+}
+
+/// The pip graph live (the sample's first 8 s at sensor rate) with a restart policy on the killed
+/// stage: it is back within its backoff, its first frame after the restart carries RESTARTED, and
+/// the run ends normally with the motion recorded to the last frame.
+#[test]
+fn a_killed_stage_with_a_restart_policy_rejoins_the_live_pip_graph() {
+    use imuflow_graph::frames::{KinematicsFrame, MotionFrame, flags, frame_from_bytes};
+    const FRAMES: u64 = 480;
+    for (stage, channel) in [("kin", "kin.kinematics"), ("opt", "opt.motion")] {
+        let sb = Sandbox::new(&format!("fault-restart-{stage}"));
+        let mcap = sb.path("run.mcap");
+        let restart = format!("stages.{stage}.restart={{ max = 1, backoff_ms = 50 }}");
+        let frames = format!("stages.source.params.frames={FRAMES}");
+        let extra = [
+            "mode=live",
+            "stages.source.params.realtime=true",
+            frames.as_str(),
+            restart.as_str(),
+        ];
+        let args = sample_run_args("pip", &mcap, &sb.path("run.rrd"), &extra);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let child = sb.spawn(&args);
+        let pid = wait_for_stage(&sb, stage, Duration::from_secs(60))
+            .unwrap_or_else(|| panic!("stage '{stage}' starts"));
+        // Past the T-pose calibration, mid-walk.
+        std::thread::sleep(Duration::from_secs(4));
+        // SAFETY: kill(2) on a stage process of this test's own run.
+        #[allow(unsafe_code)]
+        let killed = unsafe { libc::kill(pid, libc::SIGKILL) } == 0;
+        assert!(killed, "'{stage}' was still running");
+        let out = wait_with_timeout(child, Duration::from_secs(120));
+        let stderr = text(&out.stderr);
+        assert!(
+            out.status.success(),
+            "'{stage}' killed and restarted\n{stderr}"
+        );
+        let headers: Vec<_> = mcap_messages(&mcap)
+            .into_iter()
+            .filter(|m| m.0 == channel)
+            .map(|m| match stage {
+                "kin" => frame_from_bytes::<KinematicsFrame>(&m.2).map(|f| f.header),
+                _ => frame_from_bytes::<MotionFrame>(&m.2).map(|f| f.header),
+            })
+            .map(|h| h.expect("a frame of the channel's type"))
+            .collect();
+        // A live graph drops under load, and the frames in flight at the kill are lost.
+        assert!(
+            headers.len() as u64 > FRAMES * 3 / 4,
+            "'{stage}': {} of {FRAMES} frames",
+            headers.len()
+        );
+        assert_eq!(headers.last().map(|h| h.seq), Some(FRAMES - 1), "'{stage}'");
+        let restarted: Vec<u64> = headers
+            .iter()
+            .filter(|h| h.has(flags::RESTARTED))
+            .map(|h| h.seq)
+            .collect();
+        assert_eq!(restarted.len(), 1, "'{stage}': {restarted:?}");
+        assert!(
+            (120..FRAMES).contains(&restarted[0]),
+            "'{stage}' restarted at frame {}",
+            restarted[0]
+        );
+        assert_clean(&sb);
+        eprintln!(
+            "pip live: '{stage}' killed -> restarted at frame {}",
+            restarted[0]
+        );
+    }
 }

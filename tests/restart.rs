@@ -1,7 +1,7 @@
-//! Restart policies: a live stage with `restart = { ... }` that crashes is started again and
-//! rejoins the running graph (its first frame flagged RESTARTED, the run goes on, the summary
-//! lists the restart); one failure more than the policy allows is handled like any crash; the
-//! graph file's `restart` table is checked.
+//! Restart policies: a live stage with `restart = { ... }` that crashes (or hangs, found by the
+//! stall watchdog) is started again and rejoins the running graph (its first frame flagged
+//! RESTARTED, the run goes on, the summary lists the restart); one failure more than the policy
+//! allows is handled like any crash; the graph file's `restart` table is checked.
 
 mod common;
 
@@ -118,6 +118,48 @@ fn a_stage_failing_more_often_than_its_policy_allows_stops_the_run() {
     assert!(
         counts(&sb).len() >= 25,
         "the recording is finalized with what came"
+    );
+    assert_clean(&sb);
+}
+
+/// The stall watchdog's finding is a failure like a crash: a hung stage with a restart policy is
+/// killed and started again, and the run goes on.
+#[test]
+fn a_hung_live_stage_is_killed_and_restarted() {
+    let sb = Sandbox::new("restart-stall");
+    let file = graph(
+        &sb,
+        r#"["--hang-at", "60"]"#,
+        "{ max = 2, within_s = 60, backoff_ms = 50 }",
+    );
+    let out = sb.run(&[
+        "run",
+        file.to_str().expect("utf8"),
+        "--no-progress",
+        "--set",
+        "stages.counter.stall_timeout_s=0.5",
+    ]);
+    let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("restarted 'counter' 1 time(s): stalled: took no frame for"),
+        "{stdout}"
+    );
+    let frames = counts(&sb);
+    let before = frames.iter().filter(|(seq, _)| *seq <= 60).count();
+    let after: Vec<_> = frames.iter().filter(|(seq, _)| *seq > 60).collect();
+    assert!(before >= 55, "{before} frames up to the hang");
+    // Hung at 1 s, found 0.5 s later, back within a fraction of a second: most of the
+    // remaining 3 s are there, RESTARTED on the first, up to the last frame.
+    assert!(after.len() > 90, "{} frames after the restart", after.len());
+    assert!(after.last().is_some_and(|(seq, _)| *seq == 239));
+    assert!(after[0].1 & flags::RESTARTED != 0, "{:?}", &after[..3]);
+    assert_eq!(
+        after
+            .iter()
+            .filter(|(_, f)| f & flags::RESTARTED != 0)
+            .count(),
+        1
     );
     assert_clean(&sb);
 }

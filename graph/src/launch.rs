@@ -321,6 +321,10 @@ fn run_in(
     std::fs::create_dir_all(run_dir).map_err(dir_err)?;
     let json = serde_json::to_string(graph).map_err(|e| dir_err(std::io::Error::other(e)))?;
     std::fs::write(run_dir.join(GRAPH_JSON), json).map_err(dir_err)?;
+    // What stages in other languages build their ports from (python/imuflow/stage.py).
+    let wire = serde_json::to_string(&crate::wire::contract())
+        .map_err(|e| dir_err(std::io::Error::other(e)))?;
+    std::fs::write(run_dir.join(crate::wire::WIRE_JSON), wire).map_err(dir_err)?;
 
     let interrupted = Arc::new(AtomicBool::new(false));
     let mut signal_ids = Vec::new();
@@ -694,6 +698,9 @@ impl Supervisor<'_> {
             };
             stages[i].exit = Some(status);
             stages[i].stdin = None;
+            if stages[i].restart_due.is_some() {
+                continue; // killed for its restart (it had stalled)
+            }
             if stages[i].branch_stopped_at.is_some() {
                 // Stopped with its branch: a reader it left behind must not hold back its writers.
                 self.disconnect_dead_readers();
@@ -720,7 +727,8 @@ impl Supervisor<'_> {
     }
 
     /// A failed stage with a `restart` policy that allows one more is started again after its
-    /// backoff; otherwise (or once the policy is spent) its failure policy applies.
+    /// backoff (a stalled one is killed first); otherwise (or once the policy is spent) its
+    /// failure policy applies.
     fn fail_or_restart(
         &mut self,
         stages: &mut [Running],
@@ -734,7 +742,7 @@ impl Supervisor<'_> {
             Failure::Stalled(detail) => format!("stalled: {detail}"),
         };
         let policy = self.graph.stages.get(&stage).and_then(|n| n.restart);
-        if let (Some(policy), Failure::Ended(_)) = (policy, &failure)
+        if let Some(policy) = policy
             && !self.stopping
         {
             let now = Instant::now();
@@ -744,6 +752,12 @@ impl Supervisor<'_> {
             if (s.restarted_at.len() as u32) < policy.max {
                 s.restarted_at.push(now);
                 s.restart_due = Some(now + Duration::from_millis(policy.backoff_ms));
+                if s.exit.is_none() {
+                    // Stalled: the process still exists (hung, or stopped). It goes now; its
+                    // ports are cleaned up when the restart is due.
+                    s.signal(libc::SIGCONT);
+                    s.signal(libc::SIGKILL);
+                }
                 let n = s.restarted_at.len();
                 tracing::warn!(
                     "stage '{stage}' {why}; restarting it ({n} of {} within {} s)",
@@ -811,6 +825,10 @@ impl Supervisor<'_> {
             if stage.restart_due.is_none_or(|due| due > now) {
                 continue;
             }
+            if stage.exit.is_none() {
+                // A stalled process killed for this restart: gone before its ports are cleaned.
+                stage.exit = stage.child.wait().ok();
+            }
             self.disconnect_dead_readers();
             let Some(node) = self.graph.stages.get(&stage.id) else {
                 continue;
@@ -870,7 +888,11 @@ impl Supervisor<'_> {
     fn watch_for_stalls(&mut self, stages: &mut [Running]) -> Result<(), RunError> {
         for i in 0..stages.len() {
             let s = &stages[i];
-            if s.exit.is_some() || s.branch_stopped_at.is_some() || s.summary.is_some() {
+            if s.exit.is_some()
+                || s.branch_stopped_at.is_some()
+                || s.summary.is_some()
+                || s.restart_due.is_some()
+            {
                 continue;
             }
             let Some(node) = self.graph.stages.get(&s.id) else {
@@ -888,7 +910,7 @@ impl Supervisor<'_> {
                 let stage = s.id.clone();
                 let stderr_tail = s.tail_now();
                 tracing::warn!("stage '{stage}' stalled: {detail}");
-                self.handle_failure(stages, stage, Failure::Stalled(detail), stderr_tail)?;
+                self.fail_or_restart(stages, i, Failure::Stalled(detail), stderr_tail)?;
                 continue;
             }
             let still = s.moved_at.elapsed();
@@ -932,7 +954,7 @@ impl Supervisor<'_> {
             let stage = s.id.clone();
             let stderr_tail = s.tail_now();
             tracing::warn!("stage '{stage}' stalled: {detail}");
-            self.handle_failure(stages, stage, Failure::Stalled(detail), stderr_tail)?;
+            self.fail_or_restart(stages, i, Failure::Stalled(detail), stderr_tail)?;
         }
         Ok(())
     }

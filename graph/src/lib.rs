@@ -6,6 +6,7 @@
 //! - [`stage`]: the Stage API that built-in and external stage processes use.
 //! - [`launch`]: the launcher/supervisor behind `imuflow run`.
 //! - [`combine`]: variant graphs combined into one A/B graph (`imuflow compare`).
+//! - [`wire`]: the wire contract as data, for stages in other languages (Python).
 
 pub mod combine;
 pub mod frames;
@@ -19,6 +20,7 @@ pub mod stats;
 pub mod transport;
 pub mod validate;
 pub mod wait;
+pub mod wire;
 
 pub use frames::{Frame, FrameHeader, FrameType};
 pub use graph::{Graph, GraphLoadError, Mode};

@@ -68,6 +68,37 @@ const MAX_BORROWED: usize = 4;
 const SPARE_SUBSCRIBERS: usize = 2;
 /// Notifiers per wake service: one per output of every upstream stage, generously.
 const MAX_NOTIFIERS: usize = 64;
+/// Listeners per wake service: the stage's own, and one spare (a restarted process's while the
+/// dead one's is cleaned up).
+const MAX_LISTENERS: usize = 2;
+/// Publishers per output service: the stage's own, and one spare (likewise).
+const MAX_PUBLISHERS: usize = 2;
+
+/// The settings every port of a service must agree on, for stages in other languages
+/// ([`crate::wire`]): a service opened with other values is a different service.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct TransportSettings {
+    pub offline_buffer: usize,
+    pub live_buffer: usize,
+    pub max_borrowed: usize,
+    pub spare_subscribers: usize,
+    pub max_publishers: usize,
+    pub max_notifiers: usize,
+    pub max_listeners: usize,
+}
+
+/// This build's [`TransportSettings`].
+pub fn settings() -> TransportSettings {
+    TransportSettings {
+        offline_buffer: OFFLINE_BUFFER,
+        live_buffer: LIVE_BUFFER,
+        max_borrowed: MAX_BORROWED,
+        spare_subscribers: SPARE_SUBSCRIBERS,
+        max_publishers: MAX_PUBLISHERS,
+        max_notifiers: MAX_NOTIFIERS,
+        max_listeners: MAX_LISTENERS,
+    }
+}
 
 /// Why a port could not be opened or used.
 #[derive(Debug, thiserror::Error)]
@@ -164,7 +195,7 @@ fn open_pubsub<T: Frame>(
         .subscriber_max_borrowed_samples(MAX_BORROWED)
         .enable_safe_overflow(overflow)
         .history_size(0)
-        .max_publishers(2)
+        .max_publishers(MAX_PUBLISHERS)
         .max_subscribers(readers + SPARE_SUBSCRIBERS)
         .open_or_create()
         .map_err(|e| TransportError::Service {
@@ -180,7 +211,7 @@ fn open_event(
     node.service_builder(&service_name(name)?)
         .event()
         .max_notifiers(MAX_NOTIFIERS)
-        .max_listeners(2)
+        .max_listeners(MAX_LISTENERS)
         .open_or_create()
         .map_err(|e| TransportError::Service {
             service: name.to_owned(),

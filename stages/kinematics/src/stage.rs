@@ -7,6 +7,8 @@
 //!   own estimate, as in the papers.
 //! - A sensor without a valid sample holds its last valid one, and the output is flagged INVALID; before
 //!   any valid sample of a sensor the frame is not fed to the nets at all (the start pose goes out).
+//! - Restarted mid-stream (its `restart` policy), the subject is no longer in the start pose: the
+//!   nets start from the pose the sensors show instead ([`pose_from_sensors`]).
 
 use std::path::PathBuf;
 
@@ -17,8 +19,10 @@ use imuflow_graph::stage::Params;
 use imuflow_graph::{FrameType, StageContext};
 use nalgebra::{Quaternion, Rotation3, UnitQuaternion};
 
-use crate::features::ImuInput;
-use crate::infer::{Estimate, SENSOR_BONE_TOLERANCE_DEG, SensorBones, StartPose, Streamer};
+use crate::features::{ImuInput, ROOT_IMU};
+use crate::infer::{
+    Estimate, SENSOR_BONE_TOLERANCE_DEG, SensorBones, StartPose, Streamer, impose_measured_bones,
+};
 use crate::method::Method;
 use crate::weights::Weights;
 
@@ -117,15 +121,22 @@ pub fn run() -> anyhow::Result<()> {
     }
     let mut held = HeldSamples::default();
     let start_estimate = start_estimate(start);
+    let mut resume_from_sensors = ctx.restarts() > 0;
     while let Some(step) = ctx.next()? {
         let frame = ctx.get(&input);
         let mut header = step.header();
         let complete = held.update(frame);
-        let estimate = if step.flags & flags::CALIBRATING != 0 || !complete {
+        let calibrating = step.flags & flags::CALIBRATING != 0;
+        // Calibrating again: the subject holds the start pose after all.
+        resume_from_sensors &= !calibrating;
+        let estimate = if calibrating || !complete {
             streamer.reset();
             header.flags |= flags::INVALID;
             start_estimate.clone()
         } else {
+            if std::mem::take(&mut resume_from_sensors) {
+                streamer.set_start(pose_from_sensors(start, &held.input));
+            }
             if frame.valid_mask != (1 << NUM_IMUS) - 1 {
                 header.flags |= flags::INVALID;
             }
@@ -176,6 +187,22 @@ impl HeldSamples {
     }
 }
 
+/// The pose to start the nets from when joining a stream mid-motion (after a restart): the start
+/// pose with the root on the pelvis sensor and every instrumented bone (forearms, lower legs,
+/// head) on its sensor's calibrated orientation; the joints without a sensor keep the start pose.
+/// The issue asks for "the LSTM re-initialised from the current calibrated pose": this is as much
+/// of it as the sensors measure.
+pub fn pose_from_sensors(start: StartPose, imu: &ImuInput) -> imuflow_body::Pose {
+    let mut pose = start.pose();
+    pose.parent_from_joint[0] = rotation(&imu.orientation[ROOT_IMU]);
+    impose_measured_bones(&mut pose.parent_from_joint, imu, 0.0);
+    pose
+}
+
+fn rotation(m: &[f32; 9]) -> Rotation3<f64> {
+    Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_row_slice(m).cast())
+}
+
 fn start_estimate(start: StartPose) -> Estimate {
     let pose = start.pose();
     Estimate {
@@ -205,4 +232,43 @@ pub fn fill(out: &mut KinematicsFrame, e: &Estimate) {
     out.stationary_prob = e.stationary.map(|v| v as f32);
     out.root_velocity_mps = e.root_velocity.cast::<f32>().into();
     out.gravity_in_root_mps2 = e.gravity_in_root.cast::<f32>().into();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::infer::global_rotations;
+    use imuflow_body::skeleton::IMU_JOINTS;
+    use nalgebra::{Unit, Vector3};
+
+    fn row_major(r: &Rotation3<f64>) -> [f32; 9] {
+        std::array::from_fn(|k| r[(k / 3, k % 3)] as f32)
+    }
+
+    #[test]
+    fn a_restart_starts_from_the_pose_the_sensors_show() {
+        let mut imu = ImuInput::default();
+        let turned: Vec<Rotation3<f64>> = (0..NUM_IMUS)
+            .map(|i| {
+                let axis = Unit::new_normalize(Vector3::new(1.0, i as f64 - 2.0, 0.5));
+                Rotation3::from_axis_angle(&axis, 0.3 + 0.2 * i as f64)
+            })
+            .collect();
+        for (i, r) in turned.iter().enumerate() {
+            imu.orientation[i] = row_major(r);
+        }
+        let start = StartPose::TPose.pose();
+        let pose = pose_from_sensors(StartPose::TPose, &imu);
+        let global = global_rotations(&pose.parent_from_joint);
+        // Every instrumented bone, the root included, on its sensor (f32 rounding).
+        for (sensor, joint) in IMU_JOINTS.iter().enumerate() {
+            let off = (global[joint.index()].matrix() - turned[sensor].matrix()).norm();
+            assert!(off < 1e-6, "sensor {sensor}: {off} off");
+        }
+        // Joints whose own rotation no sensor measures keep the start pose (local rotations).
+        for j in [3, 6, 9, 12, 13, 14, 16, 17, 1, 2] {
+            let off = (pose.parent_from_joint[j].transpose() * start.parent_from_joint[j]).angle();
+            assert!(off < 1e-12, "joint {j} moved by {off} rad");
+        }
+    }
 }
