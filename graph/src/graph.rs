@@ -127,11 +127,26 @@ impl StageNode {
         self.stall_timeout_s.unwrap_or(graph.stall_timeout_s)
     }
 
-    /// The kind for built-ins, the executable's file name for external stages.
+    /// The kind for built-ins; for external stages the executable's file name, and the file name
+    /// of its first argument unless that is an option (an interpreter's script: `exec:python3
+    /// smooth.py`).
     pub fn kind_label(&self) -> String {
+        let file_name = |p: &std::path::Path| {
+            p.file_name().map_or_else(
+                || p.display().to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            )
+        };
         match &self.runner {
             Runner::Builtin { kind } => kind.clone(),
-            Runner::Exec { path, .. } => format!("exec:{}", path.display()),
+            Runner::Exec { path, args } => match args.first() {
+                Some(script) if !script.starts_with('-') => format!(
+                    "exec:{} {}",
+                    file_name(path),
+                    file_name(std::path::Path::new(script))
+                ),
+                _ => format!("exec:{}", file_name(path)),
+            },
         }
     }
 }

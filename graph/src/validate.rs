@@ -4,7 +4,7 @@
 //! them all.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use crate::frames::FrameType;
 use crate::graph::{
@@ -308,11 +308,15 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
         if let Runner::Exec { path: exe, .. } = &node.runner
             && !exe.is_file()
         {
-            problems.stage(
-                &node.id,
-                Some("exec"),
-                format!("executable '{}' does not exist", exe.display()),
-            );
+            let why = if is_bare_name(exe) {
+                format!(
+                    "executable '{}' is not on PATH (give a path, e.g. a virtual environment's bin/python)",
+                    exe.display()
+                )
+            } else {
+                format!("executable '{}' does not exist", exe.display())
+            };
+            problems.stage(&node.id, Some("exec"), why);
         }
     }
     if !stages.is_empty() && !stages.values().any(|n| n.role == Role::Source) {
@@ -484,7 +488,7 @@ fn declare<'a>(
                 (false, false) => Role::Transform,
             };
             let runner = Runner::Exec {
-                path: exec.into(),
+                path: resolve_exec(exec),
                 args: entry.args.clone(),
             };
             (runner, None, role, outputs)
@@ -735,4 +739,30 @@ fn find_cycle(stages: &BTreeMap<String, StageNode>) -> Option<Vec<String>> {
         }
     }
     None
+}
+
+/// Whether `exec` is a bare program name (`python3`), which is looked up on PATH as a shell does.
+fn is_bare_name(exec: &Path) -> bool {
+    !exec.as_os_str().is_empty() && !exec.as_os_str().to_string_lossy().contains('/')
+}
+
+/// The program an `exec` stage runs: a bare name (`exec = "python3"`) is found on PATH, so what
+/// runs is what was checked; anything with a `/` is a path, relative to the working directory.
+fn resolve_exec(exec: &str) -> PathBuf {
+    let path = PathBuf::from(exec);
+    if !is_bare_name(&path) {
+        return path;
+    }
+    std::env::var_os("PATH")
+        .iter()
+        .flat_map(std::env::split_paths)
+        .map(|dir| dir.join(exec))
+        .find(|candidate| is_executable(candidate))
+        .unwrap_or(path)
+}
+
+fn is_executable(path: &Path) -> bool {
+    use std::os::unix::fs::PermissionsExt;
+    path.metadata()
+        .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
 }

@@ -482,6 +482,37 @@ pub fn pose_from_reduced_r6d(r6d: &[f32], root: &Rotation3<f64>) -> [Rotation3<f
 mod tests {
     use super::*;
 
+    /// python/examples/pip_numpy.py starts PIP's rnn1 from these positions written out (numpy
+    /// has no body model): they must be this body's T-pose leaf joints, relative to the root.
+    #[test]
+    fn the_numpy_example_starts_from_this_bodys_tpose() {
+        let source = include_str!("../../../python/examples/pip_numpy.py");
+        let block = source
+            .split("TPOSE_LEAF_POSITIONS_M = [")
+            .nth(1)
+            .and_then(|rest| rest.split("]\n\n").next())
+            .expect("the constant");
+        let written: Vec<f64> = block
+            .split(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-'))
+            .filter(|t| !t.is_empty())
+            .map(|t| t.parse().expect("a number"))
+            .collect();
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let mut fk = FkData::new();
+        forward_kinematics(&body.skeleton, &Pose::t_pose(Vector3::zeros()), &mut fk);
+        let expected: Vec<f64> = LEAF_JOINTS
+            .iter()
+            .flat_map(|&j| (fk.position(j) - fk.position(JointId::ROOT)).data.0[0])
+            .collect();
+        assert_eq!(written.len(), expected.len());
+        let off = written
+            .iter()
+            .zip(&expected)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(off < 1e-5, "written {written:?}\nexpected {expected:.5?}");
+    }
+
     fn some_rotation(k: usize) -> Rotation3<f64> {
         let axis = Unit::new_normalize(Vector3::new(1.0 + k as f64, -0.5, 0.3 * k as f64 - 1.0));
         Rotation3::from_axis_angle(&axis, 0.2 + 0.37 * k as f64)
