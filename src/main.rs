@@ -402,8 +402,21 @@ pub(crate) fn print_summary(graph: &Graph, report: &launch::RunReport) {
         report.wall.as_secs_f64(),
         report.run_id
     );
+    // Columns as wide as the longest id and kind (exec stages: `exec:python3 smooth.py`).
+    let rows = || {
+        graph
+            .topological_order()
+            .into_iter()
+            .filter_map(|node| report.stages.get(&node.id).map(|(kind, s)| (node, kind, s)))
+    };
+    let id_width = rows()
+        .map(|(n, _, _)| n.id.len())
+        .max()
+        .unwrap_or(0)
+        .max(14);
+    let kind_width = rows().map(|(_, k, _)| k.len()).max().unwrap_or(0).max(14);
     println!(
-        "{:<14} {:<14} {:>9} {:>9} {:>8} {:>10} {:>10} {:>7} {:>12} {:>12}",
+        "{:<id_width$} {:<kind_width$} {:>9} {:>9} {:>8} {:>10} {:>10} {:>7} {:>12} {:>12}",
         "stage",
         "kind",
         "frames in",
@@ -415,22 +428,20 @@ pub(crate) fn print_summary(graph: &Graph, report: &launch::RunReport) {
         "in-lat p50",
         "in-lat p99"
     );
-    for node in graph.topological_order() {
-        if let Some((kind, s)) = report.stages.get(&node.id) {
-            println!(
-                "{:<14} {:<14} {:>9} {:>9} {:>8} {:>10.1} {:>10.1} {:>7.1} {:>12.1} {:>12.1}",
-                node.id,
-                kind,
-                s.frames_in,
-                s.frames_out,
-                s.dropped,
-                s.mean_us,
-                s.p99_us,
-                100.0 * s.busy_fraction,
-                s.latency_p50_us,
-                s.latency_p99_us
-            );
-        }
+    for (node, kind, s) in rows() {
+        println!(
+            "{:<id_width$} {:<kind_width$} {:>9} {:>9} {:>8} {:>10.1} {:>10.1} {:>7.1} {:>12.1} {:>12.1}",
+            node.id,
+            kind,
+            s.frames_in,
+            s.frames_out,
+            s.dropped,
+            s.mean_us,
+            s.p99_us,
+            100.0 * s.busy_fraction,
+            s.latency_p50_us,
+            s.latency_p99_us
+        );
     }
     print_from_capture(graph, report);
     for node in graph.topological_order() {

@@ -127,9 +127,9 @@ impl StageNode {
         self.stall_timeout_s.unwrap_or(graph.stall_timeout_s)
     }
 
-    /// The kind for built-ins; for external stages the executable's file name, and the file name
-    /// of its first argument unless that is an option (an interpreter's script: `exec:python3
-    /// smooth.py`).
+    /// The kind for built-ins; for external stages `exec:` and the file name of the program, or
+    /// of its first argument unless that is an option (an interpreter's script: `exec:smooth.py`
+    /// for `python3 smooth.py`). One word, so a summary row splits into columns at whitespace.
     pub fn kind_label(&self) -> String {
         let file_name = |p: &std::path::Path| {
             p.file_name().map_or_else(
@@ -137,17 +137,14 @@ impl StageNode {
                 |n| n.to_string_lossy().into_owned(),
             )
         };
-        match &self.runner {
-            Runner::Builtin { kind } => kind.clone(),
+        let shown = match &self.runner {
+            Runner::Builtin { kind } => return kind.clone(),
             Runner::Exec { path, args } => match args.first() {
-                Some(script) if !script.starts_with('-') => format!(
-                    "exec:{} {}",
-                    file_name(path),
-                    file_name(std::path::Path::new(script))
-                ),
-                _ => format!("exec:{}", file_name(path)),
+                Some(script) if !script.starts_with('-') => file_name(std::path::Path::new(script)),
+                _ => file_name(path),
             },
-        }
+        };
+        format!("exec:{}", shown.replace(char::is_whitespace, "_"))
     }
 }
 

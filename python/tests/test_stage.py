@@ -255,6 +255,82 @@ params = {{ path = "{os.path.join(d, 'out.mcap')}" }}
     assert not leftovers, leftovers
 
 
+SOURCE_STAGE = """
+import imuflow
+stage = imuflow.Stage.from_env()
+out = stage.output("imu", "ImuFrame")
+frames = int(stage.params["frames"])
+if stage.ready():
+    for seq in range(frames):
+        if stage.should_stop:
+            break
+        frame = out.loan(seq=seq, capture_ns=seq * 16_666_667)
+        frame["orientation_wxyz"][:, 0] = 1.0
+        frame["specific_force_mps2"][:, 1] = seq
+        frame["valid_mask"] = 0b111111
+        out.send(frame)
+        stage.progress(seq + 1, frames)
+stage.finish()
+"""
+
+COUNTER_STAGE = """
+import imuflow
+stage = imuflow.Stage.from_env()
+out = stage.output("count", "MotionFrame")
+if stage.ready():
+    for step in stage:
+        previous = step["prev"]
+        first = previous["header.flags"] & imuflow.FEEDBACK_INITIAL
+        count = 0.0 if first else previous["q"][0] + 1
+        out.publish(step, q=[count, step["imu"]["specific_force_mps2"][0, 1]] + [0.0] * 73)
+stage.finish()
+"""
+
+
+def test_a_python_source_and_a_python_stage_with_feedback():
+    """Sources and feedback inputs in Python: a counter that adds one to its own previous output
+    (offline, the feedback input holds exactly the previous frame) counts every frame."""
+    if not binary():
+        print("skipped: IMUFLOW_BIN is not set")
+        return
+    frames = 300
+    with tempfile.TemporaryDirectory() as d:
+        for name, code in [("source.py", SOURCE_STAGE), ("counter.py", COUNTER_STAGE)]:
+            with open(os.path.join(d, name), "w") as f:
+                f.write(code)
+        out = os.path.join(d, "count.mcap")
+        text = f"""
+name = "python-feedback"
+[stages.source]
+exec = "{sys.executable}"
+args = ["{os.path.join(d, 'source.py')}"]
+outputs = {{ imu = "ImuFrame" }}
+params = {{ frames = {frames} }}
+[stages.counter]
+exec = "{sys.executable}"
+args = ["{os.path.join(d, 'counter.py')}"]
+inputs = {{ imu = "source.imu", prev = "counter.count", feedback = ["prev"] }}
+outputs = {{ count = "MotionFrame" }}
+[stages.record]
+kind = "recorder"
+inputs = {{ imu = "source.imu", count = "counter.count" }}
+params = {{ path = "{out}" }}
+"""
+        done, leftovers = run_graph(text, d, "python-feedback")
+        assert done.returncode == 0, done.stderr[-3000:]
+        assert not leftovers, leftovers
+        rec = imuflow.open_recording(out)
+        imu, count = rec.frames("source.imu"), rec.frames("counter.count")
+    assert len(imu) == len(count) == frames
+    assert np.array_equal(imu["header.seq"], np.arange(frames))
+    assert np.array_equal(imu["header.capture_ns"], np.arange(frames) * 16_666_667)
+    assert np.array_equal(count["q"][:, 0], np.arange(frames)), count["q"][:5, 0]
+    assert np.array_equal(count["q"][:, 1], np.arange(frames))  # the imu it was aligned with
+    # The summary counts the Python source's frames like a Rust source's.
+    source_row = next(l for l in done.stdout.splitlines() if l.startswith("source "))
+    assert f" {frames} " in source_row, source_row
+
+
 def test_bindings_of_another_iceoryx2_version_are_refused():
     try:
         stage_module._import_bindings({"iceoryx2": "0.9.1"})
