@@ -204,6 +204,22 @@ stage.finish()
 """
 
 
+def python_stage_after_kin(name, stage, script, d, output="KinematicsFrame"):
+    """The sample through calibration and PIP's networks into the Python stage `stage` running
+    `script` (input `kin`, output `kinematics` of type `output`), recorded."""
+    return HEAD.format(name=name) + f"""
+[stages.{stage}]
+exec = "{sys.executable}"
+args = ["{script}"]
+inputs = {{ kin = "kin.kinematics" }}
+outputs = {{ kinematics = "{output}" }}
+[stages.record]
+kind = "recorder"
+inputs = {{ out = "{stage}.kinematics" }}
+params = {{ path = "{os.path.join(d, 'out.mcap')}" }}
+"""
+
+
 def test_a_python_stage_that_raises_is_reported_by_name():
     if not binary():
         print("skipped: IMUFLOW_BIN is not set")
@@ -212,20 +228,10 @@ def test_a_python_stage_that_raises_is_reported_by_name():
         script = os.path.join(d, "diverging.py")
         with open(script, "w") as f:
             f.write(FAILING_STAGE)
-        text = HEAD.format(name="python-raises") + f"""
-[stages.diverging]
-exec = "{sys.executable}"
-args = ["{script}"]
-inputs = {{ kin = "kin.kinematics" }}
-outputs = {{ kinematics = "KinematicsFrame" }}
-[stages.record]
-kind = "recorder"
-inputs = {{ kin = "diverging.kinematics" }}
-params = {{ path = "{os.path.join(d, 'out.mcap')}" }}
-"""
+        text = python_stage_after_kin("python-raises", "diverging", script, d)
         done, leftovers = run_graph(text, d, "python-raises")
     assert done.returncode != 0
-    assert "diverging" in done.stderr, done.stderr[-2000:]
+    assert "stage 'diverging' failed" in done.stderr, done.stderr[-2000:]
     # The traceback's last line, as the launcher shows any stage's stderr.
     assert "RuntimeError: the filter diverged at frame 100" in done.stderr, done.stderr[-2000:]
     assert not leftovers, leftovers
@@ -237,17 +243,7 @@ def test_a_frame_type_the_graph_does_not_give_is_named():
         return
     with tempfile.TemporaryDirectory() as d:
         # smooth.py writes KinematicsFrame; this graph declares its output a MotionFrame.
-        text = HEAD.format(name="python-wrong-type") + f"""
-[stages.smooth]
-exec = "{sys.executable}"
-args = ["{SMOOTH}"]
-inputs = {{ kin = "kin.kinematics" }}
-outputs = {{ kinematics = "MotionFrame" }}
-[stages.record]
-kind = "recorder"
-inputs = {{ motion = "smooth.kinematics" }}
-params = {{ path = "{os.path.join(d, 'out.mcap')}" }}
-"""
+        text = python_stage_after_kin("python-wrong-type", "smooth", SMOOTH, d, "MotionFrame")
         done, leftovers = run_graph(text, d, "python-wrong-type")
     assert done.returncode != 0
     assert ("output 'kinematics' carries MotionFrame in the graph but the stage uses "
