@@ -118,6 +118,73 @@ def _payload_type(layout):
     )
 
 
+class _ArrivalWaiter:
+    """How a stage waits for its next input (graph/src/wait.rs, same tuning): block while nothing
+    is due, spin briefly around the moment the next frame is expected. Waking a blocked process
+    costs tens of microseconds per hop and iceoryx2's listener timeouts are coarse, while sources
+    are periodic: learn the interval between arrivals and the stream's phase, sleep until shortly
+    before the next frame is due, spin until it arrives or a short tail has passed, then block on
+    the wake-up event."""
+
+    SPIN_LEAD_S = 300e-6
+    SPIN_TAIL_S = 800e-6
+    SHORT_SPIN_S = 20e-6
+    MAX_INTERVAL_S = 1.0
+    EWMA_WEIGHT = 0.125
+    LATE_PHASE_WEIGHT = 0.1
+    SLEEP_SLICE_S = 1e-3
+
+    def __init__(self):
+        self.last_scheduled = None
+        self.interval_s = None
+
+    def expected(self):
+        if self.last_scheduled is None or self.interval_s is None:
+            return None
+        return self.last_scheduled + self.interval_s
+
+    def arrived(self, now):
+        expected = self.expected()
+        if expected is not None and 0 < now - expected < self.MAX_INTERVAL_S:
+            scheduled = expected + (now - expected) * self.LATE_PHASE_WEIGHT
+        else:
+            scheduled = now
+        if self.last_scheduled is not None:
+            dt = scheduled - self.last_scheduled
+            if 0 <= dt < self.MAX_INTERVAL_S:
+                self.interval_s = dt if self.interval_s is None else (
+                    self.interval_s + self.EWMA_WEIGHT * (dt - self.interval_s))
+        self.last_scheduled = scheduled
+
+    def wait(self, listener, timeout, ready):
+        """Until `ready()` holds, or at most about `timeout` (an iceoryx2 Duration)."""
+        if ready():
+            listener.try_wait()
+            return
+        now = time.perf_counter()
+        expected = self.expected()
+        if expected is not None and expected + self.SPIN_TAIL_S > now:
+            spin_from = expected - self.SPIN_LEAD_S
+            while True:  # nothing due yet: sleep in slices until the spin window
+                now = time.perf_counter()
+                if now >= spin_from:
+                    break
+                time.sleep(min(spin_from - now, self.SLEEP_SLICE_S))
+                if ready():
+                    listener.try_wait()
+                    return
+            spin_until = expected + self.SPIN_TAIL_S
+        else:  # overdue, or no rhythm yet
+            spin_until = now + self.SHORT_SPIN_S
+        while time.perf_counter() < spin_until:
+            if ready():
+                listener.try_wait()
+                return
+        if not ready():
+            listener.timed_wait(timeout)
+        listener.try_wait()
+
+
 class _Control:
     """The launcher's line protocol: `@imuflow ...` lines on the real stdout (kept for this
     alone; Python's stdout goes to stderr so a print() cannot break a control line), commands
@@ -416,6 +483,8 @@ class Stage:
         self._last_step = None  # (seq, capture_ns)
         self._position = 0
         self._started = time.perf_counter()
+        self._waiter = _ArrivalWaiter()
+        self._poll = iox2.Duration.from_secs_f64(POLL_S)
 
     # --- the graph's view of this stage -------------------------------------------------------
 
@@ -522,8 +591,8 @@ class Stage:
                 return self._begin_step(seq, capture_ns, flags)
             if self._listener is None:
                 return None
-            if not any(s.subscriber.has_samples() for s in self._inputs):
-                self._listener.timed_wait(self._iox2.Duration.from_secs_f64(POLL_S))
+            self._waiter.wait(self._listener, self._poll,
+                              lambda: any(s.subscriber.has_samples() for s in self._inputs))
 
     def finish(self):
         """Ends the stage: END_OF_STREAM on every output, the summary to the launcher, the
@@ -691,6 +760,7 @@ class Stage:
         self._last_step = (seq, capture_ns)
         self._position = max(self._position, seq + 1)
         self._step_started = time.perf_counter()
+        self._waiter.arrived(self._step_started)
         self._waited_s = 0.0
         step_flags = flags & (INVALID | CALIBRATING)
         if self._restart_flag_pending:

@@ -327,6 +327,20 @@ params = {{ path = "{out}" }}
     assert f" {frames} " in source_row, source_row
 
 
+def test_the_waiter_learns_a_periodic_rhythm_and_ignores_late_frames():
+    w = stage_module._ArrivalWaiter()
+    assert w.expected() is None
+    for k in range(20):
+        w.arrived(100.0 + 0.010 * k)
+    assert abs(w.expected() - 100.200) < 10e-6, w.expected()
+    # Frame 20 comes 2 ms late; frame 21 is still due on the schedule, not 2 ms later.
+    w.arrived(100.202)
+    assert abs(w.expected() - 100.210) < 300e-6, w.expected()
+    # A pause does not become the rhythm.
+    w.arrived(110.0)
+    assert abs(w.expected() - 110.010) < 1e-3, w.expected()
+
+
 def test_bindings_of_another_iceoryx2_version_are_refused():
     try:
         stage_module._import_bindings({"iceoryx2": "0.9.1"})
