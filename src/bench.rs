@@ -32,6 +32,11 @@ pub enum BenchCommand {
         /// Frames in the unpaced throughput run.
         #[arg(long, default_value_t = 30000)]
         throughput_frames: u64,
+        /// Run every relay as this command instead of the built-in relay (program and arguments,
+        /// split at spaces), e.g. "python3 python/examples/relay.py": what a stage in another
+        /// language costs per hop.
+        #[arg(long, value_name = "COMMAND")]
+        relay_exec: Option<String>,
     },
     /// Per-frame inference time of the kinematics networks (streaming, one frame at a time, in this
     /// process; set RAYON_NUM_THREADS=1, candle's small-op threading costs more than it gains).
@@ -213,15 +218,26 @@ pub fn run_relay() -> anyhow::Result<()> {
     Ok(())
 }
 
-fn chain_graph(stages: usize, frames: u64, rate_hz: f64) -> String {
+/// A chain: the source `s0`, then relays `s1`.. (built-in, or `relay_exec` = program and
+/// arguments).
+fn chain_graph(stages: usize, frames: u64, rate_hz: f64, relay_exec: Option<&[String]>) -> String {
     let mut toml = format!(
         "name = \"bench-transport\"\n[stages.s0]\nkind = \"bench-source\"\nparams = {{ frames = {frames}, rate_hz = {rate_hz:.1} }}\n"
     );
+    let quoted = |s: &str| toml::Value::String(s.to_owned()).to_string();
     for i in 1..stages {
-        toml += &format!(
-            "[stages.s{i}]\nkind = \"relay\"\ninputs = {{ in = \"s{}.out\" }}\n",
-            i - 1
-        );
+        toml += &format!("[stages.s{i}]\ninputs = {{ in = \"s{}.out\" }}\n", i - 1);
+        match relay_exec {
+            Some([program, args @ ..]) => {
+                let args: Vec<String> = args.iter().map(|a| quoted(a)).collect();
+                toml += &format!(
+                    "exec = {}\nargs = [{}]\noutputs = {{ out = \"MotionFrame\" }}\n",
+                    quoted(program),
+                    args.join(", ")
+                );
+            }
+            _ => toml += "kind = \"relay\"\n",
+        }
     }
     toml
 }
@@ -241,18 +257,31 @@ fn children_cpu() -> Duration {
     tv(usage.ru_utime) + tv(usage.ru_stime)
 }
 
+/// One relay of a chain: the hop into it (transport latency) and its own work per frame, µs.
+struct Hop {
+    latency_p50_us: f64,
+    latency_p99_us: f64,
+    work_mean_us: f64,
+    work_p99_us: f64,
+}
+
 struct ChainResult {
-    hops: Vec<(f64, f64)>,
+    hops: Vec<Hop>,
     wall_s: f64,
     cpu_s: f64,
     frames: u64,
 }
 
-fn run_chain(stages: usize, frames: u64, rate_hz: f64) -> anyhow::Result<ChainResult> {
+fn run_chain(
+    stages: usize,
+    frames: u64,
+    rate_hz: f64,
+    relay_exec: Option<&[String]>,
+) -> anyhow::Result<ChainResult> {
     let registry = crate::registry::registry();
     let graph = Graph::from_str_with(
         Path::new("<bench>"),
-        &chain_graph(stages, frames, rate_hz),
+        &chain_graph(stages, frames, rate_hz, relay_exec),
         &[],
         &registry,
     )?;
@@ -286,7 +315,12 @@ fn run_chain(stages: usize, frames: u64, rate_hz: f64) -> anyhow::Result<ChainRe
                 counts.join("; ")
             );
         }
-        hops.push((s.latency_p50_us, s.latency_p99_us));
+        hops.push(Hop {
+            latency_p50_us: s.latency_p50_us,
+            latency_p99_us: s.latency_p99_us,
+            work_mean_us: s.mean_us,
+            work_p99_us: s.p99_us,
+        });
     }
     Ok(ChainResult {
         hops,
@@ -297,13 +331,14 @@ fn run_chain(stages: usize, frames: u64, rate_hz: f64) -> anyhow::Result<ChainRe
 }
 
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
-    let (stages, frames, rate_hz, throughput_frames) = match cmd {
+    let (stages, frames, rate_hz, throughput_frames, relay_exec) = match cmd {
         BenchCommand::Transport {
             stages,
             frames,
             rate_hz,
             throughput_frames,
-        } => (stages, frames, rate_hz, throughput_frames),
+            relay_exec,
+        } => (stages, frames, rate_hz, throughput_frames, relay_exec),
         BenchCommand::Kinematics {
             pip,
             globalpose,
@@ -321,27 +356,37 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     if stages < 2 {
         bail!("--stages must be at least 2 (a source and a relay)");
     }
+    let relay_exec: Option<Vec<String>> = relay_exec
+        .map(|c| c.split_whitespace().map(str::to_owned).collect())
+        .filter(|c: &Vec<String>| !c.is_empty());
+    let relay_exec = relay_exec.as_deref();
     println!(
-        "transport benchmark: {stages} stage processes, {} hops, MotionFrame = {} bytes",
+        "transport benchmark: {stages} stage processes, {} hops, MotionFrame = {} bytes, relays: {}",
         stages - 1,
-        std::mem::size_of::<MotionFrame>()
+        std::mem::size_of::<MotionFrame>(),
+        relay_exec.map_or("built-in (Rust)".to_owned(), |c| c.join(" "))
     );
-    let paced = run_chain(stages, frames, rate_hz)?;
+    let paced = run_chain(stages, frames, rate_hz, relay_exec)?;
     println!(
         "\npaced run: {} frames at {rate_hz} Hz ({:.1} s)",
         paced.frames, paced.wall_s
     );
-    println!("{:<8} {:>10} {:>10}", "hop", "p50 µs", "p99 µs");
-    for (i, (p50, p99)) in paced.hops.iter().enumerate() {
+    println!(
+        "{:<8} {:>10} {:>10} {:>14} {:>13}",
+        "hop", "p50 µs", "p99 µs", "relay mean µs", "relay p99 µs"
+    );
+    for (i, hop) in paced.hops.iter().enumerate() {
         println!(
-            "{:<8} {:>10.1} {:>10.1}",
+            "{:<8} {:>10.1} {:>10.1} {:>14.1} {:>13.1}",
             format!("s{i}->s{}", i + 1),
-            p50,
-            p99
+            hop.latency_p50_us,
+            hop.latency_p99_us,
+            hop.work_mean_us,
+            hop.work_p99_us
         );
     }
-    let mut p50s: Vec<f64> = paced.hops.iter().map(|h| h.0).collect();
-    let mut p99s: Vec<f64> = paced.hops.iter().map(|h| h.1).collect();
+    let mut p50s: Vec<f64> = paced.hops.iter().map(|h| h.latency_p50_us).collect();
+    let mut p99s: Vec<f64> = paced.hops.iter().map(|h| h.latency_p99_us).collect();
     p50s.sort_by(f64::total_cmp);
     p99s.sort_by(f64::total_cmp);
     println!(
@@ -358,7 +403,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         100.0 * paced.cpu_s / paced.wall_s / stages as f64
     );
 
-    let fast = run_chain(stages, throughput_frames, 0.0)?;
+    let fast = run_chain(stages, throughput_frames, 0.0, relay_exec)?;
     println!(
         "\nthroughput run: {} frames through {} hops in {:.2} s = {:.0} frames/s ({:.1} MB/s per hop)",
         fast.frames,

@@ -180,6 +180,7 @@ class _ArrivalWaiter:
             if ready():
                 listener.try_wait()
                 return
+            os.sched_yield()  # a producer sharing the core still runs
         if not ready():
             listener.timed_wait(timeout)
         listener.try_wait()
