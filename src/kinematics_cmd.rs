@@ -22,6 +22,11 @@ pub struct TrainArgs {
     /// Checkpoints and the loss log (loss.csv); a run resumes from here. Keep it outside the repository.
     #[arg(long, value_name = "DIR")]
     checkpoint_dir: PathBuf,
+    /// Start from these weights (e.g. models/pip.safetensors) instead of random ones, when the
+    /// checkpoint folder is new: training continues in a later session from the committed
+    /// weights (Adam starts afresh; pass another --seed for new chunk orders).
+    #[arg(long, value_name = "FILE")]
+    init_weights: Option<PathBuf>,
     /// LSTM hidden size of every net (PIP's contact net uses a quarter). Papers: PIP 256, GlobalPose 512.
     #[arg(long, default_value_t = 128)]
     hidden: usize,
@@ -75,6 +80,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         data: args.data,
         out: args.out,
         checkpoint_dir: args.checkpoint_dir,
+        init_weights: args.init_weights,
         hidden: args.hidden,
         layers: args.layers,
         epochs: args.epochs,

@@ -43,6 +43,9 @@ pub struct TrainOptions {
     pub data: PathBuf,
     pub out: PathBuf,
     pub checkpoint_dir: PathBuf,
+    /// Start from these weights instead of random ones (a new checkpoint folder only): training
+    /// goes on across sessions whose checkpoints are gone, from the committed weight files.
+    pub init_weights: Option<PathBuf>,
     pub hidden: usize,
     pub layers: usize,
     pub epochs: usize,
@@ -253,6 +256,9 @@ struct CheckpointState {
     best_epoch: usize,
     elapsed_s: f64,
     specs: Vec<RnnSpec>,
+    /// `--init-weights`: the file this run started from and its provenance (its own training).
+    #[serde(default)]
+    initialized_from: Option<serde_json::Value>,
 }
 
 /// One batch: per task its input, init and target tensors.
@@ -460,8 +466,15 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
         best_epoch: 0,
         elapsed_s: 0.0,
         specs: specs.clone(),
+        initialized_from: None,
     };
     if ckpt_tensors.exists() && ckpt_state.exists() {
+        if options.init_weights.is_some() {
+            eprintln!(
+                "{} holds a checkpoint: resuming it, --init-weights is not used",
+                options.checkpoint_dir.display()
+            );
+        }
         state = resume(&mut opt, &ckpt_tensors, &ckpt_state, &specs)?;
         eprintln!(
             "resuming from {} (epoch {}, step {}, best validation {:.5} at epoch {})",
@@ -471,6 +484,9 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
             state.best_val,
             state.best_epoch
         );
+    } else if let Some(path) = &options.init_weights {
+        state.initialized_from = Some(init_from_weights(&mut opt, path, method)?);
+        eprintln!("starting from the weights in {}", path.display());
     }
 
     let log_path = options.checkpoint_dir.join("loss.csv");
@@ -599,6 +615,7 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
         let mut run_state = CheckpointState {
             elapsed_s: 0.0,
             specs: specs.clone(),
+            initialized_from: state.initialized_from.clone(),
             ..state
         };
         run_state.elapsed_s = elapsed;
@@ -693,6 +710,39 @@ fn save_checkpoint(
     std::fs::write(&tmp, serde_json::to_string_pretty(&st)?)?;
     std::fs::rename(&tmp, state_path)?;
     Ok(())
+}
+
+/// Sets every parameter from the weight file `path` (checked for `method`: every tensor with its
+/// shape); the Adam moments start from zero. Returns what the provenance records: the file and
+/// how its weights were trained.
+fn init_from_weights(
+    opt: &mut Optimizer,
+    path: &Path,
+    method: Method,
+) -> anyhow::Result<serde_json::Value> {
+    let weights = crate::weights::Weights::load(path, method)
+        .with_context(|| format!("--init-weights {}", path.display()))?;
+    let tensors = candle_core::safetensors::load(path, &Device::Cpu)
+        .with_context(|| format!("reading {}", path.display()))?;
+    for (i, name) in opt.names.iter().enumerate() {
+        let tensor = tensors
+            .get(name)
+            .with_context(|| format!("--init-weights {}: no tensor {name}", path.display()))?;
+        let want = opt.vars[i].as_tensor().dims().to_vec();
+        if tensor.dims() != want.as_slice() {
+            bail!(
+                "--init-weights {}: tensor {name} is {:?}, this run's networks need {want:?} (give --hidden/--layers as the file's)",
+                path.display(),
+                tensor.dims()
+            );
+        }
+        opt.vars[i].set(&tensor.to_dtype(opt.vars[i].as_tensor().dtype())?)?;
+    }
+    Ok(serde_json::json!({
+        "file": path.display().to_string(),
+        "steps": weights.metadata.provenance.get("steps"),
+        "provenance": weights.metadata.provenance,
+    }))
 }
 
 fn resume(
@@ -795,6 +845,7 @@ fn export(
             "train_frames": train_set.frames,
             "epochs": state.epoch,
             "steps": state.step,
+            "initialized_from": state.initialized_from,
             "options": {
                 "hidden": options.hidden, "layers": options.layers, "batch": options.batch,
                 "chunk": options.chunk, "lr": options.lr, "dropout": options.dropout,

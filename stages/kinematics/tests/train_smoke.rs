@@ -48,6 +48,7 @@ fn options(data: &Path, dir: &Path, epochs: usize) -> TrainOptions {
         data: data.to_owned(),
         out: dir.join("pip-small.safetensors"),
         checkpoint_dir: dir.join("ckpt"),
+        init_weights: None,
         hidden: 16,
         layers: 1,
         epochs,
@@ -131,6 +132,48 @@ fn training_lowers_the_loss_resumes_and_exports_loadable_weights() {
         Err(e) => e.to_string(),
     };
     assert!(err.contains("pip") || err.contains("method"), "{err}");
+
+    // A new checkpoint folder started from the exported weights (a later session, its
+    // checkpoints gone) goes on from where they were, not from random nets: its first epoch
+    // ends below the first run's first epoch, and the weights say where they came from.
+    let continued = TrainOptions {
+        checkpoint_dir: dir.path().join("ckpt-continued"),
+        out: dir.path().join("pip-continued.safetensors"),
+        init_weights: Some(more.out.clone()),
+        seed: 7,
+        ..options(&data, dir.path(), 1)
+    };
+    train(&continued).unwrap();
+    let first_epoch_from_scratch = validation_totals(&more.checkpoint_dir)[0].1;
+    let continued_rows = validation_totals(&continued.checkpoint_dir);
+    assert!(
+        continued_rows[0].1 < 0.8 * first_epoch_from_scratch,
+        "from the weights {continued_rows:?}, from scratch {first_epoch_from_scratch}"
+    );
+    let weights = Weights::load(&continued.out, Method::Pip).unwrap();
+    let from = &weights.metadata.provenance["initialized_from"];
+    assert_eq!(from["file"], more.out.display().to_string(), "{from}");
+    assert_eq!(from["steps"], rows_steps(&more.out), "{from}");
+    // Other network sizes than the file's are refused by name.
+    let mismatched = TrainOptions {
+        checkpoint_dir: dir.path().join("ckpt-mismatched"),
+        hidden: 8,
+        ..continued
+    };
+    let err = format!("{:#}", train(&mismatched).unwrap_err());
+    assert!(
+        err.contains("--init-weights") && err.contains("rnn1"),
+        "{err}"
+    );
+}
+
+/// The training steps a weight file's provenance records.
+fn rows_steps(weights: &Path) -> serde_json::Value {
+    Weights::load(weights, Method::Pip)
+        .unwrap()
+        .metadata
+        .provenance["steps"]
+        .clone()
 }
 
 /// `--max-train-frames` takes a uniform sample of sequences across all shards (not the first
