@@ -402,7 +402,7 @@ pub(crate) fn print_summary(graph: &Graph, report: &launch::RunReport) {
         report.wall.as_secs_f64(),
         report.run_id
     );
-    // Columns as wide as the longest id and kind (exec stages: `exec:python3 smooth.py`).
+    // Columns as wide as the longest id and kind (exec stages: `exec:smooth.py`).
     let rows = || {
         graph
             .topological_order()

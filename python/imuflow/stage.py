@@ -478,6 +478,7 @@ class Stage:
                 slot.view = self._initial_feedback_frame(edge["frame"])
             self._inputs.append(slot)
         self._outputs = {}
+        self._wake_services = []  # the readers' wake-up services the outputs notify
         self._stats = _Stats()
         self._waited_s = 0.0
         self._step_started = None
@@ -513,15 +514,14 @@ class Stage:
         frame = outputs[port]
         self._check_type("output", port, frame, frame_type)
         iox2 = self._iox2
-        readers = sorted({r["stage"] for r in self.node_spec.get("readers", {}).get(port, [])})
+        readers = self.node_spec.get("readers", {}).get(port, [])
         name = self._service_name("output", stage=self.id, port=port)
-        service = self._open_pubsub(name, frame, len(self.node_spec.get("readers", {}).get(port, [])))
+        service = self._open_pubsub(name, frame, len(readers))
         strategy = (iox2.BackpressureStrategy.RetryUntilDelivered if self.mode == "offline"
                     else iox2.BackpressureStrategy.DiscardData)
         publisher = service.publisher_builder().backpressure_strategy(strategy).create()
         notifiers = []
-        self._wake_services = getattr(self, "_wake_services", [])
-        for reader in readers:
+        for reader in sorted({r["stage"] for r in readers}):  # one wake-up per reading stage
             event = self._open_event(self._service_name("wake", stage=reader))
             self._wake_services.append(event)
             notifiers.append(event.notifier_builder().create())

@@ -147,7 +147,8 @@ fn v3(v: &[f32]) -> Vector3<f64> {
     Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64)
 }
 
-fn rot(m: &[f32; 9]) -> Rotation3<f64> {
+/// A row-major 3×3 (an [`ImuInput`] orientation) as a rotation.
+pub(crate) fn rot(m: &[f32; 9]) -> Rotation3<f64> {
     Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(&m.map(|v| v as f64)))
 }
 

@@ -22,6 +22,7 @@ use nalgebra::{Quaternion, Rotation3, UnitQuaternion};
 use crate::features::{ImuInput, ROOT_IMU};
 use crate::infer::{
     Estimate, SENSOR_BONE_TOLERANCE_DEG, SensorBones, StartPose, Streamer, impose_measured_bones,
+    rot,
 };
 use crate::method::Method;
 use crate::weights::Weights;
@@ -194,13 +195,9 @@ impl HeldSamples {
 /// of it as the sensors measure.
 pub fn pose_from_sensors(start: StartPose, imu: &ImuInput) -> imuflow_body::Pose {
     let mut pose = start.pose();
-    pose.parent_from_joint[0] = rotation(&imu.orientation[ROOT_IMU]);
+    pose.parent_from_joint[0] = rot(&imu.orientation[ROOT_IMU]);
     impose_measured_bones(&mut pose.parent_from_joint, imu, 0.0);
     pose
-}
-
-fn rotation(m: &[f32; 9]) -> Rotation3<f64> {
-    Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_row_slice(m).cast())
 }
 
 fn start_estimate(start: StartPose) -> Estimate {
