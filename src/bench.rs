@@ -83,6 +83,10 @@ pub enum BenchCommand {
         /// Timed frames per method.
         #[arg(long, default_value_t = 3000)]
         frames: usize,
+        /// Sleep between frames as a live stage does at this sensor rate, Hz (0: back to back, the
+        /// hot loop). The difference between the two is the cost of idling between frames.
+        #[arg(long, default_value_t = 0.0)]
+        pace_hz: f64,
     },
 }
 
@@ -343,7 +347,8 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             pip,
             globalpose,
             frames,
-        } => return bench_kinematics(&pip, &globalpose, frames),
+            pace_hz,
+        } => return bench_kinematics(&pip, &globalpose, frames, pace_hz),
         BenchCommand::Physics { frames } => return bench_physics(frames),
         BenchCommand::Validation { input } => return bench_validation(Path::new(&input)),
         BenchCommand::Graph {
@@ -415,11 +420,21 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn bench_kinematics(pip: &str, globalpose: &str, frames: usize) -> anyhow::Result<()> {
+fn bench_kinematics(
+    pip: &str,
+    globalpose: &str,
+    frames: usize,
+    pace_hz: f64,
+) -> anyhow::Result<()> {
     use imuflow_kinematics::Method;
+    let pace = (pace_hz > 0.0).then(|| std::time::Duration::from_secs_f64(1.0 / pace_hz));
     println!(
-        "kinematics benchmark: {frames} streaming frames per method (RAYON_NUM_THREADS={})",
-        std::env::var("RAYON_NUM_THREADS").unwrap_or_else(|_| "unset".into())
+        "kinematics benchmark: {frames} streaming frames per method (RAYON_NUM_THREADS={}), {}",
+        std::env::var("RAYON_NUM_THREADS").unwrap_or_else(|_| "unset".into()),
+        match pace {
+            Some(_) => format!("paced at {pace_hz} Hz (idle between frames, as live)"),
+            None => "back to back".into(),
+        }
     );
     println!(
         "{:<11} {:>10} {:>10} {:>10} {:>10}",
@@ -434,6 +449,7 @@ fn bench_kinematics(pip: &str, globalpose: &str, frames: usize) -> anyhow::Resul
             std::path::Path::new(path),
             frames,
             100,
+            pace,
         )?;
         let pct = |p: f64| t[((t.len() - 1) as f64 * p).round() as usize];
         println!(

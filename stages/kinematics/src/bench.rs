@@ -13,18 +13,29 @@ use crate::method::Method;
 use crate::weights::Weights;
 
 /// Timing of `frames` streaming steps (after `warmup` untimed ones), in microseconds, sorted.
+/// With `pace`, each step starts `pace` after the previous one started (the thread sleeps in
+/// between, as a live stage waits for its next frame).
 pub fn step_times_us(
     method: Method,
     weights: &Path,
     frames: usize,
     warmup: usize,
+    pace: Option<std::time::Duration>,
 ) -> anyhow::Result<Vec<f64>> {
     let weights = Weights::load(weights, method)
         .with_context(|| format!("loading weights {}", weights.display()))?;
     let mut streamer = Streamer::new(weights, Pose::t_pose(Vector3::zeros()))?;
     let mut times = Vec::with_capacity(frames);
+    let mut last_start: Option<Instant> = None;
     for f in 0..frames + warmup {
         let input = swaying_sensors(f);
+        let t0 = Instant::now();
+        if let Some(pace) = pace {
+            // Sleep until this frame's slot (the previous step's start + pace).
+            let next = last_start.map_or(t0, |s| s + pace);
+            std::thread::sleep(next.saturating_duration_since(t0));
+            last_start = Some(Instant::now());
+        }
         let t0 = Instant::now();
         std::hint::black_box(streamer.step(&input)?);
         if f >= warmup {

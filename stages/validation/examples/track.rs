@@ -9,7 +9,7 @@
 //! CLIP is a recording with a truth channel (`models/sample/walk.mcap`) or a Bandai Namco BVH.
 //! With @LIST, torques mode only, the totals over the clips. Variables override the defaults:
 //! `SIM_KP`, `SIM_KD`, `SIM_BKP`, `SIM_BKD`, `SIM_PKP`, `SIM_PKV`, `SIM_RKP`, `SIM_RKD`,
-//! `SIM_FRICTION`, `SIM_MAXTAU`, `SIM_SUBSTEPS`, `SIM_ITERS`, `SIM_FOOT_PITCH` (the SimConfig
+//! `SIM_CLEAR`, `SIM_FRICTION`, `SIM_MAXTAU`, `SIM_SUBSTEPS`, `SIM_ITERS`, `SIM_FOOT_PITCH` (the SimConfig
 //! fields and the stage parameters of the same meaning); `SIM_MODES=torques,residual` picks the
 //! modes of a single clip; `SIM_TRACE=1` prints every frame (root offset from the estimate, pelvis
 //! and trunk tilt, the feet's loads and the estimate's ball heights); `SIM_FEET=1` prints the
@@ -141,6 +141,7 @@ fn config(mode: Mode) -> SimConfig {
         placement_kv: env_f64("SIM_PKV", d.placement_kv),
         residual_kp: env_f64("SIM_RKP", d.residual_kp),
         residual_kd: env_f64("SIM_RKD", d.residual_kd),
+        clearance_gain: env_f64("SIM_CLEAR", d.clearance_gain),
         friction: env_f64("SIM_FRICTION", d.friction),
         substeps: env_f64("SIM_SUBSTEPS", d.substeps as f64) as usize,
         solver_iterations: env_f64("SIM_ITERS", d.solver_iterations as f64) as usize,
@@ -190,6 +191,24 @@ fn track(body: &BodyModel, mode: Mode, poses: &[Pose], first: usize) -> Run {
                     .to_degrees()
             };
             let d = o.state.joint_position_m[0] - fk.joint_in_world_m[0];
+            let heading = |r: &nalgebra::Rotation3<f64>| {
+                let f = r * Vector3::z();
+                f.x.atan2(f.z).to_degrees()
+            };
+            let yaw = heading(&o.state.world_from_joint[0]) - heading(&fk.world_from_joint[0]);
+            let estimate_velocity = i.checked_sub(1).map_or(Vector3::zeros(), |p| {
+                (pose.root_in_world_m - poses[p].root_in_world_m) / DT
+            });
+            let sim_velocity = o.state.joint_velocity_mps[0];
+            println!(
+                "{:5} yaw {:+6.1}° v est {:+.2} {:+.2} sim {:+.2} {:+.2}",
+                first + i,
+                (yaw + 540.0) % 360.0 - 180.0,
+                estimate_velocity.x,
+                estimate_velocity.z,
+                sim_velocity.x,
+                sim_velocity.z
+            );
             println!(
                 "{:5} track {:.3} root {:+.3} {:+.3} {:+.3} pelvis {:5.1}° trunk {:5.1}° load L {:5.0} R {:5.0} N, estimate's balls L {:.3} R {:.3} m{}",
                 first + i,

@@ -30,6 +30,11 @@ const SINGLE_STANCE_SHARE: f64 = 0.8;
 const SWING_CLEARANCE_M: f64 = 0.02;
 /// Largest foot-placement shift, m. [inferred]
 const MAX_PLACEMENT_SHIFT_M: f64 = 0.3;
+/// A swing knee is bent further for clearance only when the estimate bends it at least this
+/// much (its bend gives the direction). [inferred]
+const MIN_SWING_KNEE_BEND_RAD: f64 = 0.1;
+/// Largest extra swing-knee bend for clearance, rad. [inferred]
+const MAX_CLEARANCE_BEND_RAD: f64 = 0.5;
 /// The feet's balls, [left, right].
 const FEET: [JointId; 2] = [JointId::LEFT_FOOT, JointId::RIGHT_FOOT];
 /// Gauss-Seidel sweeps per solver iteration (see `Simulation::new`).
@@ -78,6 +83,9 @@ pub struct SimConfig {
     /// Residual mode: root PD per unit mass (force) and root inertia (torque), 1/s² and 1/s.
     pub residual_kp: f64,
     pub residual_kd: f64,
+    /// Swing clearance: extra swing-knee bend per shank length the simulated swing foot hangs
+    /// lower than the estimate's (see `Simulation::swing_clearance`).
+    pub clearance_gain: f64,
     /// Friction coefficient between body and floor.
     pub friction: f64,
     /// Physics steps per input frame.
@@ -99,6 +107,7 @@ impl Default for SimConfig {
             placement_kv: 0.3,
             residual_kp: 100.0,
             residual_kd: 20.0,
+            clearance_gain: 4.0,
             friction: 0.8,
             substeps: 4,
             solver_iterations: 1,
@@ -487,6 +496,7 @@ impl Simulation {
         let (kp, kd) = (self.config.kp, self.config.kd);
         let stance = self.stance_correction(target);
         let swing = self.swing_hip_target();
+        let clearance = self.swing_clearance();
         let gains: Vec<(usize, JointId, f64)> = self
             .model
             .links
@@ -500,10 +510,20 @@ impl Simulation {
             let link = mb.link_mut(id).expect("link ids are valid");
             let j = joint.index();
             let current = rotation(link.joint.joint_rot());
-            let wanted = match (joint, swing) {
+            let mut wanted = match (joint, swing) {
                 (JointId::LEFT_HIP, Some((0, hip))) | (JointId::RIGHT_HIP, Some((1, hip))) => hip,
                 _ => target.pose.parent_from_joint[j],
             };
+            let knee_lift = match joint {
+                JointId::LEFT_KNEE => clearance[0],
+                JointId::RIGHT_KNEE => clearance[1],
+                _ => 0.0,
+            };
+            let bend = axis_angle_from_rotation(&wanted);
+            if knee_lift > 0.0 && bend.norm() > MIN_SWING_KNEE_BEND_RAD {
+                // Further along the knee's own bend: the knee flexes only one way.
+                wanted = Rotation3::new(bend.normalize() * (bend.norm() + knee_lift));
+            }
             let error = axis_angle_from_rotation(&(wanted * current.inverse()));
             let mut velocity = target.angular_velocity[j] + error * (kp / kd.max(1e-9));
             match joint {
@@ -517,6 +537,35 @@ impl Simulation {
                     .set_motor_velocity(axis, velocity[k] as f32, damping as f32);
             }
         }
+    }
+
+    /// Swing clearance: per side, extra knee flexion (rad) for a foot the estimate swings (its
+    /// ball `SWING_CLEARANCE_M` above the other one's) while the simulated foot hangs lower than
+    /// the estimate's. The data's swing feet clear the floor by 3-9 cm; a simulated body a few
+    /// degrees off drags its toes (a scuff), which trips it. Torques mode only: in residual mode
+    /// the root is held and a bent knee would only add tracking error.
+    fn swing_clearance(&self) -> [f64; 2] {
+        let Some(placement) = self
+            .placement
+            .as_ref()
+            .filter(|_| self.config.mode == Mode::Torques)
+        else {
+            return [0.0; 2];
+        };
+        [0, 1].map(|side| {
+            let other = 1 - side;
+            if placement.feet_m[side].y - placement.feet_m[other].y < SWING_CLEARANCE_M {
+                return 0.0;
+            }
+            let deficit = placement.feet_m[side].y - self.foot_position(FEET[side]).y;
+            let shank = self
+                .model
+                .body
+                .skeleton
+                .offset_in_parent_m(FEET[side].parent().expect("feet have ankles"))
+                .norm();
+            (self.config.clearance_gain * deficit.max(0.0) / shank).min(MAX_CLEARANCE_BEND_RAD)
+        })
     }
 
     /// The estimate's centre of mass (and its velocity from the previous frame's), feet and thighs.

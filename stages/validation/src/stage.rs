@@ -86,6 +86,13 @@ pub const SPEC: StageSpec = StageSpec {
             "joint torque limit per kg of body mass (N·m/kg)",
         ),
         ParamSpec::float(
+            "clearance_gain",
+            0.0,
+            20.0,
+            "4",
+            "extra swing-knee bend per shank length the simulated swing foot hangs below the estimate's (rad/rad)",
+        ),
+        ParamSpec::float(
             "balance_kp",
             0.0,
             1e5,
@@ -195,6 +202,7 @@ pub fn build(stage: &str, params: &Params) -> anyhow::Result<Validator> {
         placement_kv: params.float("placement_kv", d.placement_kv),
         residual_kp: params.float("residual_kp", d.residual_kp),
         residual_kd: params.float("residual_kd", d.residual_kd),
+        clearance_gain: params.float("clearance_gain", d.clearance_gain),
         friction: params.float("friction", d.friction),
         substeps: params.int("substeps", d.substeps as i64).max(1) as usize,
         solver_iterations: params
