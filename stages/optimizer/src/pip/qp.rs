@@ -366,7 +366,11 @@ impl Qp {
                 }
             }
         }
-        let mut hess = b.tr_mul(&b);
+        // Bᵀ·B and (below) Xᵀ·X as a product with an explicit transpose: nalgebra's `tr_mul` is
+        // a column-by-column dot product, the `*` of dynamic matrices a blocked matrixmultiply
+        // kernel (the QP's largest single cost before; same product, other summation order).
+        let bt = b.transpose();
+        let mut hess = &bt * &b;
         for c in 0..NUM_DOFS {
             for r in 0..=c {
                 let x = self.paa[(r, c)];
@@ -380,7 +384,7 @@ impl Qp {
             hess[(NUM_DOFS + i, NUM_DOFS + i)] += w * w;
         }
         let wh = DVector::from_iterator(NUM_DOFS, (0..NUM_DOFS).map(|i| self.tau_w[i] * self.h[i]));
-        let mut g = b.tr_mul(&wh);
+        let mut g = &bt * &wh;
         for i in 0..NUM_DOFS {
             g[i] += self.q[i];
         }
@@ -414,7 +418,7 @@ impl Qp {
                 *pi /= s;
             }
         }
-        let qd = x.tr_mul(&x);
+        let qd = x.transpose() * &x;
         // clarabel: min ½νᵀQν + pᵀν s.t. −ν + s = 0, s ≥ 0.
         let mut colptr = Vec::with_capacity(m + 1);
         let mut rowval = Vec::with_capacity(m * (m + 1) / 2);
