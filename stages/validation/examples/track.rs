@@ -12,7 +12,8 @@
 //! `SIM_CLEAR`, `SIM_FRICTION`, `SIM_MAXTAU`, `SIM_SUBSTEPS`, `SIM_ITERS`, `SIM_FOOT_PITCH` (the SimConfig
 //! fields and the stage parameters of the same meaning); `SIM_MODES=torques,residual` picks the
 //! modes of a single clip; `SIM_TRACE=1` prints every frame (root offset from the estimate, pelvis
-//! and trunk tilt, the feet's loads and the estimate's ball heights); `SIM_FEET=1` prints the
+//! and trunk tilt, the feet's loads and the estimate's ball heights; the pelvis's heading
+//! difference and both root velocities); `SIM_FEET=1` prints the
 //! estimate's stance-foot pitch instead of simulating (see `model::DEFAULT_FOOT_PITCH_DEG`).
 
 use std::path::Path;
