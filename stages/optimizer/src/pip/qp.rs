@@ -11,10 +11,11 @@
 //! - **Reduced** (default): τ substituted, `z = [v̇, λ]` with the dense Hessian
 //!   `H = blockdiag(P_aa, diag(w_λ²)) + BᵀB`, `B = [W·M, −W·J_cᵀ]` (`W` the torque weights), and
 //!   gradient `g = [q_a, 0] + Bᵀ·W·h`. `H = LLᵀ` (Cholesky). The unconstrained optimum is
-//!   `z_u = −H⁻¹g`; with inequalities, clarabel solves the dual
+//!   `z_u = −H⁻¹g`; with inequalities, a dense interior-point method solves the dual
 //!   `min_{μ≥0} ½μᵀ(X̃ᵀX̃)μ + (d̃ − C̃·z_u)ᵀμ`, `X̃ = L⁻¹C̃ᵀ` (rows of `C` scaled to unit `‖L⁻¹cᵢ‖`: a
 //!   unit-diagonal dual Hessian), and `z = z_u − L⁻ᵀ·X̃·μ`. One variable per inequality row
-//!   (~44 with both feet in contact), bound constraints only.
+//!   (~44 with both feet in contact), bound constraints only (the `bound_qp` module; clarabel
+//!   when it does not converge).
 //! - **Full**: the original form, clarabel on `x = [v̇, λ, τ]` with the equation of motion as 75
 //!   equality rows (`min ½xᵀPx + qᵀx` s.t. `A·x + s = b`, `s ∈ {0}^75 × R₊^m`). Used when `H` is not
 //!   numerically positive definite (a zero torque or force weight) and as the tests' reference.
@@ -39,7 +40,7 @@ use imuflow_contact::pip::FEET;
 use imuflow_graph::frames::MAX_CONTACT_POINTS;
 use nalgebra::{Cholesky, DMatrix, DVector, Vector3};
 
-use super::{POSITION_PD_JOINTS, PipConfig};
+use super::{POSITION_PD_JOINTS, PipConfig, bound_qp};
 use crate::{PhysicsBody, Reference};
 
 /// What the solver reported for one step (the last solve when there was a re-solve).
@@ -47,10 +48,10 @@ use crate::{PhysicsBody, Reference};
 pub struct SolveStats {
     /// Solves this step (2 when the unconstrained re-solve ran).
     pub solves: u32,
-    /// clarabel's interior-point iterations of the last solve (0 when it had no inequality rows, which
+    /// The interior-point iterations of the last solve (0 when it had no inequality rows, which
     /// the reduced formulation solves in closed form).
     pub iterations: u32,
-    /// Wall time of the last solve (s) after assembly: reduction, factorisations, clarabel, recovery.
+    /// Wall time of the last solve (s) after assembly: reduction, factorisations, interior point, recovery.
     pub solve_time_s: f64,
     /// Variables and constraint rows of the last solve: `[v̇, λ]` and the inequality rows for the
     /// reduced formulation, `[v̇, λ, τ]` and equality + inequality rows for the full one.
@@ -419,7 +420,35 @@ impl Qp {
             }
         }
         let qd = x.transpose() * &x;
-        // clarabel: min ½νᵀQν + pᵀν s.t. −ν + s = 0, s ≥ 0.
+        let dense = bound_qp::solve(
+            &qd,
+            &DVector::from_column_slice(&p),
+            config.solver_tolerance,
+            config.solver_max_iterations,
+        );
+        let (nu, iterations) = match dense {
+            Some(solution) => (solution.nu, solution.iterations),
+            None => match clarabel_dual(&qd, &p, config) {
+                Some(solved) => solved,
+                None => return Reduced::Failed,
+            },
+        };
+        let nu = nu.map(|v| v.max(0.0));
+        let mut corr = &x * nu;
+        if !l.tr_solve_lower_triangular_mut(&mut corr) {
+            return Reduced::Failed;
+        }
+        z -= corr;
+        Reduced::Solved(z.as_slice().to_vec(), iterations)
+    }
+}
+
+/// The reduced formulation's dual through clarabel (the fallback when the dense solver does not
+/// converge): `min ½νᵀQν + pᵀν` s.t. `ν ≥ 0`. Returns ν and the iterations.
+fn clarabel_dual(qd: &DMatrix<f64>, p: &[f64], config: &PipConfig) -> Option<(DVector<f64>, u32)> {
+    let m = p.len();
+    // clarabel: min ½νᵀQν + pᵀν s.t. −ν + s = 0, s ≥ 0.
+    {
         let mut colptr = Vec::with_capacity(m + 1);
         let mut rowval = Vec::with_capacity(m * (m + 1) / 2);
         let mut nzval = Vec::with_capacity(m * (m + 1) / 2);
@@ -437,7 +466,7 @@ impl Qp {
         let cones = [NonnegativeConeT(m)];
         let Ok(mut solver) = DefaultSolver::new(
             &p_mat,
-            &p,
+            p,
             &a_mat,
             &zeros,
             &cones,
@@ -449,7 +478,7 @@ impl Qp {
                 ..settings(config)
             },
         ) else {
-            return Reduced::Failed;
+            return None;
         };
         solver.solve();
         let sol = &solver.solution;
@@ -457,17 +486,13 @@ impl Qp {
             sol.status,
             SolverStatus::Solved | SolverStatus::AlmostSolved
         ) {
-            return Reduced::Failed;
+            return None;
         }
-        let nu = DVector::from_iterator(m, sol.x.iter().map(|v| v.max(0.0)));
-        let mut corr = &x * nu;
-        if !l.tr_solve_lower_triangular_mut(&mut corr) {
-            return Reduced::Failed;
-        }
-        z -= corr;
-        Reduced::Solved(z.as_slice().to_vec(), sol.iterations)
+        Some((DVector::from_column_slice(&sol.x), sol.iterations))
     }
+}
 
+impl Qp {
     /// The full formulation (module docs): returns `[v̇, λ]` of `x = [v̇, λ, τ]`.
     fn solve_full(&self, config: &PipConfig, stats: &mut SolveStats) -> Option<Vec<f64>> {
         let nc = self.nc;
