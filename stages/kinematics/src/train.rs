@@ -212,13 +212,16 @@ impl Optimizer {
 
     /// One Adam step, each net's gradients clipped to a norm of `clip` on their own (the nets are
     /// independent; one global norm would let the net with the largest loss, e.g. the cumulative
-    /// velocity loss, throttle the others). Returns the largest net's norm.
+    /// velocity loss, throttle the others). A net whose gradient is not finite is left as it is
+    /// for this step: one NaN would otherwise pass the clipping (`NaN > clip` is false) and turn
+    /// every weight of that net into NaN for the rest of the run, as a GlobalPose run's velocity
+    /// net did in its third epoch. Returns, per net, whether it was skipped.
     fn step(
         &mut self,
         grads: &candle_core::backprop::GradStore,
         lr: f64,
         clip: f64,
-    ) -> candle_core::Result<f64> {
+    ) -> candle_core::Result<Vec<bool>> {
         let gs: Vec<Option<Tensor>> = self.vars.iter().map(|v| grads.get(v).cloned()).collect();
         let groups = 1 + self.group.iter().copied().max().unwrap_or(0);
         let mut sq = vec![0.0f64; groups];
@@ -227,12 +230,16 @@ impl Optimizer {
                 sq[self.group[i]] += g.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
             }
         }
+        let skipped: Vec<bool> = sq.iter().map(|s| !s.is_finite()).collect();
         self.step += 1;
         let t = self.step as i32;
         let bc1 = 1.0 - Self::BETA1.powi(t);
         let bc2 = 1.0 - Self::BETA2.powi(t);
         for (i, g) in gs.into_iter().enumerate() {
             let Some(g) = g else { continue };
+            if skipped[self.group[i]] {
+                continue;
+            }
             let norm = sq[self.group[i]].sqrt();
             let scale = if norm > clip { clip / norm } else { 1.0 };
             let g = (g * scale)?;
@@ -243,7 +250,7 @@ impl Optimizer {
             let next = (self.vars[i].as_tensor() - (update * lr)?)?;
             self.vars[i].set(&next)?;
         }
-        Ok(sq.iter().fold(0.0f64, |a, &b| a.max(b)).sqrt())
+        Ok(skipped)
     }
 }
 
@@ -546,6 +553,9 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
             options.epochs,
         );
         let mut sums = vec![0.0f64; tasks.len()];
+        // Per net: the steps it learned from, and those skipped for a non-finite gradient.
+        let mut counted = vec![0usize; tasks.len()];
+        let mut skipped = vec![0usize; tasks.len()];
         let mut done = 0usize;
         for batch_starts in starts.chunks_exact(options.batch) {
             let batch = make_batch(
@@ -562,9 +572,15 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
                 total = (total + l)?;
             }
             let grads = total.backward()?;
-            opt.step(&grads, options.lr, options.clip_norm)?;
-            for (s, l) in sums.iter_mut().zip(&losses) {
-                *s += l.to_scalar::<f32>()? as f64;
+            let skipped_now = opt.step(&grads, options.lr, options.clip_norm)?;
+            for (net, l) in losses.iter().enumerate() {
+                let loss = l.to_scalar::<f32>()? as f64;
+                if skipped_now.get(net).copied().unwrap_or(false) || !loss.is_finite() {
+                    skipped[net] += 1;
+                } else {
+                    sums[net] += loss;
+                    counted[net] += 1;
+                }
             }
             done += 1;
             state.step += 1;
@@ -579,7 +595,19 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
             }
         }
         bar.finish_and_clear();
-        let train_losses: Vec<f64> = sums.iter().map(|s| s / done.max(1) as f64).collect();
+        let train_losses: Vec<f64> = sums
+            .iter()
+            .zip(&counted)
+            .map(|(s, &n)| s / n.max(1) as f64)
+            .collect();
+        for (task, &n) in tasks.iter().zip(&skipped) {
+            if n > 0 {
+                eprintln!(
+                    "warning: {}: {n} of {done} steps skipped this epoch (loss or gradient not finite)",
+                    task.net
+                );
+            }
+        }
         let val_losses = validate(&specs, &opt, &val_set, tasks, &val_starts, options)?;
         let val_total: f64 = val_losses.iter().sum();
         state.epoch += 1;
@@ -859,4 +887,46 @@ fn export(
                 .to_owned(),
     };
     weights::save(&options.out, &tensors, &metadata)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(name: &str) -> RnnSpec {
+        RnnSpec {
+            name: name.to_owned(),
+            input: 2,
+            output: 2,
+            hidden: 4,
+            layers: 1,
+            input_linear: false,
+            init_input: None,
+        }
+    }
+
+    /// A net whose gradient is NaN keeps its weights; the other net still takes its Adam step.
+    #[test]
+    fn a_non_finite_gradient_skips_only_its_own_net() -> candle_core::Result<()> {
+        let device = Device::Cpu;
+        let a = Var::from_vec(vec![1.0f32, 2.0], 2, &device)?;
+        let b = Var::from_vec(vec![3.0f32, 4.0], 2, &device)?;
+        let mut opt = Optimizer::new(
+            vec![("a.w".to_owned(), a.clone()), ("b.w".to_owned(), b.clone())],
+            &[spec("a"), spec("b")],
+        )?;
+        // d/da Σa² = 2a (finite); d/db of Σ b·NaN is NaN.
+        let nan = Tensor::new(&[f32::NAN, f32::NAN], &device)?;
+        let loss = (a.as_tensor().sqr()?.sum_all()? + (b.as_tensor() * nan)?.sum_all()?)?;
+        let skipped = opt.step(&loss.backward()?, 0.1, 1e9)?;
+        assert_eq!(skipped, vec![false, true]);
+        assert_eq!(b.as_tensor().to_vec1::<f32>()?, vec![3.0, 4.0]);
+        // Adam's first step moves every weight by lr against its gradient's sign.
+        let a_now = a.as_tensor().to_vec1::<f32>()?;
+        assert!(
+            (a_now[0] - 0.9).abs() < 1e-5 && (a_now[1] - 1.9).abs() < 1e-5,
+            "{a_now:?}"
+        );
+        Ok(())
+    }
 }
