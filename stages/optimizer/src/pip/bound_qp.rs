@@ -125,8 +125,8 @@ fn max_step(x: &DVector<f64>, dx: &DVector<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clarabel::algebra::CscMatrix;
-    use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, NonnegativeConeT};
+    use crate::pip::PipConfig;
+    use crate::pip::qp::clarabel_dual;
 
     /// A reproducible pseudo-random number in [-1, 1).
     fn lcg(state: &mut u64) -> f64 {
@@ -147,36 +147,16 @@ mod tests {
         (x.transpose() * &x, x.transpose() * w + t)
     }
 
+    /// The same dual through clarabel (the solver's fallback) at a tight tolerance.
     fn clarabel_solution(q: &DMatrix<f64>, p: &DVector<f64>) -> DVector<f64> {
-        let m = p.len();
-        let (mut colptr, mut rowval, mut nzval) = (vec![0], Vec::new(), Vec::new());
-        for c in 0..m {
-            for r in 0..=c {
-                rowval.push(r);
-                nzval.push(q[(r, c)]);
-            }
-            colptr.push(rowval.len());
-        }
-        let p_mat = CscMatrix::new(m, m, colptr, rowval, nzval);
-        let a_mat = CscMatrix::new(m, m, (0..=m).collect(), (0..m).collect(), vec![-1.0; m]);
-        let settings = DefaultSettings {
-            verbose: false,
-            tol_gap_abs: 1e-10,
-            tol_gap_rel: 1e-10,
-            tol_feas: 1e-10,
-            ..DefaultSettings::default()
+        let config = PipConfig {
+            solver_tolerance: 1e-10,
+            solver_max_iterations: 200,
+            ..PipConfig::default()
         };
-        let mut solver = DefaultSolver::new(
-            &p_mat,
-            p.as_slice(),
-            &a_mat,
-            &vec![0.0; m],
-            &[NonnegativeConeT(m)],
-            settings,
-        )
-        .unwrap();
-        solver.solve();
-        DVector::from_vec(solver.solution.x.clone())
+        clarabel_dual(q, p.as_slice(), &config)
+            .expect("clarabel solves it")
+            .0
     }
 
     fn objective(q: &DMatrix<f64>, p: &DVector<f64>, nu: &DVector<f64>) -> f64 {

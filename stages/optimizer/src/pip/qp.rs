@@ -445,51 +445,53 @@ impl Qp {
 
 /// The reduced formulation's dual through clarabel (the fallback when the dense solver does not
 /// converge): `min ½νᵀQν + pᵀν` s.t. `ν ≥ 0`. Returns ν and the iterations.
-fn clarabel_dual(qd: &DMatrix<f64>, p: &[f64], config: &PipConfig) -> Option<(DVector<f64>, u32)> {
+pub(super) fn clarabel_dual(
+    qd: &DMatrix<f64>,
+    p: &[f64],
+    config: &PipConfig,
+) -> Option<(DVector<f64>, u32)> {
     let m = p.len();
     // clarabel: min ½νᵀQν + pᵀν s.t. −ν + s = 0, s ≥ 0.
-    {
-        let mut colptr = Vec::with_capacity(m + 1);
-        let mut rowval = Vec::with_capacity(m * (m + 1) / 2);
-        let mut nzval = Vec::with_capacity(m * (m + 1) / 2);
-        colptr.push(0);
-        for c in 0..m {
-            for r in 0..=c {
-                rowval.push(r);
-                nzval.push(qd[(r, c)]);
-            }
-            colptr.push(rowval.len());
+    let mut colptr = Vec::with_capacity(m + 1);
+    let mut rowval = Vec::with_capacity(m * (m + 1) / 2);
+    let mut nzval = Vec::with_capacity(m * (m + 1) / 2);
+    colptr.push(0);
+    for c in 0..m {
+        for r in 0..=c {
+            rowval.push(r);
+            nzval.push(qd[(r, c)]);
         }
-        let p_mat = CscMatrix::new(m, m, colptr, rowval, nzval);
-        let a_mat = CscMatrix::new(m, m, (0..=m).collect(), (0..m).collect(), vec![-1.0; m]);
-        let zeros = vec![0.0; m];
-        let cones = [NonnegativeConeT(m)];
-        let Ok(mut solver) = DefaultSolver::new(
-            &p_mat,
-            p,
-            &a_mat,
-            &zeros,
-            &cones,
-            // Rows already scaled to a unit-diagonal dual Hessian: clarabel's equilibration only
-            // costs time (and an iteration); no infinite bounds to presolve away.
-            DefaultSettings {
-                equilibrate_enable: false,
-                presolve_enable: false,
-                ..settings(config)
-            },
-        ) else {
-            return None;
-        };
-        solver.solve();
-        let sol = &solver.solution;
-        if !matches!(
-            sol.status,
-            SolverStatus::Solved | SolverStatus::AlmostSolved
-        ) {
-            return None;
-        }
-        Some((DVector::from_column_slice(&sol.x), sol.iterations))
+        colptr.push(rowval.len());
     }
+    let p_mat = CscMatrix::new(m, m, colptr, rowval, nzval);
+    let a_mat = CscMatrix::new(m, m, (0..=m).collect(), (0..m).collect(), vec![-1.0; m]);
+    let zeros = vec![0.0; m];
+    let cones = [NonnegativeConeT(m)];
+    let Ok(mut solver) = DefaultSolver::new(
+        &p_mat,
+        p,
+        &a_mat,
+        &zeros,
+        &cones,
+        // Rows already scaled to a unit-diagonal dual Hessian: clarabel's equilibration only
+        // costs time (and an iteration); no infinite bounds to presolve away.
+        DefaultSettings {
+            equilibrate_enable: false,
+            presolve_enable: false,
+            ..settings(config)
+        },
+    ) else {
+        return None;
+    };
+    solver.solve();
+    let sol = &solver.solution;
+    if !matches!(
+        sol.status,
+        SolverStatus::Solved | SolverStatus::AlmostSolved
+    ) {
+        return None;
+    }
+    Some((DVector::from_column_slice(&sol.x), sol.iterations))
 }
 
 impl Qp {
