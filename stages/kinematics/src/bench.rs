@@ -29,11 +29,11 @@ pub fn step_times_us(
     let mut last_start: Option<Instant> = None;
     for f in 0..frames + warmup {
         let input = swaying_sensors(f);
-        let t0 = Instant::now();
         if let Some(pace) = pace {
             // Sleep until this frame's slot (the previous step's start + pace).
-            let next = last_start.map_or(t0, |s| s + pace);
-            std::thread::sleep(next.saturating_duration_since(t0));
+            let now = Instant::now();
+            let next = last_start.map_or(now, |s| s + pace);
+            std::thread::sleep(next.saturating_duration_since(now));
             last_start = Some(Instant::now());
         }
         let t0 = Instant::now();

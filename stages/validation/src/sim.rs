@@ -519,10 +519,12 @@ impl Simulation {
                 JointId::RIGHT_KNEE => clearance[1],
                 _ => 0.0,
             };
-            let bend = axis_angle_from_rotation(&wanted);
-            if knee_lift > 0.0 && bend.norm() > MIN_SWING_KNEE_BEND_RAD {
-                // Further along the knee's own bend: the knee flexes only one way.
-                wanted = Rotation3::new(bend.normalize() * (bend.norm() + knee_lift));
+            if knee_lift > 0.0 {
+                let bend = axis_angle_from_rotation(&wanted);
+                if bend.norm() > MIN_SWING_KNEE_BEND_RAD {
+                    // Further along the knee's own bend: the knee flexes only one way.
+                    wanted = Rotation3::new(bend.normalize() * (bend.norm() + knee_lift));
+                }
             }
             let error = axis_angle_from_rotation(&(wanted * current.inverse()));
             let mut velocity = target.angular_velocity[j] + error * (kp / kd.max(1e-9));

@@ -3,7 +3,8 @@
 //!
 //! Why not clarabel here: clarabel is a general sparse conic solver; for this small dense problem
 //! its setup (CSC assembly, ordering, symbolic factorisation of an `2m × 2m` KKT system) and its
-//! sparse kernels took about half of the QP's time. The same primal-dual method on the dense
+//! sparse kernels dominate: on `imuflow bench physics`'s duals (28 variables on average) clarabel
+//! took 428 µs a solve against 62 µs here, timed one after the other on the same problems. The same primal-dual method on the dense
 //! `m × m` normal equations `(Q + S·N⁻¹)·Δν = r` costs one dense Cholesky per iteration.
 //! clarabel stays the fallback (a failed solve here is retried there) and the solver of the full
 //! formulation, which the tests use as the reference.

@@ -406,7 +406,7 @@ impl Qp {
             x[(c, r)] += v;
         }
         // Dual linear term d − C·z_u (before scaling).
-        let mut p: Vec<f64> = (0..m).map(|i| self.d[i] - x.column(i).dot(&z)).collect();
+        let mut p = DVector::from_fn(m, |i, _| self.d[i] - x.column(i).dot(&z));
         let l = chol.l();
         if !l.solve_lower_triangular_mut(&mut x) {
             return Reduced::NotPositiveDefinite;
@@ -422,13 +422,13 @@ impl Qp {
         let qd = x.transpose() * &x;
         let dense = bound_qp::solve(
             &qd,
-            &DVector::from_column_slice(&p),
+            &p,
             config.solver_tolerance,
             config.solver_max_iterations,
         );
         let (nu, iterations) = match dense {
             Some(solution) => (solution.nu, solution.iterations),
-            None => match clarabel_dual(&qd, &p, config) {
+            None => match clarabel_dual(&qd, p.as_slice(), config) {
                 Some(solved) => solved,
                 None => return Reduced::Failed,
             },
@@ -441,60 +441,7 @@ impl Qp {
         z -= corr;
         Reduced::Solved(z.as_slice().to_vec(), iterations)
     }
-}
 
-/// The reduced formulation's dual through clarabel (the fallback when the dense solver does not
-/// converge): `min ½νᵀQν + pᵀν` s.t. `ν ≥ 0`. Returns ν and the iterations.
-pub(super) fn clarabel_dual(
-    qd: &DMatrix<f64>,
-    p: &[f64],
-    config: &PipConfig,
-) -> Option<(DVector<f64>, u32)> {
-    let m = p.len();
-    // clarabel: min ½νᵀQν + pᵀν s.t. −ν + s = 0, s ≥ 0.
-    let mut colptr = Vec::with_capacity(m + 1);
-    let mut rowval = Vec::with_capacity(m * (m + 1) / 2);
-    let mut nzval = Vec::with_capacity(m * (m + 1) / 2);
-    colptr.push(0);
-    for c in 0..m {
-        for r in 0..=c {
-            rowval.push(r);
-            nzval.push(qd[(r, c)]);
-        }
-        colptr.push(rowval.len());
-    }
-    let p_mat = CscMatrix::new(m, m, colptr, rowval, nzval);
-    let a_mat = CscMatrix::new(m, m, (0..=m).collect(), (0..m).collect(), vec![-1.0; m]);
-    let zeros = vec![0.0; m];
-    let cones = [NonnegativeConeT(m)];
-    let Ok(mut solver) = DefaultSolver::new(
-        &p_mat,
-        p,
-        &a_mat,
-        &zeros,
-        &cones,
-        // Rows already scaled to a unit-diagonal dual Hessian: clarabel's equilibration only
-        // costs time (and an iteration); no infinite bounds to presolve away.
-        DefaultSettings {
-            equilibrate_enable: false,
-            presolve_enable: false,
-            ..settings(config)
-        },
-    ) else {
-        return None;
-    };
-    solver.solve();
-    let sol = &solver.solution;
-    if !matches!(
-        sol.status,
-        SolverStatus::Solved | SolverStatus::AlmostSolved
-    ) {
-        return None;
-    }
-    Some((DVector::from_column_slice(&sol.x), sol.iterations))
-}
-
-impl Qp {
     /// The full formulation (module docs): returns `[v̇, λ]` of `x = [v̇, λ, τ]`.
     fn solve_full(&self, config: &PipConfig, stats: &mut SolveStats) -> Option<Vec<f64>> {
         let nc = self.nc;
@@ -642,6 +589,57 @@ impl Qp {
             }
         }
     }
+}
+
+/// The reduced formulation's dual through clarabel (the fallback when the dense solver does not
+/// converge): `min ½νᵀQν + pᵀν` s.t. `ν ≥ 0`. Returns ν and the iterations.
+pub(super) fn clarabel_dual(
+    qd: &DMatrix<f64>,
+    p: &[f64],
+    config: &PipConfig,
+) -> Option<(DVector<f64>, u32)> {
+    let m = p.len();
+    // clarabel: min ½νᵀQν + pᵀν s.t. −ν + s = 0, s ≥ 0.
+    let mut colptr = Vec::with_capacity(m + 1);
+    let mut rowval = Vec::with_capacity(m * (m + 1) / 2);
+    let mut nzval = Vec::with_capacity(m * (m + 1) / 2);
+    colptr.push(0);
+    for c in 0..m {
+        for r in 0..=c {
+            rowval.push(r);
+            nzval.push(qd[(r, c)]);
+        }
+        colptr.push(rowval.len());
+    }
+    let p_mat = CscMatrix::new(m, m, colptr, rowval, nzval);
+    let a_mat = CscMatrix::new(m, m, (0..=m).collect(), (0..m).collect(), vec![-1.0; m]);
+    let zeros = vec![0.0; m];
+    let cones = [NonnegativeConeT(m)];
+    let Ok(mut solver) = DefaultSolver::new(
+        &p_mat,
+        p,
+        &a_mat,
+        &zeros,
+        &cones,
+        // Rows already scaled to a unit-diagonal dual Hessian: clarabel's equilibration only
+        // costs time (and an iteration); no infinite bounds to presolve away.
+        DefaultSettings {
+            equilibrate_enable: false,
+            presolve_enable: false,
+            ..settings(config)
+        },
+    ) else {
+        return None;
+    };
+    solver.solve();
+    let sol = &solver.solution;
+    if !matches!(
+        sol.status,
+        SolverStatus::Solved | SolverStatus::AlmostSolved
+    ) {
+        return None;
+    }
+    Some((DVector::from_column_slice(&sol.x), sol.iterations))
 }
 
 /// clarabel's settings from the configuration.
