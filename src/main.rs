@@ -145,6 +145,11 @@ enum DatasetCommand {
         /// clip: new combinations of recorded poses (a punch while walking)
         #[arg(long)]
         recombine: bool,
+        /// Training clips also enter with smooth random offsets on the spine, neck, head and arms
+        /// within joint limits: deeper bows, twists, hands in front of the body or raised, elbows
+        /// bent further
+        #[arg(long)]
+        perturb: bool,
         /// Joint mapping TOML of the clips' skeleton (format: stages/body/mappings/bandai-namco.toml);
         /// default: the built-in Bandai Namco mapping.
         #[arg(long, value_name = "FILE")]
@@ -510,6 +515,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
         mirror,
         speeds,
         recombine,
+        perturb,
         mapping,
         shard_frames,
         no_progress,
@@ -529,6 +535,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
     }
     options.speeds = speeds;
     options.recombine = recombine;
+    options.perturb = perturb;
     options.max_shard_frames = shard_frames;
     options.progress = !no_progress;
     match imuflow_dataset::build(&options) {

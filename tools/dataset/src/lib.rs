@@ -85,6 +85,9 @@ pub struct BuildOptions {
     /// Training clips also enter with the upper body of another training clip
     /// ([`motion_augment::recombine`]; the partner is picked by a hash of the clip and the seed).
     pub recombine: bool,
+    /// Training clips also enter with smooth random offsets on the spine, neck, head and arms
+    /// ([`motion_augment::perturb`]; seeded by the clip and the seed).
+    pub perturb: bool,
     /// Joint mapping of the clips' skeleton (`stages/body/mappings/bandai-namco.toml` documents the
     /// format); `None`: the built-in Bandai Namco mapping.
     pub mapping: Option<PathBuf>,
@@ -111,6 +114,7 @@ impl BuildOptions {
             mirror: false,
             speeds: Vec::new(),
             recombine: false,
+            perturb: false,
             mapping: None,
             max_shard_frames: DEFAULT_MAX_SHARD_FRAMES,
             stature_m: DEFAULT_STATURE_M,
@@ -570,7 +574,7 @@ impl ClipWork {
     }
 
     /// The sequences of one clip: ideal first, then the augmented copies; for a training clip the
-    /// same again for each motion augmentation (mirrored, each speed).
+    /// same again for each motion augmentation (mirrored, each speed, recombined, perturbed).
     fn process(
         &mut self,
         key: &str,
@@ -601,6 +605,10 @@ impl ClipWork {
                 if mixed.poses.len() as f64 >= FPS {
                     motions.push((format!("upper body of {partner}"), mixed));
                 }
+            }
+            if options.perturb {
+                let seed = fnv1a64(format!("{key}#perturbed").as_bytes()) ^ options.seed;
+                motions.push(("perturbed".to_owned(), motion_augment::perturb(&clip, seed)));
             }
         }
         motions.insert(0, (String::new(), clip));

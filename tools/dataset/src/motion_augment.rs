@@ -8,10 +8,16 @@
 //! - [`recombine`]: the legs and pelvis of one clip under the spine, head and arms of another: a
 //!   punch while walking, a wave while turning. Every joint keeps a rotation some person made, so
 //!   the new poses stay within joint limits; only their combination is new.
+//! - [`perturb`]: smooth random offsets on the spine, neck, head, collar, shoulder and elbow
+//!   rotations (a deeper bow, a twist, arms further in front or raised, elbows bent further),
+//!   within ranges that keep the joints inside their anatomical limits: postures no recorded clip
+//!   holds, on the recorded legs and root path.
 
 use imuflow_body::JointId;
 use imuflow_body::retarget::{MotionClip, ResampleError, resample};
-use nalgebra::{Matrix3, Rotation3};
+use nalgebra::{Matrix3, Rotation3, Vector3};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
 
 /// The joint on the other side of the body (itself on the midline), SMPL order.
 pub fn mirror_joint(j: JointId) -> JointId {
@@ -84,6 +90,164 @@ pub fn recombine(lower: &MotionClip, upper: &MotionClip) -> MotionClip {
         frame_time_s: lower.frame_time_s,
         poses,
     }
+}
+
+/// The range of [`perturb`]'s offset on one joint, degrees about the joint's own x (the body's
+/// left in the T-pose: forward bend of the spine, twist of a T-posed arm), y (up: twist of the
+/// spine, an arm swung forward or back) and z (forward: lateral bend, an arm raised or lowered)
+/// axes, `[low, high]` each.
+struct OffsetRange {
+    joint: JointId,
+    degrees: [[f64; 2]; 3],
+}
+
+/// Why these ranges: the spine's three joints together bend forward up to 45° and back 24°, bend
+/// sideways and twist up to 24° and 30° (about the ranges of motion of the thoracolumbar spine);
+/// neck and head ±10° each; collars ±8°; shoulders swing mostly forward (the hands in front of the
+/// body, crossed arms: the postures issue 12 measured the networks getting wrong), rise or drop
+/// 25° and twist 25°, which stays inside the shoulder's range from any recorded posture but its
+/// extremes. Elbows get a flexion offset of their own ([`ELBOW_FLEXION_DEG`]).
+const OFFSET_RANGES: [OffsetRange; 9] = [
+    OffsetRange {
+        joint: JointId::SPINE1,
+        degrees: [[-8.0, 15.0], [-10.0, 10.0], [-8.0, 8.0]],
+    },
+    OffsetRange {
+        joint: JointId::SPINE2,
+        degrees: [[-8.0, 15.0], [-10.0, 10.0], [-8.0, 8.0]],
+    },
+    OffsetRange {
+        joint: JointId::SPINE3,
+        degrees: [[-8.0, 15.0], [-10.0, 10.0], [-8.0, 8.0]],
+    },
+    OffsetRange {
+        joint: JointId::NECK,
+        degrees: [[-10.0, 10.0], [-10.0, 10.0], [-10.0, 10.0]],
+    },
+    OffsetRange {
+        joint: JointId::HEAD,
+        degrees: [[-10.0, 10.0], [-10.0, 10.0], [-10.0, 10.0]],
+    },
+    OffsetRange {
+        joint: JointId::LEFT_COLLAR,
+        degrees: [[-8.0, 8.0], [-8.0, 8.0], [-8.0, 8.0]],
+    },
+    OffsetRange {
+        joint: JointId::RIGHT_COLLAR,
+        degrees: [[-8.0, 8.0], [-8.0, 8.0], [-8.0, 8.0]],
+    },
+    // The left arm lies along +x: about y, negative swings it forward; about z, positive raises it.
+    OffsetRange {
+        joint: JointId::LEFT_SHOULDER,
+        degrees: [[-25.0, 25.0], [-45.0, 15.0], [-25.0, 25.0]],
+    },
+    // The right arm lies along −x: the mirror image (positive about y forward, negative about z up).
+    OffsetRange {
+        joint: JointId::RIGHT_SHOULDER,
+        degrees: [[-25.0, 25.0], [-15.0, 45.0], [-25.0, 25.0]],
+    },
+];
+
+/// The elbows' extra flexion, degrees, `[low, high]`: negative straightens the arm. The offset is
+/// clamped frame by frame so the elbow stays between straight and [`ELBOW_MAX_FLEXION_DEG`].
+const ELBOW_FLEXION_DEG: [f64; 2] = [-30.0, 50.0];
+const ELBOW_MAX_FLEXION_DEG: f64 = 145.0;
+
+/// A smooth random signal in [−1, 1]: three sinusoids of 0.05–0.5 Hz (a posture held for
+/// seconds, changing over one to ten) with random phases and weights summing to 1.
+struct SmoothNoise {
+    parts: [(f64, f64, f64); 3],
+}
+
+impl SmoothNoise {
+    fn new(rng: &mut StdRng) -> SmoothNoise {
+        let mut parts = [(0.0, 0.0, 0.0); 3];
+        for p in &mut parts {
+            *p = (
+                rng.random_range(0.1..1.0),
+                std::f64::consts::TAU * rng.random_range(0.05..0.5),
+                rng.random_range(0.0..std::f64::consts::TAU),
+            );
+        }
+        let total: f64 = parts.iter().map(|p| p.0).sum();
+        for p in &mut parts {
+            p.0 /= total;
+        }
+        SmoothNoise { parts }
+    }
+
+    fn at(&self, t_s: f64) -> f64 {
+        self.parts
+            .iter()
+            .map(|&(w, omega, phase)| w * (omega * t_s + phase).sin())
+            .sum()
+    }
+
+    /// The signal mapped onto `[low, high]`.
+    fn in_range(&self, t_s: f64, [low, high]: [f64; 2]) -> f64 {
+        low + 0.5 * (self.at(t_s) + 1.0) * (high - low)
+    }
+}
+
+/// `clip` with smooth random offsets (seeded by `seed`) on the upper body's joints: each joint's
+/// recorded local rotation R becomes R·exp(ω(t)), ω's components drawn from [`OFFSET_RANGES`];
+/// each elbow's flexion changes by [`ELBOW_FLEXION_DEG`] about the axis of its recorded bend,
+/// clamped to keep the elbow between straight and 145°. Legs, pelvis and root path stay recorded.
+pub fn perturb(clip: &MotionClip, seed: u64) -> MotionClip {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let joints: Vec<(JointId, [[f64; 2]; 3], [SmoothNoise; 3])> = OFFSET_RANGES
+        .iter()
+        .map(|r| {
+            let noise = [(); 3].map(|_| SmoothNoise::new(&mut rng));
+            (r.joint, r.degrees, noise)
+        })
+        .collect();
+    let elbows =
+        [JointId::LEFT_ELBOW, JointId::RIGHT_ELBOW].map(|j| (j, SmoothNoise::new(&mut rng)));
+    let poses = clip
+        .poses
+        .iter()
+        .enumerate()
+        .map(|(k, pose)| {
+            let t_s = k as f64 * clip.frame_time_s;
+            let mut p = pose.clone();
+            for (joint, degrees, noise) in &joints {
+                let omega =
+                    Vector3::from_fn(|a, _| noise[a].in_range(t_s, degrees[a]).to_radians());
+                let r = &mut p.parent_from_joint[joint.index()];
+                *r *= Rotation3::new(omega);
+            }
+            for (joint, noise) in &elbows {
+                let r = &mut p.parent_from_joint[joint.index()];
+                *r = flex_elbow(*r, *joint, noise.in_range(t_s, ELBOW_FLEXION_DEG));
+            }
+            p
+        })
+        .collect();
+    MotionClip {
+        frame_time_s: clip.frame_time_s,
+        poses,
+    }
+}
+
+/// The elbow rotation `r` bent `extra_deg` further (straightened below 0) about the hinge its
+/// recorded bend turns about, the result kept between straight and [`ELBOW_MAX_FLEXION_DEG`]. A
+/// nearly straight elbow has no measurable hinge: a small share of the T-pose's forward-flexion
+/// axis (the forearm swings towards +z, the body's front) keeps the hinge continuous there; above
+/// about 15° of recorded bend the bend's own axis dominates.
+fn flex_elbow(r: Rotation3<f64>, joint: JointId, extra_deg: f64) -> Rotation3<f64> {
+    // The forearm's rest direction in the elbow's frame: along the arm, +x on the left.
+    let rest = if joint == JointId::LEFT_ELBOW {
+        Vector3::x()
+    } else {
+        -Vector3::x()
+    };
+    let bent = r * rest;
+    let flexion = rest.angle(&bent);
+    let front_hinge = rest.cross(&Vector3::z());
+    let hinge = (rest.cross(&bent) + 0.05 * front_hinge).normalize();
+    let target = (flexion + extra_deg.to_radians()).clamp(0.0, ELBOW_MAX_FLEXION_DEG.to_radians());
+    Rotation3::from_axis_angle(&nalgebra::Unit::new_unchecked(hinge), target - flexion) * r
 }
 
 /// `clip` played `speed` times as fast, resampled to `rate_hz`.
@@ -186,6 +350,92 @@ mod tests {
                 j.name()
             );
         }
+    }
+
+    #[test]
+    fn perturbed_postures_stay_in_range_and_change_smoothly() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        // 20 s of the T-pose with the elbows bent 90° forward and then 140° (near the limit).
+        let mut poses = Vec::new();
+        for k in 0..1200 {
+            let mut pose = Pose::t_pose(Vector3::new(0.0, 0.9, 0.0));
+            let bend = if k < 600 { 90f64 } else { 140.0 }.to_radians();
+            pose.parent_from_joint[JointId::LEFT_ELBOW.index()] =
+                Rotation3::from_axis_angle(&Vector3::y_axis(), -bend);
+            pose.parent_from_joint[JointId::RIGHT_ELBOW.index()] =
+                Rotation3::from_axis_angle(&Vector3::y_axis(), bend);
+            poses.push(pose);
+        }
+        let clip = MotionClip {
+            frame_time_s: 1.0 / 60.0,
+            poses,
+        };
+        let a = perturb(&clip, 7);
+        assert_eq!(a.poses.len(), clip.poses.len());
+        // Deterministic per seed, different across seeds.
+        let again = perturb(&clip, 7);
+        let other = perturb(&clip, 8);
+        let spine = JointId::SPINE2.index();
+        assert_eq!(
+            a.poses[300].parent_from_joint[spine],
+            again.poses[300].parent_from_joint[spine]
+        );
+        assert!(
+            a.poses[300].parent_from_joint[spine]
+                .angle_to(&other.poses[300].parent_from_joint[spine])
+                > 1e-3
+        );
+        let (mut fk, mut fk_prev) = (FkData::new(), FkData::new());
+        let mut moved = 0.0f64;
+        for (k, (p, orig)) in a.poses.iter().zip(&clip.poses).enumerate() {
+            // Legs, pelvis and the root path are the recorded ones.
+            assert_eq!(p.root_in_world_m, orig.root_in_world_m);
+            for j in [0, 1, 2, 4, 5, 7, 8, 10, 11, 20, 21, 22, 23] {
+                assert_eq!(
+                    p.parent_from_joint[j], orig.parent_from_joint[j],
+                    "joint {j}"
+                );
+            }
+            // Every offset within its range: at most the norm of the range's extremes.
+            for r in &OFFSET_RANGES {
+                let max = Vector3::from_fn(|a, _| r.degrees[a][0].abs().max(r.degrees[a][1].abs()));
+                let offset = orig.parent_from_joint[r.joint.index()].inverse()
+                    * p.parent_from_joint[r.joint.index()];
+                assert!(
+                    offset.angle().to_degrees() <= max.norm() + 1e-9,
+                    "{}",
+                    r.joint.name()
+                );
+            }
+            // The elbows stay between straight and 145°, their forearms in front of the arm's
+            // line (the hinge of the recorded bend).
+            for (elbow, rest) in [
+                (JointId::LEFT_ELBOW, Vector3::x()),
+                (JointId::RIGHT_ELBOW, -Vector3::x()),
+            ] {
+                let forearm = p.parent_from_joint[elbow.index()] * rest;
+                let flexion = rest.angle(&forearm).to_degrees();
+                assert!(flexion <= ELBOW_MAX_FLEXION_DEG + 1e-6, "{flexion}");
+                let recorded = if k < 600 { 90.0 } else { 140.0 };
+                assert!((flexion - recorded) >= ELBOW_FLEXION_DEG[0] - 1e-6);
+                assert!(forearm.z > -1e-9 && forearm.y.abs() < 0.1, "{forearm}");
+            }
+            // Smooth: no wrist moves more than 2 cm between frames (0.5 Hz at most, 1.2 m/s),
+            // but where the recorded bend itself jumps (frame 600).
+            forward_kinematics(&body.skeleton, p, &mut fk);
+            if k > 0 && k != 600 {
+                for j in [JointId::LEFT_WRIST, JointId::RIGHT_WRIST, JointId::HEAD] {
+                    let step = (fk.position(j) - fk_prev.position(j)).norm();
+                    assert!(step < 0.02, "{} moved {step} m at frame {k}", j.name());
+                    moved += step;
+                }
+            }
+            std::mem::swap(&mut fk, &mut fk_prev);
+        }
+        assert!(
+            moved > 1.0,
+            "the offsets must move the upper body: {moved} m in all"
+        );
     }
 
     #[test]
