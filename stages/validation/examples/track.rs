@@ -104,6 +104,10 @@ fn batch(body: &BodyModel, list: &Path) -> anyhow::Result<()> {
         "of the {} falls and resyncs, {} followed a scuff (a simulated foot loaded while the estimate's is 3 cm up) and {} a bounce (no simulated foot loaded while an estimate's foot is down) within 0.5 s",
         causes.failures, causes.after_scuff, causes.after_bounce
     );
+    let [a, b, c, d] = causes.since_reset;
+    println!(
+        "after the start or the previous reset: {a} within 0.5 s, {b} in 0.5-1 s, {c} in 1-2 s, {d} later"
+    );
     Ok(())
 }
 
@@ -113,6 +117,8 @@ struct Causes {
     failures: u32,
     after_scuff: u32,
     after_bounce: u32,
+    /// Failures within 0.5 s, 0.5-1 s, 1-2 s and later after the start or the previous reset.
+    since_reset: [u32; 4],
 }
 
 impl Causes {
@@ -120,6 +126,9 @@ impl Causes {
         self.failures += other.failures;
         self.after_scuff += other.after_scuff;
         self.after_bounce += other.after_bounce;
+        for (a, b) in self.since_reset.iter_mut().zip(other.since_reset) {
+            *a += b;
+        }
     }
 }
 
@@ -156,6 +165,7 @@ fn track(body: &BodyModel, mode: Mode, poses: &[Pose], first: usize) -> Run {
     let mut fk = FkData::new();
     let (mut falls, mut causes) = (Vec::new(), Causes::default());
     let mut recent: Vec<(bool, bool)> = Vec::new();
+    let mut last_reset = 0;
     for (i, pose) in poses.iter().enumerate() {
         let Some(o) = validator.frame(Some(pose), DT) else {
             continue;
@@ -171,6 +181,9 @@ fn track(body: &BodyModel, mode: Mode, poses: &[Pose], first: usize) -> Run {
             causes.failures += 1;
             causes.after_scuff += u32::from(window.iter().any(|w| w.0));
             causes.after_bounce += u32::from(window.iter().any(|w| w.1));
+            let since = (i - last_reset) as f64 * DT;
+            causes.since_reset[[0.5, 1.0, 2.0].iter().filter(|&&t| since >= t).count()] += 1;
+            last_reset = i;
         }
         if o.fell {
             falls.push(first + i);
