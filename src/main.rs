@@ -150,6 +150,11 @@ enum DatasetCommand {
         /// bent further
         #[arg(long)]
         perturb: bool,
+        /// One training clip in eight also enters as 15 s of standing idle in its first standing
+        /// posture: weight shifts from foot to foot (the feet planted, the legs by inverse
+        /// kinematics), the upper body moving as with --perturb
+        #[arg(long)]
+        standing_idle: bool,
         /// Joint mapping TOML of the clips' skeleton (format: stages/body/mappings/bandai-namco.toml);
         /// default: the built-in Bandai Namco mapping.
         #[arg(long, value_name = "FILE")]
@@ -516,6 +521,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
         speeds,
         recombine,
         perturb,
+        standing_idle,
         mapping,
         shard_frames,
         no_progress,
@@ -536,6 +542,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
     options.speeds = speeds;
     options.recombine = recombine;
     options.perturb = perturb;
+    options.standing_idle = standing_idle;
     options.max_shard_frames = shard_frames;
     options.progress = !no_progress;
     match imuflow_dataset::build(&options) {

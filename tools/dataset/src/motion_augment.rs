@@ -12,9 +12,13 @@
 //!   rotations (a deeper bow, a twist, arms further in front or raised, elbows bent further),
 //!   within ranges that keep the joints inside their anatomical limits: postures no recorded clip
 //!   holds, on the recorded legs and root path.
+//! - [`standing_idle`]: a person standing still in one of the clip's standing postures, shifting
+//!   their weight from foot to foot (the pelvis sways over the planted feet, the legs follow by
+//!   inverse kinematics); with [`perturb`] on top, the arms and spine move too. The data has no
+//!   standing-idle sessions, which issue 12 measured at 30-34° SIP.
 
-use imuflow_body::JointId;
 use imuflow_body::retarget::{MotionClip, ResampleError, resample};
+use imuflow_body::{BodyModel, FkData, JointId, Pose, forward_kinematics};
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -250,6 +254,205 @@ fn flex_elbow(r: Rotation3<f64>, joint: JointId, extra_deg: f64) -> Rotation3<f6
     Rotation3::from_axis_angle(&nalgebra::Unit::new_unchecked(hinge), target - flexion) * r
 }
 
+/// Length of one [`standing_idle`] sequence, s.
+pub const STANDING_IDLE_S: f64 = 15.0;
+/// A frame counts as standing when the root moves slower than this (m/s) and both balls of the
+/// feet are this low (m).
+const STANDING_SPEED_MPS: f64 = 0.1;
+const STANDING_FOOT_HEIGHT_M: f64 = 0.04;
+/// Weight shifts: the pelvis moves up to this far sideways (m; a person shifting their weight
+/// onto one foot brings the pelvis 4-8 cm towards it), forwards or back, and down (the knees
+/// bend), and tilts and turns this much (degrees).
+const SWAY_SIDEWAYS_M: f64 = 0.06;
+const SWAY_FORWARD_M: f64 = 0.025;
+const SWAY_DOWN_M: f64 = 0.02;
+const SWAY_ROLL_DEG: f64 = 4.0;
+const SWAY_YAW_DEG: f64 = 6.0;
+
+/// [`STANDING_IDLE_S`] of standing still in the first standing posture of `clip` (root slower than
+/// 0.1 m/s, both feet down), shifting weight: the pelvis sways sideways, forwards and down, tilts
+/// towards the loaded side and turns, in slow smooth random motion (seeded by `seed`), while both
+/// feet stay where they stand (the ankles' positions and the feet's orientations are held; hips
+/// and knees follow by two-bone inverse kinematics about the knees' own hinges). The upper body
+/// keeps the standing posture's local rotations; compose with [`perturb`] to move it. `None` when
+/// the clip never stands.
+pub fn standing_idle(clip: &MotionClip, body: &BodyModel, seed: u64) -> Option<MotionClip> {
+    let mut fk = FkData::new();
+    let standing = standing_frame(clip, body, &mut fk)?;
+    let start = clip.poses[standing].clone();
+    forward_kinematics(&body.skeleton, &start, &mut fk);
+    let legs = [Leg::LEFT, Leg::RIGHT].map(|leg| PlantedLeg::new(leg, &fk));
+    // Sideways is the pelvis's left axis on the floor, forwards its facing.
+    let left = horizontal_unit(fk.world_from(JointId::PELVIS) * Vector3::x())?;
+    let forward = Vector3::y().cross(&left);
+    let mut rng = StdRng::seed_from_u64(seed);
+    let [side, fore, down, yaw] = [(); 4].map(|_| SmoothNoise::new(&mut rng));
+    let frames = (STANDING_IDLE_S / clip.frame_time_s).round() as usize;
+    let poses = (0..frames)
+        .map(|k| {
+            let t_s = k as f64 * clip.frame_time_s;
+            let shift = side.at(t_s);
+            let mut pose = start.clone();
+            pose.root_in_world_m += SWAY_SIDEWAYS_M * shift * left
+                + SWAY_FORWARD_M * fore.at(t_s) * forward
+                - SWAY_DOWN_M * 0.5 * (down.at(t_s) + 1.0) * Vector3::y();
+            // The pelvis drops on the unloaded side: moving left loads the left foot, so the
+            // pelvis rolls down on the right (about the forward axis).
+            let roll = Rotation3::from_axis_angle(
+                &nalgebra::Unit::new_normalize(forward),
+                SWAY_ROLL_DEG.to_radians() * shift,
+            );
+            let turn = Rotation3::from_axis_angle(
+                &Vector3::y_axis(),
+                SWAY_YAW_DEG.to_radians() * yaw.at(t_s),
+            );
+            let pelvis = JointId::PELVIS.index();
+            pose.parent_from_joint[pelvis] = turn * roll * start.parent_from_joint[pelvis];
+            // A pelvis that moved beyond the legs' reach comes down until they reach (nearly
+            // straight standing knees have only millimetres to spare).
+            for _ in 0..3 {
+                forward_kinematics(&body.skeleton, &pose, &mut fk);
+                let lower = legs
+                    .iter()
+                    .map(|leg| leg.drop_to_reach(&fk))
+                    .fold(0.0, f64::max);
+                pose.root_in_world_m.y -= lower;
+            }
+            for leg in &legs {
+                leg.plant(&mut pose, body, &mut fk);
+            }
+            pose
+        })
+        .collect();
+    Some(MotionClip {
+        frame_time_s: clip.frame_time_s,
+        poses,
+    })
+}
+
+fn horizontal_unit(v: Vector3<f64>) -> Option<Vector3<f64>> {
+    Vector3::new(v.x, 0.0, v.z).try_normalize(1e-6)
+}
+
+/// The first frame where the root moves slower than [`STANDING_SPEED_MPS`] and both balls of the
+/// feet are below [`STANDING_FOOT_HEIGHT_M`].
+fn standing_frame(clip: &MotionClip, body: &BodyModel, fk: &mut FkData) -> Option<usize> {
+    (1..clip.poses.len()).find(|&k| {
+        let step = clip.poses[k].root_in_world_m - clip.poses[k - 1].root_in_world_m;
+        let speed = Vector3::new(step.x, 0.0, step.z).norm() / clip.frame_time_s;
+        if speed > STANDING_SPEED_MPS {
+            return false;
+        }
+        forward_kinematics(&body.skeleton, &clip.poses[k], fk);
+        [JointId::LEFT_FOOT, JointId::RIGHT_FOOT]
+            .iter()
+            .all(|f| fk.position(*f).y < STANDING_FOOT_HEIGHT_M)
+    })
+}
+
+/// One leg's joints.
+struct Leg {
+    hip: JointId,
+    knee: JointId,
+    ankle: JointId,
+}
+
+impl Leg {
+    const LEFT: Leg = Leg {
+        hip: JointId::LEFT_HIP,
+        knee: JointId::LEFT_KNEE,
+        ankle: JointId::LEFT_ANKLE,
+    };
+    const RIGHT: Leg = Leg {
+        hip: JointId::RIGHT_HIP,
+        knee: JointId::RIGHT_KNEE,
+        ankle: JointId::RIGHT_ANKLE,
+    };
+}
+
+/// A leg whose foot stays where it stood.
+struct PlantedLeg {
+    leg: Leg,
+    ankle_m: Vector3<f64>,
+    foot: Rotation3<f64>,
+    thigh_m: f64,
+    shank_m: f64,
+    /// The knee's bend axis in the thigh's frame.
+    hinge: nalgebra::Unit<Vector3<f64>>,
+}
+
+impl PlantedLeg {
+    fn new(leg: Leg, fk: &FkData) -> PlantedLeg {
+        let (h, k, a) = (
+            *fk.position(leg.hip),
+            *fk.position(leg.knee),
+            *fk.position(leg.ankle),
+        );
+        let thigh = fk.world_from(leg.hip);
+        // A straight knee shows no bend: its rest hinge, the thigh's x axis (the body's left in
+        // the T-pose: the shank swings back).
+        let bend = (k - h).cross(&(a - k));
+        let hinge_world = bend
+            .try_normalize(1e-6)
+            .unwrap_or_else(|| thigh * Vector3::x());
+        PlantedLeg {
+            ankle_m: a,
+            foot: *fk.world_from(leg.ankle),
+            thigh_m: (k - h).norm(),
+            shank_m: (a - k).norm(),
+            hinge: nalgebra::Unit::new_normalize(thigh.inverse() * hinge_world),
+            leg,
+        }
+    }
+
+    /// How far the pelvis must come down for this leg to reach its ankle with the knee bent at
+    /// least a little (99.5 % of the leg's length), m; 0 when it reaches.
+    fn drop_to_reach(&self, fk: &FkData) -> f64 {
+        let to_ankle = self.ankle_m - *fk.position(self.leg.hip);
+        let excess = to_ankle.norm() - 0.995 * (self.thigh_m + self.shank_m);
+        if excess <= 0.0 {
+            return 0.0;
+        }
+        // Lowering the hip by δ shortens the hip-ankle distance by about δ·cos(leg from vertical).
+        excess * to_ankle.norm() / to_ankle.y.abs().max(0.5 * to_ankle.norm())
+    }
+
+    /// Turns `pose`'s hip, knee and ankle so the ankle stands at the planted position with the
+    /// foot turned as planted, given the pose's pelvis. `fk` is scratch.
+    fn plant(&self, pose: &mut Pose, body: &BodyModel, fk: &mut FkData) {
+        let l = &self.leg;
+        forward_kinematics(&body.skeleton, pose, fk);
+        let hip = *fk.position(l.hip);
+        // The knee's interior angle that puts the ankle at the planted distance (law of cosines),
+        // the distance kept reachable.
+        let (a, b) = (self.thigh_m, self.shank_m);
+        let reach = (self.ankle_m - hip)
+            .norm()
+            .clamp((a - b).abs() + 1e-6, a + b - 1e-6);
+        let interior = |d: f64| {
+            ((a * a + b * b - d * d) / (2.0 * a * b))
+                .clamp(-1.0, 1.0)
+                .acos()
+        };
+        let now = (*fk.position(l.ankle) - hip).norm();
+        let more_bend = interior(now) - interior(reach);
+        let knee = l.knee.index();
+        pose.parent_from_joint[knee] =
+            Rotation3::from_axis_angle(&self.hinge, more_bend) * pose.parent_from_joint[knee];
+        // Swing the thigh about the hip so the ankle lands on its planted position.
+        forward_kinematics(&body.skeleton, pose, fk);
+        let swing =
+            Rotation3::rotation_between(&(*fk.position(l.ankle) - hip), &(self.ankle_m - hip))
+                .unwrap_or_else(Rotation3::identity);
+        let pelvis = *fk.world_from(JointId::PELVIS);
+        let h = l.hip.index();
+        pose.parent_from_joint[h] = pelvis.inverse() * swing * pelvis * pose.parent_from_joint[h];
+        // The foot keeps its planted orientation.
+        forward_kinematics(&body.skeleton, pose, fk);
+        pose.parent_from_joint[l.ankle.index()] = fk.world_from(l.knee).inverse() * self.foot;
+    }
+}
+
 /// `clip` played `speed` times as fast, resampled to `rate_hz`.
 pub fn time_warp(clip: &MotionClip, speed: f64, rate_hz: f64) -> Result<MotionClip, ResampleError> {
     let faster = MotionClip {
@@ -436,6 +639,106 @@ mod tests {
             moved > 1.0,
             "the offsets must move the upper body: {moved} m in all"
         );
+    }
+
+    #[test]
+    fn standing_idle_sways_the_pelvis_over_feet_that_stay_put() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        // Two seconds of walking in place (root moving), then standing: straight knees (the
+        // reach limit) and, in a second clip, knees bent 20°, arms down.
+        for knee_deg in [0.0f64, 20.0] {
+            let mut stand = Pose::t_pose(Vector3::zeros());
+            let bend = knee_deg.to_radians();
+            for (hip, knee) in [(1, 4), (2, 5)] {
+                stand.parent_from_joint[hip] =
+                    Rotation3::from_axis_angle(&Vector3::x_axis(), -0.5 * bend);
+                stand.parent_from_joint[knee] =
+                    Rotation3::from_axis_angle(&Vector3::x_axis(), bend);
+            }
+            let mut fk = FkData::new();
+            forward_kinematics(&body.skeleton, &stand, &mut fk);
+            stand.root_in_world_m.y = -fk.position(JointId::LEFT_FOOT).y;
+            let mut poses: Vec<Pose> = (0..120)
+                .map(|k| {
+                    let mut p = stand.clone();
+                    p.root_in_world_m.z += 0.02 * k as f64;
+                    p
+                })
+                .collect();
+            let standing_at = poses.last().unwrap().root_in_world_m;
+            poses.extend((0..60).map(|_| {
+                let mut p = stand.clone();
+                p.root_in_world_m = standing_at;
+                p
+            }));
+            let clip = MotionClip {
+                frame_time_s: 1.0 / 60.0,
+                poses,
+            };
+            let idle = standing_idle(&clip, &body, 3).unwrap();
+            assert_eq!(idle.poses.len(), (STANDING_IDLE_S * 60.0) as usize);
+            forward_kinematics(&body.skeleton, &clip.poses[125], &mut fk);
+            let planted = [
+                JointId::LEFT_ANKLE,
+                JointId::RIGHT_ANKLE,
+                JointId::LEFT_FOOT,
+                JointId::RIGHT_FOOT,
+            ]
+            .map(|j| (*fk.position(j), *fk.world_from(j)));
+            let start = fk.position(JointId::PELVIS).xz();
+            let (mut widest, mut previous) = (0.0f64, None::<Vector3<f64>>);
+            for pose in &idle.poses {
+                forward_kinematics(&body.skeleton, pose, &mut fk);
+                for (j, (at, turned)) in [
+                    JointId::LEFT_ANKLE,
+                    JointId::RIGHT_ANKLE,
+                    JointId::LEFT_FOOT,
+                    JointId::RIGHT_FOOT,
+                ]
+                .iter()
+                .zip(&planted)
+                {
+                    assert!(
+                        (fk.position(*j) - at).norm() < 1e-6,
+                        "{} moved {} m (knees {knee_deg}°)",
+                        j.name(),
+                        (fk.position(*j) - at).norm()
+                    );
+                    assert!(
+                        // (angle_to is NaN for equal rotations: acos of a cosine rounded past 1)
+                        (fk.world_from(*j).matrix() - turned.matrix()).norm() < 1e-6,
+                        "{} turned (knees {knee_deg}°)",
+                        j.name(),
+                    );
+                }
+                // The knees bend forwards only (the shank behind the thigh's line seen from the
+                // side would be a knee bent backwards) and never past 60°.
+                for (hip, knee, ankle) in [(1, 4, 7), (2, 5, 8)] {
+                    let thigh = fk.joint_in_world_m[knee] - fk.joint_in_world_m[hip];
+                    let shank = fk.joint_in_world_m[ankle] - fk.joint_in_world_m[knee];
+                    assert!(thigh.angle(&shank).to_degrees() < 60.0);
+                }
+                let pelvis = *fk.position(JointId::PELVIS);
+                widest = widest.max((pelvis.xz() - start).norm());
+                if let Some(p) = previous {
+                    assert!((pelvis - p).norm() < 0.005, "the pelvis jumps");
+                }
+                previous = Some(pelvis);
+            }
+            assert!(
+                widest > 0.02,
+                "the weight must shift: the pelvis moved {widest} m at most"
+            );
+            assert!(widest < SWAY_SIDEWAYS_M + SWAY_FORWARD_M + 1e-9);
+        }
+        // A clip that never stands gives nothing.
+        let walking = MotionClip {
+            frame_time_s: 1.0 / 60.0,
+            poses: (0..60)
+                .map(|k| Pose::t_pose(Vector3::new(0.0, 0.9, 0.03 * k as f64)))
+                .collect(),
+        };
+        assert!(standing_idle(&walking, &body, 1).is_none());
     }
 
     #[test]

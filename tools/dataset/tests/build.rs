@@ -523,3 +523,50 @@ fn recombined_upper_bodies_come_from_other_training_clips_only() {
         }
     }
 }
+
+#[test]
+fn perturbed_and_standing_idle_motions_enter_training_only() {
+    let input = input_dir(&GOOD);
+    let (plain_out, more_out) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let plain = build(&options(input.path(), plain_out.path())).unwrap();
+    let mut o = options(input.path(), more_out.path());
+    o.perturb = true;
+    o.standing_idle = true;
+    let more = build(&o).unwrap();
+    let mut labels: BTreeMap<String, Vec<(String, usize)>> = BTreeMap::new();
+    for shard in shard_files(more_out.path()) {
+        let bytes = std::fs::read(&shard).unwrap();
+        let (_, metadata) = SafeTensors::read_metadata(&bytes).unwrap();
+        let meta: ShardMetadata =
+            serde_json::from_str(&metadata.metadata().as_ref().unwrap()[METADATA_KEY]).unwrap();
+        for seq in &meta.sequences {
+            labels
+                .entry(seq.clip.clone())
+                .or_default()
+                .push((seq.motion.clone(), seq.frames));
+        }
+    }
+    let by_split = clips_by_split(&split_json(more_out.path()));
+    let idle_frames = (imuflow_dataset::motion_augment::STANDING_IDLE_S * 60.0) as usize;
+    for (clip, motions) in &labels {
+        let train = by_split.get(clip).map(String::as_str) == Some("train");
+        let perturbed = motions.iter().filter(|(m, _)| m == "perturbed").count();
+        // Ideal + one augmented copy of each motion.
+        assert_eq!(perturbed, if train { 2 } else { 0 }, "{clip}");
+        for (m, frames) in motions.iter().filter(|(m, _)| m == "standing idle") {
+            assert!(train, "{clip}: {m} outside training");
+            assert_eq!(*frames, idle_frames, "{clip}");
+        }
+    }
+    for s in Split::ALL {
+        let (p, m) = (&plain.splits[s.index()], &more.splits[s.index()]);
+        if s == Split::Train {
+            assert!(
+                m.sequences >= 2 * p.sequences,
+                "{s}: perturbed copies missing"
+            );
+        } else {
+            assert_eq!(p, m, "{s} must not change");
+        }
+    }
+}
