@@ -155,6 +155,11 @@ enum DatasetCommand {
         /// kinematics), the upper body moving as with --perturb
         #[arg(long)]
         standing_idle: bool,
+        /// The augmented IMU copies of training clips are synthesized on bodies of statures drawn
+        /// from this range, m, `LOW,HIGH` (e.g. 1.5,1.95), the mass in proportion to stature²;
+        /// ideal copies, validation, test and holdout stay on the 1.75 m subject
+        #[arg(long, value_delimiter = ',', value_name = "LOW,HIGH", num_args = 2)]
+        vary_stature: Option<Vec<f64>>,
         /// Joint mapping TOML of the clips' skeleton (format: stages/body/mappings/bandai-namco.toml);
         /// default: the built-in Bandai Namco mapping.
         #[arg(long, value_name = "FILE")]
@@ -522,6 +527,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
         recombine,
         perturb,
         standing_idle,
+        vary_stature,
         mapping,
         shard_frames,
         no_progress,
@@ -543,6 +549,19 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
     options.recombine = recombine;
     options.perturb = perturb;
     options.standing_idle = standing_idle;
+    if let Some(range) = vary_stature {
+        match range[..] {
+            [low, high] if low >= 1.0 && low <= high && high <= 2.5 => {
+                options.vary_stature = Some((low, high));
+            }
+            _ => {
+                eprintln!(
+                    "error: --vary-stature: {range:?} is not a range LOW,HIGH of statures between 1 and 2.5 m"
+                );
+                return ExitCode::FAILURE;
+            }
+        }
+    }
     options.max_shard_frames = shard_frames;
     options.progress = !no_progress;
     match imuflow_dataset::build(&options) {

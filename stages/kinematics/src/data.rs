@@ -153,7 +153,12 @@ pub fn load_split(
         for s in (0..shard.offsets.len() - 1).filter(|&s| chosen[i][s]) {
             let (a, b) = (shard.offsets[s], shard.offsets[s + 1]);
             set.sequences.push((set.frames, b - a));
-            builder.push_sequence(&shard, a, b)?;
+            // `imuflow dataset build --vary-stature` synthesizes some sequences on other bodies.
+            let stature_m = shard
+                .metadata
+                .as_ref()
+                .and_then(|m| m["sequences"][s]["stature_m"].as_f64());
+            builder.push_sequence(&shard, a, b, stature_m)?;
             set.frames += b - a;
         }
     }
@@ -350,6 +355,8 @@ impl<'a> Shard<'a> {
 struct Builder {
     method: Method,
     body: BodyModel,
+    /// The body of the sequence being pushed when it is not `body` (its stature, its model).
+    resized: Option<(f64, BodyModel)>,
     arrays: BTreeMap<&'static str, Array>,
 }
 
@@ -417,6 +424,7 @@ impl Builder {
         Ok(Builder {
             method,
             body,
+            resized: None,
             arrays,
         })
     }
@@ -437,7 +445,31 @@ impl Builder {
         a.data.extend_from_slice(values);
     }
 
-    fn push_sequence(&mut self, shard: &Shard, start: usize, end: usize) -> anyhow::Result<()> {
+    /// The body a sequence was synthesized on: the dataset's subject, or one of `stature_m`
+    /// (mass does not matter here).
+    fn use_body(&mut self, stature_m: Option<f64>) -> anyhow::Result<()> {
+        match stature_m {
+            Some(s) if (s - self.body.stature_m).abs() > 1e-9 => {
+                if self.resized.as_ref().is_none_or(|(r, _)| *r != s) {
+                    let params = BodyParams::builtin().context("built-in body model")?;
+                    let body = BodyModel::new(&params, s, self.body.mass_kg)
+                        .with_context(|| format!("body model of stature {s} m"))?;
+                    self.resized = Some((s, body));
+                }
+            }
+            _ => self.resized = None,
+        }
+        Ok(())
+    }
+
+    fn push_sequence(
+        &mut self,
+        shard: &Shard,
+        start: usize,
+        end: usize,
+        stature_m: Option<f64>,
+    ) -> anyhow::Result<()> {
+        self.use_body(stature_m)?;
         let mut fk = FkData::new();
         let mut imu_pos = [Vector3::zeros(); 6];
         for f in start..end {
@@ -491,10 +523,11 @@ impl Builder {
                     self.put("gp_imu", &x);
                     // True down-vector in the true root frame: the gravity target (reference §2.4).
                     let g_true = [-root[3], -root[4], -root[5]];
-                    // IMU positions from the true pose on the dataset's body model.
+                    // IMU positions from the true pose on the sequence's body model.
                     let pose = pose_of(shard, f);
-                    forward_kinematics(&self.body.skeleton, &pose, &mut fk);
-                    imu_positions_in_world(&self.body, &fk, &mut imu_pos);
+                    let body = self.resized.as_ref().map_or(&self.body, |(_, b)| b);
+                    forward_kinematics(&body.skeleton, &pose, &mut fk);
+                    imu_positions_in_world(body, &fk, &mut imu_pos);
                     let p5 = imu_pos[ROOT_IMU];
                     let prb: Vec<f32> = (0..5)
                         .flat_map(|i| {

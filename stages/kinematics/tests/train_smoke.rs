@@ -230,3 +230,56 @@ fn a_frame_budget_samples_sequences_across_all_shards() {
         half.frames
     );
 }
+
+/// `imuflow dataset build --vary-stature` puts augmented training copies on smaller or larger
+/// bodies; the loader must compute GlobalPose's IMU-position targets on each sequence's own body.
+#[test]
+fn resized_sequences_get_imu_positions_of_their_own_body() {
+    use imuflow_kinematics::data::load_split;
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("bvh");
+    for name in NAMES {
+        let p = input.join(name);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::copy(fixture(), &p).unwrap();
+    }
+    let out = dir.path().join("dataset");
+    let mut build = imuflow_dataset::BuildOptions::new(&input, &out);
+    build.progress = false;
+    build.vary_stature = Some((1.5, 1.6));
+    imuflow_dataset::build(&build).unwrap();
+
+    let set = load_split(&out, "train", Method::GlobalPose, usize::MAX, |_, _| {}).unwrap();
+    let statures: Vec<f64> = set
+        .shard_metadata
+        .iter()
+        .flat_map(|m| m["sequences"].as_array().unwrap().clone())
+        .map(|s| s["stature_m"].as_f64().unwrap_or(1.75))
+        .collect();
+    assert_eq!(statures.len(), set.sequences.len());
+    let prb = &set.arrays["prb"];
+    // The spread of the five IMUs around the pelvis IMU at a sequence's first frame.
+    let spread = |first: usize| -> f64 {
+        prb.data[first * prb.dim..(first + 1) * prb.dim]
+            .chunks(3)
+            .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() as f64)
+            .sum()
+    };
+    let mut pairs = 0;
+    // Each clip's ideal copy (the subject, 1.75 m) is followed by its augmented one.
+    for (k, w) in set.sequences.windows(2).enumerate() {
+        let (ideal, resized) = (statures[k], statures[k + 1]);
+        if ideal != 1.75 || resized == 1.75 {
+            continue;
+        }
+        assert!((1.5..=1.6).contains(&resized), "{resized}");
+        let ratio = spread(w[1].0) / spread(w[0].0);
+        let want = resized / 1.75;
+        assert!(
+            (ratio - want).abs() < 0.02,
+            "IMU spread ratio {ratio:.4}, bodies {want:.4}"
+        );
+        pairs += 1;
+    }
+    assert!(pairs >= 2, "{pairs} resized sequences");
+}

@@ -93,6 +93,10 @@ pub struct BuildOptions {
     /// first standing posture ([`motion_augment::standing_idle`]), the upper body moved by
     /// [`motion_augment::perturb`].
     pub standing_idle: bool,
+    /// The augmented IMU copies of training clips are synthesized on a body of a stature drawn
+    /// uniformly from this range, m (mass in proportion to stature², the same build), instead
+    /// of the subject's: people come in all sizes. `None`: every sequence on the subject.
+    pub vary_stature: Option<(f64, f64)>,
     /// Joint mapping of the clips' skeleton (`stages/body/mappings/bandai-namco.toml` documents the
     /// format); `None`: the built-in Bandai Namco mapping.
     pub mapping: Option<PathBuf>,
@@ -121,6 +125,7 @@ impl BuildOptions {
             recombine: false,
             perturb: false,
             standing_idle: false,
+            vary_stature: None,
             mapping: None,
             max_shard_frames: DEFAULT_MAX_SHARD_FRAMES,
             stature_m: DEFAULT_STATURE_M,
@@ -634,7 +639,7 @@ impl ClipWork {
         motions.insert(0, (String::new(), clip));
         let mut out = Vec::new();
         for (motion, clip) in &motions {
-            self.sequences(key, path, motion, clip, body, options, &mut out)?;
+            self.sequences(key, path, motion, clip, body, split, options, &mut out)?;
         }
         Ok(out)
     }
@@ -648,6 +653,7 @@ impl ClipWork {
         motion: &str,
         clip: &MotionClip,
         body: &BodyModel,
+        split: Split,
         options: &BuildOptions,
         out: &mut Vec<SequenceData>,
     ) -> anyhow::Result<()> {
@@ -667,9 +673,21 @@ impl ClipWork {
                     seed,
                 }),
             };
+            // Another body size for an augmented training copy (`--vary-stature`).
+            let resized = match (seed, options.vary_stature, split) {
+                (Some(seed), Some(range), Split::Train) => Some(resized(clip, body, range, seed)?),
+                _ => None,
+            };
+            let (clip, body) = match &resized {
+                Some((clip, body)) => (clip, body),
+                None => (clip, body),
+            };
             let imus = synthesize_imus(clip, body, &synthesis)
                 .with_context(|| format!("{}: IMU synthesis", path.display()))?;
-            let [pose, root, joints] = motion_tensors.clone();
+            let [pose, root, joints] = match &resized {
+                Some(_) => self.motion_tensors(body, clip),
+                None => motion_tensors.clone(),
+            };
             let [ori, acc, gyro] = imu_tensors(&imus);
             out.push(SequenceData {
                 info: SequenceInfo {
@@ -679,6 +697,7 @@ impl ClipWork {
                     seed,
                     frames: clip.poses.len(),
                     motion: motion.to_owned(),
+                    stature_m: resized.as_ref().map(|(_, b)| b.stature_m),
                 },
                 tensors: [ori, acc, gyro, pose, root, joints],
             });
@@ -704,6 +723,31 @@ impl ClipWork {
         }
         [pose, root, joints]
     }
+}
+
+/// `clip` (retargeted on `body`) as retargeted on a body of another stature, drawn uniformly from
+/// `[low, high]` by `seed`, with a mass in proportion to the stature squared. Retargeting copies
+/// the local rotations and scales the root's path (heights included) by the ratio of leg
+/// lengths, so scaling the root's path by the ratio of the two bodies' leg lengths is the same
+/// retargeting.
+fn resized(
+    clip: &MotionClip,
+    body: &BodyModel,
+    (low, high): (f64, f64),
+    seed: u64,
+) -> anyhow::Result<(MotionClip, BodyModel)> {
+    // The seed's top 53 bits as a uniform draw in [0, 1).
+    let u = (seed.rotate_left(29) >> 11) as f64 / (1u64 << 53) as f64;
+    let stature_m = low + u * (high - low);
+    let mass_kg = body.mass_kg * (stature_m / body.stature_m).powi(2);
+    let params = BodyParams::builtin().context("built-in body model")?;
+    let other = BodyModel::new(&params, stature_m, mass_kg).context("resized body model")?;
+    let scale = other.leg_length_m() / body.leg_length_m();
+    let mut clip = clip.clone();
+    for pose in &mut clip.poses {
+        pose.root_in_world_m *= scale;
+    }
+    Ok((clip, other))
 }
 
 /// A motion file as a clip on the body model at its own rate: a BVH retargeted through `source`, or

@@ -45,6 +45,10 @@ pub struct SequenceInfo {
     /// "speed 0.7", … (training clips only).
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub motion: String,
+    /// The stature of the body this sequence was synthesized on, m, when it is not the shard's
+    /// `body_model` (`--vary-stature`: augmented training copies on other body sizes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stature_m: Option<f64>,
 }
 
 /// Everything in a shard's `imuflow` metadata entry (JSON).

@@ -570,3 +570,68 @@ fn perturbed_and_standing_idle_motions_enter_training_only() {
         }
     }
 }
+
+#[test]
+fn varied_statures_resize_augmented_training_copies_only() {
+    let input = input_dir(&GOOD);
+    let out = tempfile::tempdir().unwrap();
+    let mut o = options(input.path(), out.path());
+    o.max_shard_frames = 100_000; // one shard per split: sequences in order
+    o.vary_stature = Some((1.5, 1.95));
+    build(&o).unwrap();
+    let by_split = clips_by_split(&split_json(out.path()));
+    let mut resized = Vec::new();
+    for shard in shard_files(out.path()) {
+        let bytes = std::fs::read(&shard).unwrap();
+        let st = SafeTensors::deserialize(&bytes).unwrap();
+        let (_, metadata) = SafeTensors::read_metadata(&bytes).unwrap();
+        let meta: ShardMetadata =
+            serde_json::from_str(&metadata.metadata().as_ref().unwrap()[METADATA_KEY]).unwrap();
+        let joints: Vec<f32> = st
+            .tensor("joint_position")
+            .unwrap()
+            .data()
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+            .collect();
+        let mut first = 0;
+        let mut ideal_height = 0.0;
+        for seq in &meta.sequences {
+            let train = by_split.get(&seq.clip).map(String::as_str) == Some("train");
+            // Head above the pelvis at the first frame (joint 15 against joint 0).
+            let height = f64::from(joints[first * 72 + 15 * 3 + 1] - joints[first * 72 + 1]);
+            match seq.stature_m {
+                None => {
+                    assert!(
+                        !(train && seq.augmented),
+                        "{}: an augmented training copy",
+                        seq.clip
+                    );
+                    ideal_height = height;
+                }
+                Some(s) => {
+                    assert!(
+                        train && seq.augmented,
+                        "{}: resized outside training",
+                        seq.clip
+                    );
+                    assert!((1.5..=1.95).contains(&s), "{s}");
+                    // The same pose on a body of stature s: every length in proportion.
+                    let ratio = height / ideal_height;
+                    assert!(
+                        (ratio - s / 1.75).abs() < 1e-4,
+                        "{ratio} against {}",
+                        s / 1.75
+                    );
+                    resized.push(s);
+                }
+            }
+            first += seq.frames;
+        }
+    }
+    assert!(resized.len() >= 3, "{resized:?}");
+    assert!(
+        resized.windows(2).any(|w| w[0] != w[1]),
+        "statures vary: {resized:?}"
+    );
+}
