@@ -158,7 +158,7 @@ enum DatasetCommand {
         /// The augmented IMU copies of training clips are synthesized on bodies of statures drawn
         /// from this range, m, `LOW,HIGH` (e.g. 1.5,1.95), the mass in proportion to stature²;
         /// ideal copies, validation, test and holdout stay on the 1.75 m subject
-        #[arg(long, value_delimiter = ',', value_name = "LOW,HIGH", num_args = 2)]
+        #[arg(long, value_delimiter = ',', value_name = "LOW,HIGH")]
         vary_stature: Option<Vec<f64>>,
         /// Joint mapping TOML of the clips' skeleton (format: stages/body/mappings/bandai-namco.toml);
         /// default: the built-in Bandai Namco mapping.
