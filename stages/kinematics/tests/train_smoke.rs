@@ -28,13 +28,19 @@ const NAMES: [&str; 7] = [
     "set-b/walk_07.bvh",
 ];
 
-fn dataset(dir: &Path) -> PathBuf {
+/// The fixture copied under [`NAMES`] into `dir/bvh`.
+fn input_clips(dir: &Path) -> PathBuf {
     let input = dir.join("bvh");
     for name in NAMES {
         let p = input.join(name);
         std::fs::create_dir_all(p.parent().unwrap()).unwrap();
         std::fs::copy(fixture(), &p).unwrap();
     }
+    input
+}
+
+fn dataset(dir: &Path) -> PathBuf {
+    let input = input_clips(dir);
     let out = dir.join("dataset");
     let mut options = imuflow_dataset::BuildOptions::new(&input, &out);
     options.progress = false;
@@ -182,12 +188,7 @@ fn rows_steps(weights: &Path) -> serde_json::Value {
 fn a_frame_budget_samples_sequences_across_all_shards() {
     use imuflow_kinematics::data::load_split;
     let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("bvh");
-    for name in NAMES {
-        let p = input.join(name);
-        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-        std::fs::copy(fixture(), &p).unwrap();
-    }
+    let input = input_clips(dir.path());
     let out = dir.path().join("dataset");
     let mut build = imuflow_dataset::BuildOptions::new(&input, &out);
     build.progress = false;
@@ -237,12 +238,7 @@ fn a_frame_budget_samples_sequences_across_all_shards() {
 fn resized_sequences_get_imu_positions_of_their_own_body() {
     use imuflow_kinematics::data::load_split;
     let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("bvh");
-    for name in NAMES {
-        let p = input.join(name);
-        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-        std::fs::copy(fixture(), &p).unwrap();
-    }
+    let input = input_clips(dir.path());
     let out = dir.path().join("dataset");
     let mut build = imuflow_dataset::BuildOptions::new(&input, &out);
     build.progress = false;

@@ -85,6 +85,12 @@ fn clips_by_split(v: &serde_json::Value) -> BTreeMap<String, String> {
     m
 }
 
+/// A shard's `imuflow` metadata.
+fn shard_metadata(bytes: &[u8]) -> ShardMetadata {
+    let (_, metadata) = SafeTensors::read_metadata(bytes).unwrap();
+    serde_json::from_str(&metadata.metadata().as_ref().unwrap()[METADATA_KEY]).unwrap()
+}
+
 fn shard_files(out: &Path) -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(out)
         .unwrap()
@@ -466,9 +472,7 @@ fn motion_augmentations_add_training_sequences_only() {
         })
         .unwrap();
     let bytes = std::fs::read(shard).unwrap();
-    let (_, metadata) = SafeTensors::read_metadata(&bytes).unwrap();
-    let meta: ShardMetadata =
-        serde_json::from_str(&metadata.metadata().as_ref().unwrap()[METADATA_KEY]).unwrap();
+    let meta = shard_metadata(&bytes);
     let motions: Vec<&str> = meta.sequences.iter().map(|s| s.motion.as_str()).collect();
     assert_eq!(
         &motions[..8],
@@ -508,9 +512,7 @@ fn recombined_upper_bodies_come_from_other_training_clips_only() {
     let by_split = clips_by_split(&split);
     for shard in shard_files(mixed_out.path()) {
         let bytes = std::fs::read(&shard).unwrap();
-        let (_, metadata) = SafeTensors::read_metadata(&bytes).unwrap();
-        let meta: ShardMetadata =
-            serde_json::from_str(&metadata.metadata().as_ref().unwrap()[METADATA_KEY]).unwrap();
+        let meta = shard_metadata(&bytes);
         for seq in &meta.sequences {
             if let Some(partner) = seq.motion.strip_prefix("upper body of ") {
                 assert_ne!(partner, seq.clip, "a clip is not its own partner");
@@ -536,9 +538,7 @@ fn perturbed_and_standing_idle_motions_enter_training_only() {
     let mut labels: BTreeMap<String, Vec<(String, usize)>> = BTreeMap::new();
     for shard in shard_files(more_out.path()) {
         let bytes = std::fs::read(&shard).unwrap();
-        let (_, metadata) = SafeTensors::read_metadata(&bytes).unwrap();
-        let meta: ShardMetadata =
-            serde_json::from_str(&metadata.metadata().as_ref().unwrap()[METADATA_KEY]).unwrap();
+        let meta = shard_metadata(&bytes);
         for seq in &meta.sequences {
             labels
                 .entry(seq.clip.clone())
@@ -584,9 +584,7 @@ fn varied_statures_resize_augmented_training_copies_only() {
     for shard in shard_files(out.path()) {
         let bytes = std::fs::read(&shard).unwrap();
         let st = SafeTensors::deserialize(&bytes).unwrap();
-        let (_, metadata) = SafeTensors::read_metadata(&bytes).unwrap();
-        let meta: ShardMetadata =
-            serde_json::from_str(&metadata.metadata().as_ref().unwrap()[METADATA_KEY]).unwrap();
+        let meta = shard_metadata(&bytes);
         let joints: Vec<f32> = st
             .tensor("joint_position")
             .unwrap()
