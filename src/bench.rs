@@ -87,6 +87,10 @@ pub enum BenchCommand {
         /// hot loop). The difference between the two is the cost of idling between frames.
         #[arg(long, default_value_t = 0.0)]
         pace_hz: f64,
+        /// Step the nets with candle (the training path) instead of the lean f32 step streaming
+        /// inference uses: the difference is candle's per-op overhead at batch 1.
+        #[arg(long)]
+        candle: bool,
     },
 }
 
@@ -348,7 +352,8 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             globalpose,
             frames,
             pace_hz,
-        } => return bench_kinematics(&pip, &globalpose, frames, pace_hz),
+            candle,
+        } => return bench_kinematics(&pip, &globalpose, frames, pace_hz, candle),
         BenchCommand::Physics { frames } => return bench_physics(frames),
         BenchCommand::Validation { input } => return bench_validation(Path::new(&input)),
         BenchCommand::Graph {
@@ -425,20 +430,32 @@ fn bench_kinematics(
     globalpose: &str,
     frames: usize,
     pace_hz: f64,
+    candle: bool,
 ) -> anyhow::Result<()> {
     use imuflow_kinematics::Method;
+    use imuflow_kinematics::infer::Backend;
+    use imuflow_kinematics::lean::Kernel;
     let pace = (pace_hz > 0.0).then(|| std::time::Duration::from_secs_f64(1.0 / pace_hz));
+    let backend = if candle {
+        Backend::Candle
+    } else {
+        Backend::Lean
+    };
     println!(
-        "kinematics benchmark: {frames} streaming frames per method (RAYON_NUM_THREADS={}), {}",
+        "kinematics benchmark: {frames} streaming frames per method (RAYON_NUM_THREADS={}), {}, nets: {}",
         std::env::var("RAYON_NUM_THREADS").unwrap_or_else(|_| "unset".into()),
         match pace {
             Some(_) => format!("paced at {pace_hz} Hz (idle between frames, as live)"),
             None => "back to back".into(),
+        },
+        match backend {
+            Backend::Candle => "candle".to_owned(),
+            Backend::Lean => format!("lean ({} kernel)", Kernel::detect().name()),
         }
     );
     println!(
-        "{:<11} {:>10} {:>10} {:>10} {:>10}",
-        "method", "mean µs", "p50 µs", "p99 µs", "max µs"
+        "{:<11} {:>10} {:>10} {:>10} {:>10} {:>14} {:>14}",
+        "method", "mean µs", "p50 µs", "p99 µs", "max µs", "nets p50 µs", "nets p99 µs"
     );
     for (method, path) in [(Method::Pip, pip), (Method::GlobalPose, globalpose)] {
         if path == "none" {
@@ -450,15 +467,19 @@ fn bench_kinematics(
             frames,
             100,
             pace,
+            backend,
         )?;
-        let pct = |p: f64| t[((t.len() - 1) as f64 * p).round() as usize];
+        let pct = |t: &[f64], p: f64| t[((t.len() - 1) as f64 * p).round() as usize];
+        let (t, nets) = (&t.step_us, &t.nets_us);
         println!(
-            "{:<11} {:>10.1} {:>10.1} {:>10.1} {:>10.1}",
+            "{:<11} {:>10.1} {:>10.1} {:>10.1} {:>10.1} {:>14.1} {:>14.1}",
             method.name(),
             t.iter().sum::<f64>() / t.len() as f64,
-            pct(0.5),
-            pct(0.99),
-            t[t.len() - 1]
+            pct(t, 0.5),
+            pct(t, 0.99),
+            t[t.len() - 1],
+            pct(nets, 0.5),
+            pct(nets, 0.99),
         );
     }
     Ok(())

@@ -19,6 +19,7 @@ use crate::data::{FPS, PIP_VELOCITY_SCALE};
 use crate::features::{
     GLOBALPOSE_INPUT, ImuInput, PIP_INPUT, ROOT_IMU, globalpose_input, pip_input,
 };
+use crate::lean::LeanRnn;
 use crate::method::Method;
 use crate::net::{LstmState, Rnn};
 use crate::weights::Weights;
@@ -120,12 +121,29 @@ impl SensorBones {
     }
 }
 
+/// What steps the nets each frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Backend {
+    /// [`LeanRnn`]: plain f32 over the same weights, no per-op overhead (the default).
+    #[default]
+    Lean,
+    /// candle's [`Rnn::step`], the training path's arithmetic (kept as the reference the lean path
+    /// is tested against, and for `imuflow bench kinematics --candle`).
+    Candle,
+}
+
 /// One method's nets with their streaming state.
 pub struct Streamer {
     method: Method,
     sensor_bones: SensorBones,
+    backend: Backend,
     nets: Vec<Rnn>,
+    /// The nets' lean copies; they hold their own state.
+    lean: Vec<LeanRnn>,
+    /// candle's states (the learned initial states, then the state of [`Backend::Candle`]).
     states: Vec<LstmState>,
+    /// Time spent stepping the nets since construction (for the benchmark).
+    nets_time: std::time::Duration,
     body: BodyModel,
     fk: FkData,
     /// The pose at the first frame (its root orientation is replaced by the root IMU's).
@@ -177,11 +195,19 @@ impl Streamer {
         // The subject the training data was synthesized on (tools/dataset/README.md).
         let body = BodyModel::new(&params, 1.75, 70.0)?;
         let states = Vec::new();
+        let lean = weights
+            .nets
+            .iter()
+            .map(LeanRnn::new)
+            .collect::<candle_core::Result<_>>()?;
         Ok(Streamer {
             method: weights.metadata.method,
             sensor_bones: SensorBones::default(),
+            backend: Backend::default(),
             nets: weights.nets,
+            lean,
             states,
+            nets_time: std::time::Duration::ZERO,
             body,
             fk: FkData::new(),
             start,
@@ -197,6 +223,23 @@ impl Streamer {
     /// Where the instrumented bones' orientations come from (default: measured).
     pub fn set_sensor_bones(&mut self, sensor_bones: SensorBones) {
         self.sensor_bones = sensor_bones;
+    }
+
+    /// Step the nets with `backend` from the next session on (starts one: the two keep separate
+    /// states).
+    pub fn set_backend(&mut self, backend: Backend) {
+        self.backend = backend;
+        self.started = false;
+    }
+
+    pub fn backend(&self) -> Backend {
+        self.backend
+    }
+
+    /// Total time spent in the nets' steps so far (the rest of [`Streamer::step`] is features,
+    /// forward kinematics and pose assembly).
+    pub fn nets_time(&self) -> std::time::Duration {
+        self.nets_time
     }
 
     /// Forget the state: the next frame starts a new session from the start pose.
@@ -257,6 +300,9 @@ impl Streamer {
                 net.initial_state(1, t.as_ref())
             })
             .collect::<candle_core::Result<_>>()?;
+        for (lean, state) in self.lean.iter_mut().zip(&self.states) {
+            lean.set_state(state)?;
+        }
         self.started = true;
         self.previous_joint_position = None;
         Ok(())
@@ -275,8 +321,16 @@ impl Streamer {
     }
 
     fn run(&mut self, net: usize, input: &[f32]) -> anyhow::Result<Vec<f32>> {
-        let y = self.nets[net].step(&tensor(input)?, &mut self.states[net])?;
-        Ok(values(&y)?)
+        let t0 = std::time::Instant::now();
+        let y = match self.backend {
+            Backend::Lean => self.lean[net].step(input).to_vec(),
+            Backend::Candle => {
+                let y = self.nets[net].step(&tensor(input)?, &mut self.states[net])?;
+                values(&y)?
+            }
+        };
+        self.nets_time += t0.elapsed();
+        Ok(y)
     }
 
     fn step_pip(&mut self, imu: &ImuInput, root: &Rotation3<f64>) -> anyhow::Result<Estimate> {
@@ -512,6 +566,86 @@ mod tests {
             .map(|(a, b)| (a - b).abs())
             .fold(0.0, f64::max);
         assert!(off < 1e-5, "written {written:?}\nexpected {expected:.5?}");
+    }
+
+    /// The whole streaming inference with the committed weights: the lean nets give the candle
+    /// nets' estimates, every field of every frame within 1e-5. GlobalPose's joint velocities are
+    /// the exception: they are FPS × the frame-to-frame change of the (compared) positions, so a
+    /// position difference δ shows there as up to 2·60·δ; they get FPS × 1e-5 (measured: PIP
+    /// 2.6e-7 on every field; GlobalPose 1.1e-6, 1.4e-5 on those velocities). The
+    /// frames must also differ from each other (a comparison of constants would prove nothing).
+    fn lean_streaming_matches_candle(method: Method, path: &str) {
+        let load = || {
+            let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../..")
+                .join(path);
+            Weights::load(&path, method).unwrap()
+        };
+        let mut candle = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
+        candle.set_backend(Backend::Candle);
+        let mut lean = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
+        assert_eq!(lean.backend(), Backend::Lean);
+        // (everything but the joint velocities, the joint velocities)
+        let flat = |e: &Estimate| -> (Vec<f64>, Vec<f64>) {
+            let mut v: Vec<f64> = e
+                .pose
+                .iter()
+                .flat_map(|r| r.matrix().iter().copied())
+                .collect();
+            v.extend(e.joint_position.iter().flat_map(|p| p.iter().copied()));
+            v.extend(e.foot_contact);
+            v.extend(e.stationary);
+            v.extend(e.root_velocity.iter().chain(e.gravity_in_root.iter()));
+            let vel = e
+                .joint_velocity
+                .iter()
+                .flat_map(|p| p.iter().copied())
+                .collect();
+            (v, vel)
+        };
+        let velocity_tolerance = match method {
+            Method::Pip => 1e-5,
+            Method::GlobalPose => 1e-5 * f64::from(FPS),
+        };
+        let largest = |a: &[f64], b: &[f64]| {
+            assert_eq!(a.len(), b.len());
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f64::max)
+        };
+        let (mut worst, mut worst_velocity, mut moved) = (0.0f64, 0.0f64, 0.0f64);
+        let mut first = None;
+        for f in 0..240 {
+            let input = crate::bench::swaying_sensors(f);
+            let (want, want_velocity) = flat(&candle.step(&input).unwrap());
+            let (got, got_velocity) = flat(&lean.step(&input).unwrap());
+            worst = worst.max(largest(&got, &want));
+            worst_velocity = worst_velocity.max(largest(&got_velocity, &want_velocity));
+            moved = moved.max(largest(&want, first.get_or_insert_with(|| want.clone())));
+        }
+        assert!(
+            worst <= 1e-5,
+            "{method:?}: lean differs from candle by {worst}"
+        );
+        assert!(
+            worst_velocity <= velocity_tolerance,
+            "{method:?}: joint velocities differ by {worst_velocity}"
+        );
+        assert!(
+            moved > 0.05,
+            "{method:?}: the estimates hardly change ({moved})"
+        );
+    }
+
+    #[test]
+    fn lean_streaming_matches_candle_pip() {
+        lean_streaming_matches_candle(Method::Pip, "models/pip.safetensors");
+    }
+
+    #[test]
+    fn lean_streaming_matches_candle_globalpose() {
+        lean_streaming_matches_candle(Method::GlobalPose, "models/globalpose.safetensors");
     }
 
     fn some_rotation(k: usize) -> Rotation3<f64> {

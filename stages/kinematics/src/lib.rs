@@ -5,6 +5,7 @@
 //! - [`method`]: each method's line-up of nets and their sizes.
 //! - [`features`]: per-frame network inputs (the two methods normalize differently).
 //! - [`weights`]: weight files (safetensors + metadata), loading with shape checks.
+//! - [`lean`]: the per-frame forward pass streaming inference uses (plain f32 over the nets' weights).
 //! - [`data`], [`train`]: training data from the dataset shards, and `imuflow train`.
 
 pub mod bench;
@@ -13,6 +14,7 @@ pub mod error;
 pub mod features;
 pub mod import;
 pub mod infer;
+pub mod lean;
 pub mod method;
 pub mod net;
 pub mod stage;

@@ -162,16 +162,17 @@ impl LstmState {
     }
 }
 
-struct LstmLayer {
-    w_ih: Tensor,
-    w_hh: Tensor,
-    b_ih: Tensor,
-    b_hh: Tensor,
+// Fields are crate-visible so that `lean::LeanRnn` can copy the weights out once.
+pub(crate) struct LstmLayer {
+    pub(crate) w_ih: Tensor,
+    pub(crate) w_hh: Tensor,
+    pub(crate) b_ih: Tensor,
+    pub(crate) b_hh: Tensor,
 }
 
-struct Linear {
-    weight: Tensor,
-    bias: Tensor,
+pub(crate) struct Linear {
+    pub(crate) weight: Tensor,
+    pub(crate) bias: Tensor,
 }
 
 impl Linear {
@@ -184,9 +185,9 @@ impl Linear {
 /// One network: optional input layer, LSTM stack, output layer, optional learned initialization.
 pub struct Rnn {
     pub spec: RnnSpec,
-    linear1: Option<Linear>,
-    layers: Vec<LstmLayer>,
-    linear2: Linear,
+    pub(crate) linear1: Option<Linear>,
+    pub(crate) layers: Vec<LstmLayer>,
+    pub(crate) linear2: Linear,
     init_net: Option<[Linear; 3]>,
 }
 
