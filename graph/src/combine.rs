@@ -602,6 +602,7 @@ fn same_stage(a: &StageNode, b: &StageNode, b_source: &str, source: &str) -> boo
         && a.params == b.params
         && a.on_failure == b.on_failure
         && a.stall_timeout_s == b.stall_timeout_s
+        && a.nice == b.nice
         && a.outputs == b.outputs
         && a.inputs.len() == b.inputs.len()
         && a.inputs.iter().all(|(name, ea)| {
@@ -677,6 +678,9 @@ fn write_stage(
     }
     if let Some(stall) = node.stall_timeout_s {
         let _ = writeln!(text, "stall_timeout_s = {}", float(stall));
+    }
+    if node.nice > 0 {
+        let _ = writeln!(text, "nice = {}", node.nice);
     }
     if on_failure.unwrap_or(node.on_failure) == OnFailure::StopBranch {
         let _ = writeln!(text, "on_failure = \"stop-branch\"");

@@ -109,6 +109,11 @@ pub struct StageNode {
     /// Started again when it fails ([`RestartPolicy`]); `None`: never.
     #[serde(default)]
     pub restart: Option<RestartPolicy>,
+    /// The process's scheduling niceness (0-19, `nice` in the graph file): the kernel gives a
+    /// stage with a higher value less of a contended core, so the stages on the path from the
+    /// sensors to the output keep their latency while the viewer and the validation wait.
+    #[serde(default)]
+    pub nice: u8,
 }
 
 /// The watchdog's default for offline graphs (live: [`DEFAULT_LIVE_STALL_TIMEOUT_S`]). Generous:
@@ -379,6 +384,9 @@ impl Graph {
                 };
                 let _ = writeln!(out, "  out {name:<12} -> {to}  {frame}");
             }
+            if node.nice > 0 {
+                let _ = writeln!(out, "  nice = {}: yields contended cores", node.nice);
+            }
             if node.on_failure == OnFailure::StopBranch {
                 let branch = self.branch(&node.id);
                 let _ = writeln!(
@@ -433,6 +441,7 @@ mod tests {
             readers: BTreeMap::new(),
             params: toml::Table::new(),
             on_failure,
+            nice: 0,
             stall_timeout_s: None,
             restart: None,
         }

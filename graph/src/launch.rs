@@ -453,6 +453,7 @@ impl Spawner<'_> {
         // Own process group: the terminal's Ctrl-C goes to the launcher alone, which stops the
         // graph in order instead of every stage dying at once.
         std::os::unix::process::CommandExt::process_group(&mut command, 0);
+        set_nice(&mut command, node.nice);
         let program = format!("{:?}", command.get_program());
         let mut child = command.spawn().map_err(|source| RunError::Spawn {
             stage: node.id.clone(),
@@ -1147,4 +1148,58 @@ pub fn shared_memory_files(prefix: &str) -> Vec<PathBuf> {
     }
     found.sort();
     found
+}
+
+/// Starts the command's process with niceness `nice` (0: inherit). Set in the child between fork
+/// and exec, so every thread the stage starts inherits it (Linux keeps niceness per thread:
+/// setting it on the pid from outside after the start would miss threads already running).
+fn set_nice(command: &mut Command, nice: u8) {
+    if nice == 0 {
+        return;
+    }
+    let nice = libc::c_int::from(nice);
+    // SAFETY: the closure runs in the forked child before exec and calls only setpriority(2),
+    // which is async-signal-safe, allocates nothing and touches no lock. Raising one's own
+    // niceness needs no privilege; a failure is reported and the stage is not started.
+    unsafe {
+        std::os::unix::process::CommandExt::pre_exec(command, move || {
+            if libc::setpriority(libc::PRIO_PROCESS, 0, nice) == 0 {
+                Ok(())
+            } else {
+                Err(std::io::Error::last_os_error())
+            }
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The niceness a command's process runs at, read from its own /proc/self/stat.
+    fn niceness_of(nice: u8) -> i64 {
+        let mut command = Command::new("cat");
+        command.arg("/proc/self/stat");
+        set_nice(&mut command, nice);
+        let out = command.output().expect("cat runs");
+        let stat = String::from_utf8(out.stdout).expect("utf8");
+        // Fields after the command name's closing parenthesis start at field 3; nice is 19.
+        let after = stat.rsplit_once(')').expect("a stat line").1;
+        after
+            .split_whitespace()
+            .nth(16)
+            .expect("nice field")
+            .parse()
+            .expect("a number")
+    }
+
+    #[test]
+    fn a_stage_process_starts_at_its_niceness() {
+        let inherited = niceness_of(0);
+        assert_eq!(niceness_of(7), 7);
+        assert_eq!(niceness_of(19), 19);
+        // 0 leaves the launcher's own niceness (a test run may itself be niced).
+        let own = unsafe { libc::getpriority(libc::PRIO_PROCESS, 0) };
+        assert_eq!(inherited, i64::from(own));
+    }
 }

@@ -39,6 +39,9 @@ impl Problems {
     }
 }
 
+/// The largest `nice` (Unix niceness: 19 is the lowest priority).
+const MAX_NICE: u8 = 19;
+
 /// A duration key (`ready_timeout_s`, `stall_timeout_s`) of the file (`stage` None) or of a
 /// stage: its value, or `None` when absent or invalid (the problem recorded).
 fn seconds(
@@ -123,6 +126,7 @@ struct Declared<'a> {
     on_failure: OnFailure,
     stall_timeout_s: Option<f64>,
     restart: Option<RestartPolicy>,
+    nice: u8,
 }
 
 pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Graph, Vec<Problem>> {
@@ -246,6 +250,7 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
                 on_failure: d.on_failure,
                 stall_timeout_s: d.stall_timeout_s,
                 restart: d.restart,
+                nice: d.nice,
             },
         );
     }
@@ -533,6 +538,22 @@ fn declare<'a>(
         .restart
         .as_ref()
         .and_then(|v| restart_policy(id, role, v, problems));
+    let nice = match &entry.nice {
+        None => 0,
+        Some(v) => match v.as_integer().and_then(|n| u8::try_from(n).ok()) {
+            Some(n) if n <= MAX_NICE => n,
+            _ => {
+                problems.stage(
+                    id,
+                    Some("nice"),
+                    format!(
+                        "must be an integer from 0 (the default) to {MAX_NICE} (got {v}): how much of a contended core the stage yields to the others; raising a priority (below 0) needs privileges imuflow does not ask for"
+                    ),
+                );
+                0
+            }
+        },
+    };
     Some(Declared {
         id,
         runner,
@@ -545,6 +566,7 @@ fn declare<'a>(
         on_failure,
         stall_timeout_s,
         restart,
+        nice,
     })
 }
 
