@@ -458,6 +458,17 @@ impl StageContext {
     // Not an Iterator: it is fallible and lends frames out of the context.
     #[allow(clippy::should_implement_trait)]
     pub fn next(&mut self) -> Result<Option<Step>, StageError> {
+        self.next_warming(&mut |_| {})
+    }
+
+    /// [`StageContext::next`] that calls `warm` shortly before the next frame is expected
+    /// (live streams with a steady rhythm): the stage brings its working set (network weights)
+    /// back into cache while it would otherwise spin. `warm` should stop when its argument
+    /// returns true (the frame is there).
+    pub fn next_warming(
+        &mut self,
+        warm: &mut dyn FnMut(&mut dyn FnMut() -> bool),
+    ) -> Result<Option<Step>, StageError> {
         if let Some(t) = self.step_started.take() {
             self.record_work(t.elapsed());
         }
@@ -519,9 +530,12 @@ impl StageContext {
                 return Ok(None);
             };
             let inputs = &self.inputs;
-            self.waiter.wait(listener, POLL, || {
-                inputs.iter().any(|s| s.subscriber.has_frames())
-            });
+            self.waiter.wait_warming(
+                listener,
+                POLL,
+                || inputs.iter().any(|s| s.subscriber.has_frames()),
+                warm,
+            );
         }
     }
 

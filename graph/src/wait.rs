@@ -23,6 +23,11 @@ const SPIN_LEAD: Duration = Duration::from_micros(300);
 /// Keep spinning this long after the expected arrival before blocking: a source paced by
 /// `sleep` wakes up to a few hundred µs late, and the spin ends as soon as the frame arrives.
 const SPIN_TAIL: Duration = Duration::from_micros(800);
+/// A stage that warms its working set up ([`ArrivalWaiter::wait_warming`]) does it this long
+/// before the expected frame: while the graph is idle (at 60 Hz the previous frame's work ended
+/// milliseconds ago), not in the spin window, where it would take memory bandwidth and a core
+/// from the stages upstream that are handling the frame.
+const WARM_LEAD: Duration = Duration::from_micros(1500);
 /// Without a prediction (first frames, irregular streams), spin this long before blocking.
 const SHORT_SPIN: Duration = Duration::from_micros(20);
 /// Gaps longer than this are pauses, not the stream's rhythm.
@@ -36,6 +41,24 @@ const LATE_PHASE_WEIGHT: f64 = 0.1;
 const SLEEP_MARGIN: Duration = Duration::from_micros(100);
 /// Longest sleep between checks of the inputs while waiting for the spin window.
 const SLEEP_SLICE: Duration = Duration::from_millis(1);
+
+/// What a waiter blocks on when nothing came in time: the stage's wake-up event.
+pub trait Wake {
+    /// Blocks until woken or `timeout` passes.
+    fn wait(&self, timeout: Duration);
+    /// Consumes pending wake-ups.
+    fn drain(&self);
+}
+
+impl Wake for WakeListener {
+    fn wait(&self, timeout: Duration) {
+        WakeListener::wait(self, timeout);
+    }
+
+    fn drain(&self) {
+        WakeListener::drain(self);
+    }
+}
 
 /// Learns a stage's arrival rhythm and waits accordingly.
 #[derive(Debug, Default)]
@@ -76,7 +99,21 @@ impl ArrivalWaiter {
 
     /// Waits until `ready()` holds, or at most about `poll` (the caller re-checks its inputs and
     /// its stop flag and calls again).
-    pub fn wait(&self, listener: &WakeListener, poll: Duration, mut ready: impl FnMut() -> bool) {
+    pub fn wait(&self, listener: &impl Wake, poll: Duration, ready: impl FnMut() -> bool) {
+        self.wait_warming(listener, poll, ready, &mut |_| {});
+    }
+
+    /// [`ArrivalWaiter::wait`] that calls `warm` once, [`WARM_LEAD`] before the expected frame:
+    /// the stage brings its working set back into cache (a live stage idles for most of a frame
+    /// period, and the other processes evict it meanwhile). `warm` gets `ready` to stop as soon
+    /// as the frame comes.
+    pub fn wait_warming(
+        &self,
+        listener: &impl Wake,
+        poll: Duration,
+        mut ready: impl FnMut() -> bool,
+        warm: &mut dyn FnMut(&mut dyn FnMut() -> bool),
+    ) {
         if ready() {
             listener.drain();
             return;
@@ -85,13 +122,26 @@ impl ArrivalWaiter {
         let spin_until = match self.expected() {
             Some(expected) if expected + SPIN_TAIL > now => {
                 let spin_from = expected.checked_sub(SPIN_LEAD).unwrap_or(expected);
-                // Nothing due yet: sleep in slices until the spin window, watching the inputs.
+                let warm_from = expected.checked_sub(WARM_LEAD).unwrap_or(expected);
+                let mut warmed = false;
+                // Nothing due yet: sleep in slices until the spin window, watching the inputs;
+                // warm up on the way.
                 loop {
                     let now = Instant::now();
+                    if !warmed && now >= warm_from {
+                        warm(&mut ready);
+                        warmed = true;
+                        continue;
+                    }
                     if now >= spin_from {
                         break;
                     }
-                    std::thread::sleep((spin_from - now).min(SLEEP_SLICE));
+                    let until = if warmed {
+                        spin_from
+                    } else {
+                        warm_from.min(spin_from)
+                    };
+                    std::thread::sleep(until.saturating_duration_since(now).min(SLEEP_SLICE));
                     if ready() {
                         listener.drain();
                         return;
@@ -135,6 +185,61 @@ pub fn sleep_until(deadline: Instant) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A wake-up event nobody signals.
+    struct Silent;
+
+    impl Wake for Silent {
+        fn wait(&self, timeout: Duration) {
+            std::thread::sleep(timeout);
+        }
+        fn drain(&self) {}
+    }
+
+    #[test]
+    fn the_working_set_is_warmed_ahead_of_the_frame_and_outside_the_spin_window() {
+        let mut w = ArrivalWaiter::default();
+        let period = Duration::from_millis(10);
+        let t0 = Instant::now();
+        for k in 0..5u32 {
+            w.arrived(t0 + period * k);
+        }
+        // The frame comes 3 ms late (room for a loaded machine's oversleeping); warm-ups are
+        // timed.
+        let expected = w.expected().expect("rhythm");
+        let comes = expected + Duration::from_millis(3);
+        let mut warmed = Vec::new();
+        w.wait_warming(
+            &Silent,
+            Duration::from_millis(50),
+            || Instant::now() >= comes,
+            &mut |ready| {
+                warmed.push(Instant::now());
+                assert!(!ready(), "the frame is not there yet");
+            },
+        );
+        assert!(Instant::now() >= comes);
+        assert_eq!(warmed.len(), 1, "once per frame");
+        // Not earlier than WARM_LEAD before the expected arrival (the graph is busy with the
+        // previous frame before that), and before the frame.
+        assert!(
+            warmed[0] + WARM_LEAD >= expected,
+            "{:?} early",
+            expected - warmed[0]
+        );
+        assert!(warmed[0] < comes);
+        // Without a rhythm (first frames) nothing is warmed: no prediction to warm before.
+        let fresh = ArrivalWaiter::default();
+        let mut calls = 0;
+        let soon = Instant::now() + Duration::from_millis(2);
+        fresh.wait_warming(
+            &Silent,
+            Duration::from_millis(5),
+            || Instant::now() >= soon,
+            &mut |_| calls += 1,
+        );
+        assert_eq!(calls, 0);
+    }
 
     #[test]
     fn sleep_until_is_never_early() {

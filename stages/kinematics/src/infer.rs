@@ -308,6 +308,19 @@ impl Streamer {
         Ok(())
     }
 
+    /// Brings the lean nets' weights into cache ahead of the next [`Streamer::step`] (see
+    /// [`LeanRnn::warm`]); stops as soon as `stop()` says so (the frame came).
+    pub fn warm(&self, stop: &mut dyn FnMut() -> bool) {
+        if self.backend != Backend::Lean {
+            return;
+        }
+        for net in &self.lean {
+            if !net.warm(stop) {
+                return;
+            }
+        }
+    }
+
     /// One frame.
     pub fn step(&mut self, imu: &ImuInput) -> anyhow::Result<Estimate> {
         let root = rot(&imu.orientation[ROOT_IMU]);

@@ -53,7 +53,24 @@ pub(crate) struct Matrix {
     chunks: Vec<Chunk>,
 }
 
+/// [`Matrix::touch`] asks whether to stop after this many chunks (256 KB).
+const TOUCH_BATCH: usize = 2048;
+
 impl Matrix {
+    /// Reads one value of every cache line of the matrix, so the next product finds it in cache;
+    /// stops early (returning false) when `stop()` says so between batches of 256 KB.
+    fn touch(&self, stop: &mut dyn FnMut() -> bool) -> bool {
+        for batch in self.chunks.chunks(TOUCH_BATCH) {
+            // Each chunk is two cache lines: its rows 0 and 2 start them.
+            let sum: f32 = batch.iter().map(|c| c.0[0] + c.0[2 * LANES]).sum();
+            std::hint::black_box(sum);
+            if stop() {
+                return false;
+            }
+        }
+        true
+    }
+
     /// `rows × cols` with entry (r, c) = `at(r, c)` (0 in the padding).
     fn new(rows: usize, cols: usize, at: impl Fn(usize, usize) -> f32) -> Matrix {
         let (rows_p, cols_p) = (rows.next_multiple_of(ROWS), cols.next_multiple_of(LANES));
@@ -499,6 +516,24 @@ impl LeanRnn {
         Ok(())
     }
 
+    /// Brings the weights into cache ahead of the next [`LeanRnn::step`] (a live stage idles
+    /// 16 ms between frames, long enough for other processes to evict them: the step then
+    /// streams them from memory). Stops early, returning false, when `stop()` says so.
+    pub fn warm(&self, stop: &mut dyn FnMut() -> bool) -> bool {
+        let matrices = self
+            .linear1
+            .iter()
+            .map(|d| &d.w)
+            .chain(self.layers.iter().map(|l| &l.w))
+            .chain(std::iter::once(&self.linear2.w));
+        for m in matrices {
+            if !m.touch(stop) {
+                return false;
+            }
+        }
+        true
+    }
+
     /// One frame: `x [input]` → `[output]`, advancing the state.
     pub fn step(&mut self, x: &[f32]) -> &[f32] {
         assert_eq!(x.len(), self.input, "input width");
@@ -589,6 +624,33 @@ mod tests {
             None => eprintln!("this CPU lacks AVX2/FMA: only the portable kernel is tested"),
         }
         k
+    }
+
+    /// Warming reads every matrix unless told to stop, and stops at the next 256 KB batch when
+    /// told (a frame came): it never holds the stage up for a whole net.
+    #[test]
+    fn warming_touches_every_matrix_and_stops_when_the_frame_comes() {
+        // 512 hidden, 3 layers: each gate matrix is 2048 × 1024 floats (8 MB: 32 batches).
+        let s = spec(true, 3, 512, None);
+        let net = Rnn::from_tensors(&s, &random_tensors(&s)).unwrap();
+        let lean = LeanRnn::new(&net).unwrap();
+        let mut asked = 0;
+        assert!(lean.warm(&mut || {
+            asked += 1;
+            false
+        }));
+        let chunks: usize = std::iter::once(&lean.linear2.w)
+            .chain(lean.linear1.iter().map(|d| &d.w))
+            .chain(lean.layers.iter().map(|l| &l.w))
+            .map(|m| m.chunks.len().div_ceil(TOUCH_BATCH))
+            .sum();
+        assert_eq!(asked, chunks, "asked once per batch of every matrix");
+        let mut asked = 0;
+        assert!(!lean.warm(&mut || {
+            asked += 1;
+            true
+        }));
+        assert_eq!(asked, 1, "stops at the first batch once the frame is there");
     }
 
     /// The kernels against a plain f64 sum, for every shape around the 4-row and 8-lane blocking

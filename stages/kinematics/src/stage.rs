@@ -79,6 +79,13 @@ pub const SPEC: StageSpec = StageSpec {
             "5",
             "with sensor_bones = measured: how far a bone may stay from its sensor (0: the measurement itself)",
         ),
+        ParamSpec {
+            name: "warm_weights",
+            ty: ParamType::Bool,
+            required: false,
+            default: "true",
+            doc: "live: read the networks' weights into cache just before each frame is due (the stage idles 16 ms between frames and the other processes evict them)",
+        },
     ],
 };
 
@@ -113,6 +120,7 @@ pub fn run() -> anyhow::Result<()> {
     let Some(sensor_bones) = SensorBones::parse(sensor_bones_name, tolerance_deg) else {
         bail!("stage '{stage}': unknown sensor_bones '{sensor_bones_name}' (measured or network)");
     };
+    let warm_weights = params.bool("warm_weights", true);
     let mut streamer = Streamer::new(weights, start.pose())?;
     streamer.set_sensor_bones(sensor_bones);
     let input = ctx.input::<BodyImuFrame>("imu")?;
@@ -123,7 +131,13 @@ pub fn run() -> anyhow::Result<()> {
     let mut held = HeldSamples::default();
     let start_estimate = start_estimate(start);
     let mut resume_from_sensors = ctx.restarts() > 0;
-    while let Some(step) = ctx.next()? {
+    loop {
+        let next = if warm_weights {
+            ctx.next_warming(&mut |stop| streamer.warm(stop))?
+        } else {
+            ctx.next()?
+        };
+        let Some(step) = next else { break };
         let frame = ctx.get(&input);
         let mut header = step.header();
         let complete = held.update(frame);
