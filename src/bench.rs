@@ -38,10 +38,8 @@ pub enum BenchCommand {
         #[arg(long, value_name = "COMMAND")]
         relay_exec: Option<String>,
     },
-    /// Per-frame inference time of the kinematics networks (streaming, one frame at a time, in this
-    /// process; set RAYON_NUM_THREADS=1, candle's small-op threading costs more than it gains).
     /// Per-frame time of the physics methods (integrate, pip, globalpose) on a synthetic march in
-    /// place (contacts change every step). Build with --release.
+    /// place (contacts change every step), PIP's QP apart. Build with --release.
     Physics {
         /// Frames (60 Hz).
         #[arg(long, default_value_t = 1200)]
@@ -72,7 +70,10 @@ pub enum BenchCommand {
         #[arg(long)]
         no_offline: bool,
     },
-    /// Per-frame inference time of the kinematics networks (see `physics`), both methods.
+    /// Per-frame inference time of the kinematics networks, both methods: streaming, one frame at
+    /// a time, in this process, on the lean f32 step (--candle: through candle). Set
+    /// RAYON_NUM_THREADS=1 (candle's small-op threading costs more than it gains). Build with
+    /// --release.
     Kinematics {
         /// PIP weights ("none" to skip).
         #[arg(long, default_value = "models/pip.safetensors")]
