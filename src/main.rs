@@ -412,9 +412,10 @@ fn run(args: &GraphArgs, progress: bool, forward_logs: bool, connect: Option<&st
 
 pub(crate) fn print_summary(graph: &Graph, report: &launch::RunReport) {
     println!(
-        "graph '{}' finished in {:.2} s (run {})",
+        "graph '{}' finished in {:.2} s after a start-up of {:.2} s (run {})",
         graph.name,
         report.wall.as_secs_f64(),
+        report.startup.as_secs_f64(),
         report.run_id
     );
     // Columns as wide as the longest id and kind (exec stages: `exec:smooth.py`).

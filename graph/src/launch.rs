@@ -57,7 +57,10 @@ pub struct RunReport {
     pub run_id: String,
     /// Per stage: its kind label and summary.
     pub stages: BTreeMap<String, (String, StageSummary)>,
+    /// From the go (every stage ready and connected) to the last stage's exit: the stream.
     pub wall: Duration,
+    /// From the first spawn to the go: processes started, weights loaded, ports connected.
+    pub startup: Duration,
     /// The user stopped the run (Ctrl-C); outputs were finalized.
     pub interrupted: bool,
     /// Isolated branches that failed and were stopped while the rest of the graph ran on.
@@ -342,6 +345,7 @@ fn run_in(
         tx,
     };
     let mut stages = Vec::new();
+    let spawn_started = Instant::now();
     let spawned = spawn_all(graph, &spawner, &mut stages);
     let mut supervisor = Supervisor {
         graph,
@@ -360,6 +364,7 @@ fn run_in(
         signal_hook::low_level::unregister(id);
     }
     result.map(|(wall, was_interrupted)| RunReport {
+        startup: spawn_started.elapsed().saturating_sub(wall),
         run_id: run_id.to_owned(),
         stages: stages
             .iter()
