@@ -458,14 +458,26 @@ impl StageContext {
     // Not an Iterator: it is fallible and lends frames out of the context.
     #[allow(clippy::should_implement_trait)]
     pub fn next(&mut self) -> Result<Option<Step>, StageError> {
-        self.next_warming(&mut |_| {})
+        self.next_step(&mut |_| {})
     }
 
     /// [`StageContext::next`] that calls `warm` shortly before the next frame is expected
     /// (live streams with a steady rhythm): the stage brings its working set (network weights)
-    /// back into cache while it would otherwise spin. `warm` should stop when its argument
-    /// returns true (the frame is there).
+    /// back into cache while it would otherwise idle. `warm` should stop when its argument
+    /// returns true (the frame is there). Offline graphs never warm: their cores are busy with
+    /// the stream, and a frame's work follows the previous one closely enough to find the
+    /// working set in cache.
     pub fn next_warming(
+        &mut self,
+        warm: &mut dyn FnMut(&mut dyn FnMut() -> bool),
+    ) -> Result<Option<Step>, StageError> {
+        if self.graph.mode != Mode::Live {
+            return self.next_step(&mut |_| {});
+        }
+        self.next_step(warm)
+    }
+
+    fn next_step(
         &mut self,
         warm: &mut dyn FnMut(&mut dyn FnMut() -> bool),
     ) -> Result<Option<Step>, StageError> {
