@@ -354,6 +354,8 @@ impl<'a> Shard<'a> {
 
 struct Builder {
     method: Method,
+    /// The body model's tables, for the sequences synthesized on other statures.
+    params: BodyParams,
     body: BodyModel,
     /// The body of the sequence being pushed when it is not `body` (its stature, its model).
     resized: Option<(f64, BodyModel)>,
@@ -423,6 +425,7 @@ impl Builder {
         let arrays = dims.iter().map(|&(n, d)| (n, Array::new(d))).collect();
         Ok(Builder {
             method,
+            params,
             body,
             resized: None,
             arrays,
@@ -451,8 +454,7 @@ impl Builder {
         match stature_m {
             Some(s) if (s - self.body.stature_m).abs() > 1e-9 => {
                 if self.resized.as_ref().is_none_or(|(r, _)| *r != s) {
-                    let params = BodyParams::builtin().context("built-in body model")?;
-                    let body = BodyModel::new(&params, s, self.body.mass_kg)
+                    let body = BodyModel::new(&self.params, s, self.body.mass_kg)
                         .with_context(|| format!("body model of stature {s} m"))?;
                     self.resized = Some((s, body));
                 }

@@ -131,13 +131,11 @@ pub fn run() -> anyhow::Result<()> {
     let mut held = HeldSamples::default();
     let start_estimate = start_estimate(start);
     let mut resume_from_sensors = ctx.restarts() > 0;
-    loop {
-        let next = if warm_weights {
-            ctx.next_warming(&mut |stop| streamer.warm(stop))?
-        } else {
-            ctx.next()?
-        };
-        let Some(step) = next else { break };
+    while let Some(step) = ctx.next_warming(&mut |stop| {
+        if warm_weights {
+            streamer.warm(stop);
+        }
+    })? {
         let frame = ctx.get(&input);
         let mut header = step.header();
         let complete = held.update(frame);

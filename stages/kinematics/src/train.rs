@@ -367,14 +367,13 @@ pub fn bce_with_logits(logits: &Tensor, target: &Tensor) -> candle_core::Result<
 }
 
 fn task_loss(loss: Loss, y: &Tensor, target: &Tensor) -> candle_core::Result<Tensor> {
-    use bce_with_logits as bce;
     match loss {
         Loss::Mse => (y - target)?.sqr()?.mean_all(),
         Loss::CumulativeVelocity => cumulative_loss(&(y - target)?),
-        Loss::Bce => bce(&y.flatten_all()?, &target.flatten_all()?),
+        Loss::Bce => bce_with_logits(&y.flatten_all()?, &target.flatten_all()?),
         Loss::VelocityAndStationary => {
             let vel = cumulative_loss(&(y.narrow(2, 0, 4)? - target.narrow(2, 0, 4)?)?)?;
-            let st = bce(
+            let st = bce_with_logits(
                 &y.narrow(2, 4, 5)?.flatten_all()?,
                 &target.narrow(2, 4, 5)?.flatten_all()?,
             )?;

@@ -409,7 +409,7 @@ pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
         .filter(|(key, _)| split_of(key) == Split::Train)
         .cloned()
         .collect();
-    let mut clip_state = ClipWork::new(partners);
+    let mut clip_state = ClipWork::new(partners, params);
     for (key, path) in &files {
         let split = split_of(key);
         pb.set_message(key.clone());
@@ -553,13 +553,16 @@ struct ClipWork {
     fk: FkData,
     /// The training clips, for `recombine`'s upper bodies.
     partners: Vec<(String, PathBuf)>,
+    /// The body model's tables, for `--vary-stature`'s other bodies.
+    params: BodyParams,
 }
 
 impl ClipWork {
-    fn new(partners: Vec<(String, PathBuf)>) -> ClipWork {
+    fn new(partners: Vec<(String, PathBuf)>, params: BodyParams) -> ClipWork {
         ClipWork {
             fk: FkData::new(),
             partners,
+            params,
         }
     }
 
@@ -675,7 +678,9 @@ impl ClipWork {
             };
             // Another body size for an augmented training copy (`--vary-stature`).
             let resized = match (seed, options.vary_stature, split) {
-                (Some(seed), Some(range), Split::Train) => Some(resized(clip, body, range, seed)?),
+                (Some(seed), Some(range), Split::Train) => {
+                    Some(resized(clip, body, &self.params, range, seed)?)
+                }
                 _ => None,
             };
             let (clip, body) = match &resized {
@@ -733,6 +738,7 @@ impl ClipWork {
 fn resized(
     clip: &MotionClip,
     body: &BodyModel,
+    params: &BodyParams,
     (low, high): (f64, f64),
     seed: u64,
 ) -> anyhow::Result<(MotionClip, BodyModel)> {
@@ -740,8 +746,7 @@ fn resized(
     let u = (seed.rotate_left(29) >> 11) as f64 / (1u64 << 53) as f64;
     let stature_m = low + u * (high - low);
     let mass_kg = body.mass_kg * (stature_m / body.stature_m).powi(2);
-    let params = BodyParams::builtin().context("built-in body model")?;
-    let other = BodyModel::new(&params, stature_m, mass_kg).context("resized body model")?;
+    let other = BodyModel::new(params, stature_m, mass_kg).context("resized body model")?;
     let scale = other.leg_length_m() / body.leg_length_m();
     let mut clip = clip.clone();
     for pose in &mut clip.poses {
