@@ -1,33 +1,16 @@
 //! The lean step allocates nothing: every buffer it writes is made when the net is built.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::path::Path;
 
 use imuflow_kinematics::Method;
 use imuflow_kinematics::lean::LeanRnn;
 use imuflow_kinematics::weights::Weights;
 
-/// Counts this thread's allocations (the test harness's own thread allocates now and then).
-struct Counting;
+// The body crate's counting allocator (its integration tests' shared module), compiled in here.
+#[path = "../../body/tests/common/mod.rs"]
+mod common;
 
-thread_local! {
-    // A const initializer: reading it never allocates (which would recurse into the allocator).
-    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        // `try_with`: during thread teardown the slot may be gone; such allocations are not ours.
-        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
-        // SAFETY: forwarding the caller's layout to the system allocator.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: `ptr` came from `System.alloc` with this layout.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
+use common::{Counting, allocations};
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
@@ -43,12 +26,12 @@ fn lean_step_allocates_nothing() {
         for net in &weights.nets {
             let mut lean = LeanRnn::new(net).unwrap();
             let x: Vec<f32> = (0..net.spec.input).map(|k| (k as f32).sin()).collect();
-            let before = ALLOCATIONS.with(Cell::get);
+            let before = allocations();
             let mut sum = 0.0;
             for _ in 0..20 {
                 sum += lean.step(&x).iter().sum::<f32>();
             }
-            let made = ALLOCATIONS.with(Cell::get) - before;
+            let made = allocations() - before;
             assert_eq!(made, 0, "{}: {made} allocations in 20 steps", net.spec.name);
             assert!(sum.is_finite() && sum != 0.0, "{}: {sum}", net.spec.name);
         }

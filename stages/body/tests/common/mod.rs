@@ -1,4 +1,5 @@
-//! Shared pieces of the body crate's integration tests.
+//! Shared pieces of the body crate's integration tests (the kinematics crate's allocation test
+//! includes this file too).
 
 #![allow(dead_code)]
 
