@@ -155,7 +155,6 @@ fn config(mode: Mode) -> SimConfig {
         friction: env_f64("SIM_FRICTION", d.friction),
         substeps: env_f64("SIM_SUBSTEPS", d.substeps as f64) as usize,
         solver_iterations: env_f64("SIM_ITERS", d.solver_iterations as f64) as usize,
-        feedforward: env_f64("SIM_FF", f64::from(u8::from(d.feedforward))) != 0.0,
     }
 }
 

@@ -1,7 +1,6 @@
 //! imuflow's validation stage: an independent rapier3d simulation replays every estimated frame
 //! with joint motors and ground contact, and scores how physically plausible the estimate is.
 
-pub mod feedforward;
 pub mod model;
 pub mod sim;
 pub mod stage;

@@ -92,8 +92,6 @@ pub struct SimConfig {
     pub substeps: usize,
     /// rapier solver iterations (its internal substeps) per physics step.
     pub solver_iterations: usize,
-    /// Add the estimate's inverse-dynamics torques to the PD motors (`crate::feedforward`).
-    pub feedforward: bool,
 }
 
 impl Default for SimConfig {
@@ -113,7 +111,6 @@ impl Default for SimConfig {
             friction: 0.8,
             substeps: 4,
             solver_iterations: 1,
-            feedforward: true,
         }
     }
 }
@@ -220,8 +217,6 @@ pub struct Simulation {
     /// This frame's foot-placement reference (see `placement_reference`).
     placement: Option<Placement>,
     target_fk: FkData,
-    /// Feed-forward joint torques, each in its joint's own frame, N·m (see `crate::feedforward`).
-    feedforward: Option<[Vector3<f64>; NUM_JOINTS]>,
 }
 
 /// What the foot placement compares the simulated body with, from the estimate of this frame.
@@ -365,7 +360,6 @@ impl Simulation {
             previous_target_com_m: None,
             placement: None,
             target_fk: FkData::new(),
-            feedforward: None,
         };
         sim.set_state(start);
         sim
@@ -415,12 +409,6 @@ impl Simulation {
             .expect("the body's multibody exists");
         mb.forward_kinematics(&world.bodies, true);
         mb.update_rigid_bodies(&mut world.bodies, true);
-    }
-
-    /// Torques to add to the joint motors from now on, each in its joint's own frame (`None`:
-    /// PD only). Rigid joints' entries are ignored.
-    pub fn set_feedforward(&mut self, torque: Option<&[Vector3<f64>; NUM_JOINTS]>) {
-        self.feedforward = torque.copied();
     }
 
     /// Advances one input frame of `dt` seconds (in `substeps` physics steps) towards `target`.
@@ -509,7 +497,6 @@ impl Simulation {
         let stance = self.stance_correction(target);
         let swing = self.swing_hip_target();
         let clearance = self.swing_clearance();
-        let feedforward = self.feedforward;
         let gains: Vec<(usize, JointId, f64)> = self
             .model
             .links
@@ -541,11 +528,6 @@ impl Simulation {
             }
             let error = axis_angle_from_rotation(&(wanted * current.inverse()));
             let mut velocity = target.angular_velocity[j] + error * (kp / kd.max(1e-9));
-            if let Some(torque) = &feedforward {
-                // The motor pushes with `damping·(target − ω)` about the parent's axes: a torque
-                // τ (joint frame) is `R_local·τ / damping` more target velocity.
-                velocity += current * torque[j] / damping.max(1e-9);
-            }
             match joint {
                 JointId::LEFT_HIP => velocity += stance[0],
                 JointId::RIGHT_HIP => velocity += stance[1],

@@ -156,13 +156,6 @@ pub const SPEC: StageSpec = StageSpec {
             default: "1",
             doc: "rapier solver iterations per physics step (each recomputes the multibody mass matrix)",
         },
-        ParamSpec {
-            name: "feedforward",
-            ty: ParamType::Bool,
-            required: false,
-            default: "true",
-            doc: "add the estimate's inverse-dynamics joint torques to the PD motors",
-        },
         ParamSpec::float(
             "fall_height_fraction",
             0.0,
@@ -215,7 +208,6 @@ pub fn build(stage: &str, params: &Params) -> anyhow::Result<Validator> {
         solver_iterations: params
             .int("solver_iterations", d.solver_iterations as i64)
             .max(1) as usize,
-        feedforward: params.bool("feedforward", d.feedforward),
     };
     let f = FallRule::default();
     let fall = FallRule {

@@ -8,7 +8,6 @@ use imuflow_body::kinematics::{FkData, Pose, forward_kinematics};
 use imuflow_body::skeleton::{JointId, NUM_JOINTS};
 use nalgebra::Vector3;
 
-use crate::feedforward::Feedforward;
 use crate::model::SimModel;
 use crate::sim::{FrameForces, SimConfig, SimState, Simulation, Target};
 
@@ -178,13 +177,11 @@ pub struct Validator {
     /// Lift applied to the estimate for this simulation (see [`MAX_FLOOR_LIFT_M`]), m.
     lift_m: f64,
     estimate_fk: FkData,
-    feedforward: Feedforward,
     pub stats: Stats,
 }
 
 impl Validator {
     pub fn new(model: SimModel, config: SimConfig, fall: FallRule) -> Validator {
-        let feedforward = Feedforward::new(&model.body);
         Validator {
             model,
             config,
@@ -193,7 +190,6 @@ impl Validator {
             previous: None,
             lift_m: 0.0,
             estimate_fk: FkData::new(),
-            feedforward,
             stats: Stats::default(),
         }
     }
@@ -210,7 +206,6 @@ impl Validator {
     pub fn clear(&mut self) {
         self.sim = None;
         self.previous = None;
-        self.feedforward.clear();
     }
 
     /// Whether a simulation is running.
@@ -231,17 +226,6 @@ impl Validator {
         if let Some(pose) = estimate {
             self.previous = Some(pose.clone());
         }
-        // Inverse dynamics of the estimate as it comes (a held estimate has no motion to plan).
-        let torque = match estimate {
-            Some(_) if self.config.feedforward => {
-                let folded = target.clone().folded();
-                self.feedforward.update(&folded.pose, dt).copied()
-            }
-            _ => {
-                self.feedforward.clear();
-                None
-            }
-        };
         if self.sim.is_none() {
             self.lift_m = self.floor_lift(&target.pose);
         }
@@ -268,7 +252,6 @@ impl Validator {
             self.sim = Some(sim);
             return Some(self.record(started, dt, target_outcome(state), false, false));
         };
-        sim.set_feedforward(torque.as_ref());
         let forces = sim.step(&target.clone().folded(), dt);
         let state = sim.state();
         let score = self.score(&state, &forces);
