@@ -214,7 +214,7 @@ fn batch_mode_scores_every_clip_pairs_the_variants_and_resumes() {
     let data = sb.path("clips");
     std::fs::create_dir_all(&data).expect("clips dir");
     let names = names_in_split(6, imuflow_dataset::Split::Test);
-    let walk = format!("{root}/stages/body/tests/fixtures/bandai-walk-normal-trimmed.bvh");
+    let walk = format!("{root}/stages/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
     for name in &names[..5] {
         std::fs::copy(&walk, data.join(name)).expect("copy clip");
     }

@@ -11,12 +11,12 @@
 
 use std::path::Path;
 
-use imuflow_body::bvh::Bvh;
-use imuflow_body::retarget::{BANDAI_NAMCO_MAPPING_TOML, SourceSkeleton};
 use imuflow_graph::Graph;
 use imuflow_graph::spec::Registry;
 use imuflow_imu_source::replay::Recording;
 use imuflow_imu_source::udp::{PACKET_SIZE, Packet};
+use imuflow_motion::bvh::Bvh;
+use imuflow_motion::retarget::{BANDAI_NAMCO_MAPPING_TOML, SourceSkeleton};
 use proptest::prelude::*;
 use proptest::sample::Index;
 
@@ -127,7 +127,7 @@ proptest! {
 
     #[test]
     fn bvh_files(edits in edits()) {
-        let text = mutate(read("stages/body/tests/fixtures/bandai-walk-normal-trimmed.bvh"), &edits);
+        let text = mutate(read("stages/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh"), &edits);
         let text = String::from_utf8_lossy(&text);
         if let Err(e) = Bvh::parse(&text, "fuzzed.bvh") {
             prop_assert!(e.to_string().contains("fuzzed.bvh"), "{e}");

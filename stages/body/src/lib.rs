@@ -7,10 +7,6 @@
 //! - [`body_model`]: dimensions, segment masses/inertias and IMU placement from `models/body.toml`.
 //! - [`rotation`]: 6D, Euler, axis-angle, from-to, slerp, geodesic angle.
 //! - [`kinematics`]: forward and inverse kinematics with preallocated buffers.
-//! - [`bvh`]: BVH parsing and writing; [`retarget`]: BVH onto the 24-joint body, resampling, export.
-//! - [`imu_synthesis`]: synthetic IMU signals (orientation, acceleration, angular velocity) with a seeded
-//!   augmentation model, for training and the imu-source stage.
-//! - [`npz`]: AMASS-style `.npz` motion import and export (Z-up SMPL `trans` ↔ Y-up root position).
 //! - [`dynamics`]: floating-base rigid-body dynamics (mass matrix, bias forces, inverse/forward dynamics,
 //!   point Jacobians) in GlobalPose's singularity-free coordinates; [`urdf`]: the same model as URDF.
 
@@ -21,12 +17,8 @@
 )]
 
 pub mod body_model;
-pub mod bvh;
 pub mod dynamics;
-pub mod imu_synthesis;
 pub mod kinematics;
-pub mod npz;
-pub mod retarget;
 pub mod rotation;
 pub mod skeleton;
 pub mod urdf;

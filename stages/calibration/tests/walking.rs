@@ -157,7 +157,7 @@ fn a_rejected_attempt_is_followed_by_a_good_one() {
     track.hold(3.0);
     track.step_forward(0.6, 1.2, 0.0);
     track.hold(3.0);
-    let clip = imuflow_body::retarget::MotionClip {
+    let clip = imuflow_motion::retarget::MotionClip {
         frame_time_s: 1.0 / RATE_HZ,
         poses: track.into_poses(),
     };
@@ -196,7 +196,7 @@ fn a_later_step_re_estimates_a_heading_that_drifted() {
     track.hold(4.0);
     track.step_forward(0.6, 1.2, 0.0);
     track.hold(3.0);
-    let clip = imuflow_body::retarget::MotionClip {
+    let clip = imuflow_motion::retarget::MotionClip {
         frame_time_s: 1.0 / RATE_HZ,
         poses: track.into_poses(),
     };

@@ -4,7 +4,7 @@
 //!
 //! Modes (param `mode`):
 //! - `synthesize`: BVH -> 24-joint clip (joint mapping, default the built-in Bandai Namco one) ->
-//!   resampled to the graph's rate -> synthetic IMUs ([`imuflow_body::imu_synthesis`]). By default
+//!   resampled to the graph's rate -> synthetic IMUs ([`imuflow_motion::imu_synthesis`]). By default
 //!   the orientation is `R_MS` (the sensor's inertial frame is the model frame M, the sensor frame
 //!   the bone frame); specific force and angular rate are in the sensor frame. For calibration
 //!   tests: a calibration prelude ([`prelude`]), random mountings and inertial-frame conventions

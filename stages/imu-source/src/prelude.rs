@@ -12,9 +12,9 @@
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
-use imuflow_body::retarget::MotionClip;
 use imuflow_body::rotation::{Axis, slerp};
 use imuflow_body::{BodyModel, JointId, Pose};
+use imuflow_motion::retarget::MotionClip;
 use nalgebra::{Rotation3, Vector3};
 
 /// Which prelude to build.

@@ -4,15 +4,17 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use imuflow_body::bvh::Bvh;
-use imuflow_body::imu_synthesis::{
-    AccelStencil, Augmentation, AugmentationConfig, ImuSample, SynthesisOptions, synthesize_imus,
-};
-use imuflow_body::retarget::{MotionClip, RetargetOptions, SourceSkeleton, resample, retarget_bvh};
 use imuflow_body::rotation::{Axis, quat_wxyz_from_rotation};
 use imuflow_body::{BodyModel, BodyParams, Pose};
 use imuflow_graph::StageContext;
 use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, NUM_IMUS, NUM_JOINTS};
+use imuflow_motion::bvh::Bvh;
+use imuflow_motion::imu_synthesis::{
+    AccelStencil, Augmentation, AugmentationConfig, ImuSample, SynthesisOptions, synthesize_imus,
+};
+use imuflow_motion::retarget::{
+    MotionClip, RetargetOptions, SourceSkeleton, resample, retarget_bvh,
+};
 use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -332,7 +334,7 @@ mod tests {
 
     fn fixture() -> PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../body/tests/fixtures/bandai-walk-normal-trimmed.bvh")
+            .join("../motion/tests/fixtures/bandai-walk-normal-trimmed.bvh")
     }
 
     #[test]

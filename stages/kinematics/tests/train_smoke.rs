@@ -13,7 +13,7 @@ use nalgebra::Vector3;
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../body/tests/fixtures/bandai-walk-normal-trimmed.bvh")
+        .join("../motion/tests/fixtures/bandai-walk-normal-trimmed.bvh")
 }
 
 /// Copies of the fixture under names whose split hashes put clips in train and validation

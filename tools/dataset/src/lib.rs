@@ -11,7 +11,6 @@
     deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)
 )]
 
-pub mod motion_augment;
 pub mod shard;
 pub mod split;
 
@@ -20,17 +19,18 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
-use imuflow_body::bvh::Bvh;
-use imuflow_body::imu_synthesis::{
+use imuflow_body::rotation::row_major_from_rotation;
+use imuflow_body::{BodyModel, BodyParams, FkData, forward_kinematics};
+use imuflow_motion::augment;
+use imuflow_motion::bvh::Bvh;
+use imuflow_motion::imu_synthesis::{
     AccelStencil, Augmentation, AugmentationConfig, SynthesisOptions, SyntheticImus,
     synthesize_imus,
 };
-use imuflow_body::npz::{AmassOptions, read_amass_npz};
-use imuflow_body::retarget::{
+use imuflow_motion::npz::{AmassOptions, read_amass_npz};
+use imuflow_motion::retarget::{
     MotionClip, RetargetOptions, SourceSkeleton, median_lowest_foot_height, resample, retarget_bvh,
 };
-use imuflow_body::rotation::row_major_from_rotation;
-use imuflow_body::{BodyModel, BodyParams, FkData, forward_kinematics};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
@@ -77,27 +77,27 @@ pub struct BuildOptions {
     pub seed: u64,
     /// Use only the first N clips (in sorted order).
     pub limit: Option<usize>,
-    /// Training clips also enter mirrored left–right ([`motion_augment::mirror`]).
+    /// Training clips also enter mirrored left–right ([`augment::mirror`]).
     pub mirror: bool,
-    /// Training clips also enter at each of these speeds ([`motion_augment::time_warp`]; 1 is
+    /// Training clips also enter at each of these speeds ([`augment::time_warp`]; 1 is
     /// the clip itself).
     pub speeds: Vec<f64>,
     /// Training clips also enter with the upper body of another training clip
-    /// ([`motion_augment::recombine`]; the partner is picked by a hash of the clip and the seed).
+    /// ([`augment::recombine`]; the partner is picked by a hash of the clip and the seed).
     pub recombine: bool,
     /// Training clips also enter with smooth random offsets on the spine, neck, head and arms
-    /// ([`motion_augment::perturb`]; seeded by the clip and the seed).
+    /// ([`augment::perturb`]; seeded by the clip and the seed).
     pub perturb: bool,
     /// One training clip in [`STANDING_IDLE_EVERY`] (by a hash of the clip and the seed) also
-    /// enters as [`motion_augment::STANDING_IDLE_S`] of standing idle with weight shifts in its
-    /// first standing posture ([`motion_augment::standing_idle`]), the upper body moved by
-    /// [`motion_augment::perturb`].
+    /// enters as [`augment::STANDING_IDLE_S`] of standing idle with weight shifts in its
+    /// first standing posture ([`augment::standing_idle`]), the upper body moved by
+    /// [`augment::perturb`].
     pub standing_idle: bool,
     /// The augmented IMU copies of training clips are synthesized on a body of a stature drawn
     /// uniformly from this range, m (mass in proportion to stature², the same build), instead
     /// of the subject's: people come in all sizes. `None`: every sequence on the subject.
     pub vary_stature: Option<(f64, f64)>,
-    /// Joint mapping of the clips' skeleton (`stages/body/mappings/bandai-namco.toml` documents the
+    /// Joint mapping of the clips' skeleton (`stages/motion/mappings/bandai-namco.toml` documents the
     /// format); `None`: the built-in Bandai Namco mapping.
     pub mapping: Option<PathBuf>,
     /// A shard is closed before it would exceed this many frames.
@@ -610,17 +610,17 @@ impl ClipWork {
         let mut motions = Vec::new();
         if split == Split::Train {
             if options.mirror {
-                motions.push(("mirrored".to_owned(), motion_augment::mirror(&clip)));
+                motions.push(("mirrored".to_owned(), augment::mirror(&clip)));
             }
             for &speed in &options.speeds {
-                let warped = motion_augment::time_warp(&recorded, speed, FPS)
+                let warped = augment::time_warp(&recorded, speed, FPS)
                     .with_context(|| format!("{}: time warp ×{speed}", path.display()))?;
                 motions.push((format!("speed {speed}"), warped));
             }
             if options.recombine
                 && let Some((partner, upper)) = self.upper_body_for(key, options.seed, body, source)
             {
-                let mixed = motion_augment::recombine(&clip, &upper);
+                let mixed = augment::recombine(&clip, &upper);
                 // Under a second together: too short to teach anything.
                 if mixed.poses.len() as f64 >= FPS {
                     motions.push((format!("upper body of {partner}"), mixed));
@@ -628,14 +628,14 @@ impl ClipWork {
             }
             if options.perturb {
                 let seed = fnv1a64(format!("{key}#perturbed").as_bytes()) ^ options.seed;
-                motions.push(("perturbed".to_owned(), motion_augment::perturb(&clip, seed)));
+                motions.push(("perturbed".to_owned(), augment::perturb(&clip, seed)));
             }
             let idle_seed = fnv1a64(format!("{key}#standing idle").as_bytes()) ^ options.seed;
             if options.standing_idle
                 && idle_seed.is_multiple_of(STANDING_IDLE_EVERY)
-                && let Some(idle) = motion_augment::standing_idle(&clip, body, idle_seed)
+                && let Some(idle) = augment::standing_idle(&clip, body, idle_seed)
             {
-                let moving = motion_augment::perturb(&idle, idle_seed.rotate_left(17));
+                let moving = augment::perturb(&idle, idle_seed.rotate_left(17));
                 motions.push(("standing idle".to_owned(), moving));
             }
         }

@@ -82,7 +82,7 @@ pub struct BodyModelInfo {
 /// IMU synthesis settings of the shards.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SynthesisInfo {
-    /// Acceleration stencil (`Debug` name of `imuflow_body::imu_synthesis::AccelStencil`).
+    /// Acceleration stencil (`Debug` name of `imuflow_motion::imu_synthesis::AccelStencil`).
     pub accel_stencil: String,
     /// Augmentation magnitudes of augmented copies.
     pub augmentation: String,

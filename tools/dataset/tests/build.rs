@@ -3,18 +3,18 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use imuflow_body::bvh::Bvh;
-use imuflow_body::retarget::{RetargetOptions, SourceSkeleton, resample, retarget_bvh};
 use imuflow_body::{BodyModel, BodyParams};
 use imuflow_dataset::{
     BuildOptions, DatasetError, FRAME_TENSORS, LICENCE, METADATA_KEY, OFFSETS_TENSOR,
     ShardMetadata, Split, build, split_of,
 };
+use imuflow_motion::bvh::Bvh;
+use imuflow_motion::retarget::{RetargetOptions, SourceSkeleton, resample, retarget_bvh};
 use safetensors::{Dtype, SafeTensors};
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../stages/body/tests/fixtures/bandai-walk-normal-trimmed.bvh")
+        .join("../../stages/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh")
 }
 
 /// Frames of the fixture after retargeting and resampling to 60 Hz, computed with the body crate.
@@ -331,7 +331,7 @@ fn any_skeleton_builds_with_a_joint_mapping_and_gives_the_same_shards() {
     assert!(matches!(err, DatasetError::AllFailed { .. }), "{err}");
 
     let mut section = "";
-    let mapping_text = imuflow_body::retarget::BANDAI_NAMCO_MAPPING_TOML
+    let mapping_text = imuflow_motion::retarget::BANDAI_NAMCO_MAPPING_TOML
         .lines()
         .map(|line| {
             if line.starts_with('[') {
@@ -392,15 +392,15 @@ fn any_skeleton_builds_with_a_joint_mapping_and_gives_the_same_shards() {
 #[test]
 fn amass_npz_clips_build_like_the_same_motion_in_bvh() {
     // The fixture's motion, retargeted, written as an AMASS-style .npz at its 30 Hz (with
-    // imuflow_body::npz, which its own tests check against numpy's format), then built from
+    // imuflow_motion::npz, which its own tests check against numpy's format), then built from
     // there: the same poses as the BVH build (the floor is re-aligned the same way).
     let bvh = Bvh::read(&fixture()).unwrap();
     let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
     let source = SourceSkeleton::bandai_namco().unwrap();
     let clip = retarget_bvh(&bvh, &source, &body, &RetargetOptions::default()).unwrap();
     let input = tempfile::tempdir().unwrap();
-    let options_npz = imuflow_body::npz::AmassOptions::default();
-    imuflow_body::npz::write_amass_npz(&input.path().join("walk.npz"), &clip, &options_npz)
+    let options_npz = imuflow_motion::npz::AmassOptions::default();
+    imuflow_motion::npz::write_amass_npz(&input.path().join("walk.npz"), &clip, &options_npz)
         .unwrap();
     let out = tempfile::tempdir().unwrap();
     let summary = build(&options(input.path(), out.path())).unwrap();
@@ -547,7 +547,7 @@ fn perturbed_and_standing_idle_motions_enter_training_only() {
         }
     }
     let by_split = clips_by_split(&split_json(more_out.path()));
-    let idle_frames = (imuflow_dataset::motion_augment::STANDING_IDLE_S * 60.0) as usize;
+    let idle_frames = (imuflow_motion::augment::STANDING_IDLE_S * 60.0) as usize;
     for (clip, motions) in &labels {
         let train = by_split.get(clip).map(String::as_str) == Some("train");
         let perturbed = motions.iter().filter(|(m, _)| m == "perturbed").count();

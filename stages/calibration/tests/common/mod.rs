@@ -5,9 +5,7 @@
 
 use std::path::Path;
 
-use imuflow_body::bvh::Bvh;
 use imuflow_body::kinematics::{FkData, forward_kinematics};
-use imuflow_body::retarget::{MotionClip, RetargetOptions, SourceSkeleton, resample, retarget_bvh};
 use imuflow_body::rotation::{angle_between, rotation_from_quat_wxyz};
 use imuflow_body::{BodyModel, Imu, Pose};
 use imuflow_calibration::{
@@ -16,6 +14,10 @@ use imuflow_calibration::{
 use imuflow_graph::frames::{BodyImuFrame, ImuFrame};
 use imuflow_imu_source::prelude::{PreludeKind, PreludeOptions};
 use imuflow_imu_source::synth::{self, Motion, Options, SensorSetup};
+use imuflow_motion::bvh::Bvh;
+use imuflow_motion::retarget::{
+    MotionClip, RetargetOptions, SourceSkeleton, resample, retarget_bvh,
+};
 use nalgebra::Rotation3;
 
 pub const RATE_HZ: f64 = 60.0;
@@ -27,7 +29,7 @@ pub fn body() -> BodyModel {
 /// The committed walking fixture (1.6 s) at 60 Hz.
 pub fn fixture_clip(body: &BodyModel) -> MotionClip {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../body/tests/fixtures/bandai-walk-normal-trimmed.bvh");
+        .join("../motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
     let bvh = Bvh::read(&path).expect("fixture");
     let source = SourceSkeleton::bandai_namco().expect("mapping");
     let clip = retarget_bvh(&bvh, &source, body, &RetargetOptions::default()).expect("retarget");

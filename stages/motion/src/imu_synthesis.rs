@@ -30,11 +30,11 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use rand_distr::StandardNormal;
 
-use crate::body_model::{BodyModel, GRAVITY_IN_MODEL_MPS2};
-use crate::kinematics::{FkData, forward_kinematics};
 use crate::retarget::MotionClip;
-use crate::rotation::{Axis, axis_angle_from_rotation};
-use crate::skeleton::{Imu, NUM_IMUS};
+use imuflow_body::body_model::{BodyModel, GRAVITY_IN_MODEL_MPS2};
+use imuflow_body::kinematics::{FkData, forward_kinematics};
+use imuflow_body::rotation::{Axis, axis_angle_from_rotation};
+use imuflow_body::skeleton::{Imu, NUM_IMUS};
 
 /// Half-width n (frames) of the TransPose/PIP smoothing stencil (reference §3, paper eq. 11: n = 4,
 /// chosen there as closest to real TotalCapture accelerometer statistics). Defined at 60 Hz.
@@ -553,12 +553,12 @@ impl NoiseState {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::body_model::BodyParams;
-    use crate::kinematics::Pose;
-    use crate::rotation::{angle_between, slerp};
-    use crate::skeleton::{JointId, NUM_JOINTS};
     use crate::test_util::random_rotations;
     use approx::assert_relative_eq;
+    use imuflow_body::body_model::BodyParams;
+    use imuflow_body::kinematics::Pose;
+    use imuflow_body::rotation::{angle_between, slerp};
+    use imuflow_body::skeleton::{JointId, NUM_JOINTS};
     use std::f64::consts::PI;
 
     const DT: f64 = 1.0 / 60.0;

@@ -50,10 +50,10 @@ use std::path::Path;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use npyz::{NpyFile, Order, WriterBuilder};
 
-use crate::kinematics::Pose;
 use crate::retarget::MotionClip;
-use crate::rotation::{axis_angle_from_rotation, rotation_from_axis_angle};
-use crate::skeleton::NUM_JOINTS;
+use imuflow_body::kinematics::Pose;
+use imuflow_body::rotation::{axis_angle_from_rotation, rotation_from_axis_angle};
+use imuflow_body::skeleton::NUM_JOINTS;
 
 /// Row-major `M_from_A`: AMASS's Z-up world to imuflow's Y-up model frame (see the module docs).
 pub const MODEL_FROM_AMASS: [[f64; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]];
@@ -395,7 +395,7 @@ mod tests {
     use std::io::Cursor;
 
     use super::*;
-    use crate::rotation::Axis;
+    use imuflow_body::rotation::Axis;
 
     fn npz_bytes(arrays: &[(&str, Vec<u64>, Vec<f64>)], f32_data: bool) -> Vec<u8> {
         let mut zip = zip::ZipWriter::new(Cursor::new(Vec::new()));

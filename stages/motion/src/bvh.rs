@@ -13,7 +13,7 @@ use std::path::Path;
 
 use nalgebra::{Rotation3, Vector3};
 
-use crate::rotation::Axis;
+use imuflow_body::rotation::Axis;
 
 /// Maximum joint nesting depth accepted (guards the recursive parser against hostile input; real
 /// skeletons, fingers included, stay below 20).
@@ -806,7 +806,10 @@ Frame Time: 0.0333333
         assert_relative_eq!(tip, Vector3::new(41.0, 12.0, 3.0), epsilon = 1e-9);
         // A ZXY order with only X non-zero equals a plain X rotation.
         let (r, _) = b.local_transform(&[0.0, 0.0, 0.0, 0.0, 30.0, 0.0, 0.0, 0.0, 0.0], 0);
-        assert!(crate::rotation::angle_between(&r, &Axis::X.rotation(30f64.to_radians())) < 1e-12);
+        assert!(
+            imuflow_body::rotation::angle_between(&r, &Axis::X.rotation(30f64.to_radians()))
+                < 1e-12
+        );
     }
 
     #[test]

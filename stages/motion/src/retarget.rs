@@ -22,11 +22,11 @@ use std::path::Path;
 use nalgebra::{Rotation3, Unit, Vector3};
 use serde::Deserialize;
 
-use crate::body_model::BodyModel;
 use crate::bvh::{Bvh, BvhJoint, Channel};
-use crate::kinematics::{FkData, Pose, forward_kinematics, global_to_local_rotations};
-use crate::rotation::{euler_xyz_from_rotation, from_to, slerp};
-use crate::skeleton::{JointId, NUM_JOINTS};
+use imuflow_body::body_model::BodyModel;
+use imuflow_body::kinematics::{FkData, Pose, forward_kinematics, global_to_local_rotations};
+use imuflow_body::rotation::{euler_xyz_from_rotation, from_to, slerp};
+use imuflow_body::skeleton::{JointId, NUM_JOINTS};
 
 /// Length unit of a source file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
@@ -186,7 +186,7 @@ pub enum RetargetError {
 }
 
 /// Built-in mapping of the Bandai Namco Research motion dataset skeleton (22 joints, ZXY rotations,
-/// centimetres, Y up), from `stages/body/mappings/bandai-namco.toml`, which documents the format.
+/// centimetres, Y up), from `stages/motion/mappings/bandai-namco.toml`, which documents the format.
 /// `joint_Root` is a static parent of `Hips` and is ignored. SMPL's spine2 and the hand-end joints have
 /// no counterpart and get identity local rotations.
 pub const BANDAI_NAMCO_MAPPING_TOML: &str = include_str!("../mappings/bandai-namco.toml");
@@ -739,9 +739,9 @@ fn depth_first_order() -> [JointId; NUM_JOINTS] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::body_model::BodyParams;
-    use crate::rotation::{Axis, angle_between};
     use approx::assert_relative_eq;
+    use imuflow_body::body_model::BodyParams;
+    use imuflow_body::rotation::{Axis, angle_between};
     use std::f64::consts::FRAC_PI_2;
 
     /// Z-up, centimetres, rest pose NOT a T-pose: the left arm hangs down (−z). Frame 0 is the rest

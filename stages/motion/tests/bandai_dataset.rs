@@ -1,14 +1,14 @@
 //! Whole-dataset check of BVH parsing and retargeting on the Bandai Namco motion data. Ignored by default
 //! because the data lives outside the repository; run it with
-//! `IMUFLOW_BANDAI_DIR=/path/to/extracted cargo test -p imuflow-body --test bandai_dataset -- --ignored`
+//! `IMUFLOW_BANDAI_DIR=/path/to/extracted cargo test -p imuflow-motion --test bandai_dataset -- --ignored`
 //! (the directory that `shared/data/bandai-namco-motion/extract.sh` filled).
 
 use std::path::{Path, PathBuf};
 
-use imuflow_body::bvh::Bvh;
 use imuflow_body::kinematics::{FkData, forward_kinematics};
-use imuflow_body::retarget::{RetargetOptions, SourceSkeleton, retarget_bvh};
 use imuflow_body::{BodyModel, BodyParams, JointId};
+use imuflow_motion::bvh::Bvh;
+use imuflow_motion::retarget::{RetargetOptions, SourceSkeleton, retarget_bvh};
 
 fn bvh_files(dir: &Path, out: &mut Vec<PathBuf>) {
     let Ok(entries) = std::fs::read_dir(dir) else {

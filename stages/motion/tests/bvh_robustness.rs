@@ -3,9 +3,9 @@
 
 use std::path::Path;
 
-use imuflow_body::bvh::{Bvh, BvhErrorKind};
-use imuflow_body::retarget::{RetargetOptions, SourceSkeleton, retarget_bvh};
 use imuflow_body::{BodyModel, BodyParams};
+use imuflow_motion::bvh::{Bvh, BvhErrorKind};
+use imuflow_motion::retarget::{RetargetOptions, SourceSkeleton, retarget_bvh};
 
 fn fixture_text() -> String {
     let p =

@@ -2,12 +2,14 @@
 
 use std::path::Path;
 
-use imuflow_body::bvh::Bvh;
-use imuflow_body::imu_synthesis::{
+use imuflow_body::{BodyModel, BodyParams, Imu, NUM_IMUS};
+use imuflow_motion::bvh::Bvh;
+use imuflow_motion::imu_synthesis::{
     AccelStencil, Augmentation, AugmentationConfig, SynthesisOptions, synthesize_imus,
 };
-use imuflow_body::retarget::{MotionClip, RetargetOptions, SourceSkeleton, resample, retarget_bvh};
-use imuflow_body::{BodyModel, BodyParams, Imu, NUM_IMUS};
+use imuflow_motion::retarget::{
+    MotionClip, RetargetOptions, SourceSkeleton, resample, retarget_bvh,
+};
 
 fn walk_60hz(body: &BodyModel) -> MotionClip {
     let path =

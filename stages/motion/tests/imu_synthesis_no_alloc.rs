@@ -1,18 +1,19 @@
 //! Re-running IMU synthesis into a sized output must not allocate (counted with a wrapping global
 //! allocator; this file holds a single test so no other test thread allocates while counting).
 
+#[path = "../../body/tests/common/mod.rs"]
 mod common;
 
 use common::{Counting, allocations};
 
-use imuflow_body::imu_synthesis::{
+use imuflow_body::kinematics::Pose;
+use imuflow_body::rotation::Axis;
+use imuflow_body::{BodyModel, BodyParams, JointId};
+use imuflow_motion::imu_synthesis::{
     AccelStencil, Augmentation, AugmentationConfig, SynthesisOptions, SyntheticImus,
     synthesize_imus_into,
 };
-use imuflow_body::kinematics::Pose;
-use imuflow_body::retarget::MotionClip;
-use imuflow_body::rotation::Axis;
-use imuflow_body::{BodyModel, BodyParams, JointId};
+use imuflow_motion::retarget::MotionClip;
 use nalgebra::Vector3;
 
 #[global_allocator]

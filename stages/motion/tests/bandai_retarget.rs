@@ -2,14 +2,14 @@
 
 use std::path::{Path, PathBuf};
 
-use imuflow_body::bvh::Bvh;
 use imuflow_body::kinematics::{FkData, forward_kinematics};
-use imuflow_body::retarget::{
+use imuflow_body::rotation::{angle_between, axis_angle_from_rotation};
+use imuflow_body::{BodyModel, BodyParams, JointId};
+use imuflow_motion::bvh::Bvh;
+use imuflow_motion::retarget::{
     FloorAlignment, LengthUnit, MotionClip, RetargetError, RetargetOptions, SourceSkeleton,
     bvh_from_clip, estimate_twists_deg, resample, retarget_bvh,
 };
-use imuflow_body::rotation::{angle_between, axis_angle_from_rotation};
-use imuflow_body::{BodyModel, BodyParams, JointId};
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/bandai-walk-normal-trimmed.bvh")
@@ -215,7 +215,8 @@ fn unknown_source_joint_names_file_line_and_joint() {
 
 #[test]
 fn mapping_to_a_missing_source_joint_names_the_mapping_line() {
-    let toml = imuflow_body::retarget::BANDAI_NAMCO_MAPPING_TOML.replace("\"Toes_R\"", "\"Toe_R\"");
+    let toml =
+        imuflow_motion::retarget::BANDAI_NAMCO_MAPPING_TOML.replace("\"Toes_R\"", "\"Toe_R\"");
     let mut map = SourceSkeleton::from_toml_str(&toml, "my-map.toml").unwrap();
     map.ignore.push("Toes_R".into());
     let bvh = Bvh::read(&fixture()).unwrap();

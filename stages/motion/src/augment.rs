@@ -17,7 +17,7 @@
 //!   inverse kinematics); with [`perturb`] on top, the arms and spine move too. The data has no
 //!   standing-idle sessions, which issue 12 measured at 30-34° SIP.
 
-use imuflow_body::retarget::{MotionClip, ResampleError, resample};
+use crate::retarget::{MotionClip, ResampleError, resample};
 use imuflow_body::{BodyModel, FkData, JointId, Pose, forward_kinematics};
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use rand::rngs::StdRng;
