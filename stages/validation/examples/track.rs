@@ -166,6 +166,7 @@ fn track(body: &BodyModel, mode: Mode, poses: &[Pose], first: usize) -> Run {
     let (mut falls, mut causes) = (Vec::new(), Causes::default());
     let mut recent: Vec<(bool, bool)> = Vec::new();
     let mut last_reset = 0;
+    let mut previous_ball: Option<Vector3<f64>> = None;
     for (i, pose) in poses.iter().enumerate() {
         let Some(o) = validator.frame(Some(pose), DT) else {
             continue;
@@ -222,6 +223,23 @@ fn track(body: &BodyModel, mode: Mode, poses: &[Pose], first: usize) -> Run {
                 estimate_velocity.z,
                 sim_velocity.x,
                 sim_velocity.z
+            );
+            let ankle = JointId::LEFT_ANKLE.index();
+            let knee = JointId::LEFT_KNEE.index();
+            let bend = |r: &nalgebra::Rotation3<f64>| r.angle().to_degrees();
+            let ball = fk.joint_in_world_m[FEET[0].index()];
+            let ball_speed = previous_ball.map_or(0.0, |b| (ball - b).xz().norm() / DT);
+            previous_ball = Some(ball);
+            println!(
+                "{:5} left: ball est {:.3} sim {:.3} (est moves {:.2} m/s), ankle est {:.3} sim {:.3} m, knee est {:5.1}° sim {:5.1}°",
+                first + i,
+                fk.joint_in_world_m[FEET[0].index()].y,
+                o.state.joint_position_m[FEET[0].index()].y,
+                ball_speed,
+                fk.joint_in_world_m[ankle].y,
+                o.state.joint_position_m[ankle].y,
+                bend(&pose.parent_from_joint[knee]),
+                bend(&o.state.pose.parent_from_joint[knee]),
             );
             println!(
                 "{:5} track {:.3} root {:+.3} {:+.3} {:+.3} pelvis {:5.1}° trunk {:5.1}° load L {:5.0} R {:5.0} N, estimate's balls L {:.3} R {:.3} m{}",
