@@ -101,7 +101,7 @@ fn batch(body: &BodyModel, list: &Path) -> anyhow::Result<()> {
         step_us.get(step_us.len() / 2).copied().unwrap_or(0.0)
     );
     println!(
-        "of the {} falls and resyncs, {} followed a scuff (a simulated foot loaded while the estimate's is 3 cm up) and {} a bounce (no simulated foot loaded while an estimate's foot is down) within 0.5 s",
+        "of the {} falls and resyncs, {} followed a scuff (a simulated foot loaded while the estimate's sole, ball and heel, is 3 cm up) and {} a bounce (no simulated foot loaded while an estimate's foot is down) within 0.5 s",
         causes.failures, causes.after_scuff, causes.after_bounce
     );
     let [a, b, c, d] = causes.since_reset;
@@ -167,6 +167,7 @@ fn track(body: &BodyModel, mode: Mode, poses: &[Pose], first: usize) -> Run {
     let mut recent: Vec<(bool, bool)> = Vec::new();
     let mut last_reset = 0;
     let mut previous_ball: Option<Vector3<f64>> = None;
+    let ankle_rest_m = body.rest_positions_on_floor_m().map(|p| p.y);
     for (i, pose) in poses.iter().enumerate() {
         let Some(o) = validator.frame(Some(pose), DT) else {
             continue;
@@ -174,7 +175,13 @@ fn track(body: &BodyModel, mode: Mode, poses: &[Pose], first: usize) -> Run {
         forward_kinematics(&body.skeleton, pose, &mut fk);
         let load = |f: &JointId| o.forces.contact_force_n[f.index()].y;
         let height = |f: &JointId| fk.joint_in_world_m[f.index()].y;
-        let scuff = FEET.iter().any(|f| load(f) > 50.0 && height(f) > 0.03);
+        // The estimate's sole: the lower of its ball and its heel (the ankle's height above its
+        // standing height); a landing heel with the toes up is not a scuff.
+        let sole = |f: &JointId| {
+            let ankle = f.parent().expect("feet have ankles").index();
+            height(f).min(fk.joint_in_world_m[ankle].y - ankle_rest_m[ankle])
+        };
+        let scuff = FEET.iter().any(|f| load(f) > 50.0 && sole(f) > 0.03);
         let bounce = FEET.iter().all(|f| load(f) < 5.0) && FEET.iter().any(|f| height(f) < 0.01);
         recent.push((scuff, bounce));
         if o.fell || o.resynced {
