@@ -14,7 +14,11 @@
 //! modes of a single clip; `SIM_TRACE=1` prints every frame (root offset from the estimate, pelvis
 //! and trunk tilt, the feet's loads and the estimate's ball heights; the pelvis's heading
 //! difference and both root velocities); `SIM_FEET=1` prints the
-//! estimate's stance-foot pitch instead of simulating (see `model::DEFAULT_FOOT_PITCH_DEG`).
+//! estimate's stance-foot pitch instead of simulating (see `model::DEFAULT_FOOT_PITCH_DEG`);
+//! `SIM_COP=1` (a clip or @LIST) does not simulate either: it asks whether the estimate could be
+//! carried by its feet at all (the centre of pressure its motion needs, against the support
+//! polygon of the feet within `SIM_COP_HEIGHT` m of the floor, default 0.02; finite differences
+//! over `SIM_COP_FRAMES` frames each way, default 2).
 
 use std::path::Path;
 
@@ -44,6 +48,9 @@ fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let body = BodyModel::new(&BodyParams::builtin()?, 1.75, 70.0)?;
     let clip = args.first().map_or("models/sample/walk.mcap", |s| s);
+    if std::env::var("SIM_COP").is_ok() {
+        return support(&body, clip);
+    }
     if let Some(list) = clip.strip_prefix('@') {
         return batch(&body, Path::new(list));
     }
@@ -294,6 +301,193 @@ fn load(path: &Path) -> anyhow::Result<Vec<Pose>> {
         .collect();
     anyhow::ensure!(!poses.is_empty(), "{}: no truth channel", path.display());
     Ok(poses)
+}
+
+/// Whether the estimate's motion could be carried by its feet at all: per frame, the floor's
+/// force and moment the motion needs (inverse dynamics of the whole body, the root rows; finite
+/// differences over two frames each way, as the data is 30 Hz resampled to 60), the centre of
+/// pressure that force must act at on the floor, and how far it lies outside the support polygon
+/// (the convex hull of the sole corners, heel and ball, of the feet within 2 cm of the floor).
+/// A controller with joint torques and foot contacts cannot follow frames whose centre of
+/// pressure is outside the feet, or which need the floor to pull.
+fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
+    use imuflow_body::dynamics::{DofVector, DynamicsData, RigidBodyModel, joint_dof};
+    use imuflow_body::rotation::axis_angle_from_rotation;
+    let clips: Vec<String> = match clip.strip_prefix('@') {
+        Some(list) => std::fs::read_to_string(list)
+            .with_context(|| list.to_owned())?
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty())
+            .map(str::to_owned)
+            .collect(),
+        None => vec![clip.to_owned()],
+    };
+    let model = RigidBodyModel::new(body);
+    let mut data = DynamicsData::new();
+    let rest = body.rest_positions_on_floor_m();
+    let half_width = 0.045 * body.stature_m / 1.75;
+    let contact_height = env_f64("SIM_COP_HEIGHT", 0.02);
+    let (mut frames, mut supported, mut pulling) = (0u64, 0u64, 0u64);
+    let mut outside: Vec<f64> = Vec::new();
+    // The same with the centre of mass alone (no change of angular momentum): a second opinion.
+    let mut outside_com: Vec<f64> = Vec::new();
+    // Frames each way of the finite differences (2: one frame of the 30 Hz data).
+    let k = env_f64("SIM_COP_FRAMES", 2.0).max(1.0) as usize;
+    let dt = k as f64 * DT;
+    let velocity = |a: &Pose, b: &Pose| {
+        let mut v = DofVector::zeros();
+        v.fixed_rows_mut::<3>(0)
+            .copy_from(&((b.root_in_world_m - a.root_in_world_m) / dt));
+        for j in JointId::all() {
+            let i = j.index();
+            let w = axis_angle_from_rotation(
+                &(a.parent_from_joint[i].inverse() * b.parent_from_joint[i]),
+            ) / dt;
+            v.fixed_rows_mut::<3>(joint_dof(j)).copy_from(&w);
+        }
+        v
+    };
+    for path in &clips {
+        let poses = load(Path::new(path))?;
+        for t in k..poses.len().saturating_sub(k) {
+            let (before, now, after) = (&poses[t - k], &poses[t], &poses[t + k]);
+            let mut com = [Vector3::zeros(); 3];
+            for (c, pose) in com.iter_mut().zip([before, now, after]) {
+                data.set_state(&model, pose, &DofVector::zeros());
+                *c = data.center_of_mass(&model);
+            }
+            let a_com = (com[2] - 2.0 * com[1] + com[0]) / (dt * dt);
+            let zmp = nalgebra::Vector2::new(
+                com[1].x - com[1].y * a_com.x / (a_com.y + 9.81),
+                com[1].z - com[1].y * a_com.z / (a_com.y + 9.81),
+            );
+            let v0 = velocity(before, now);
+            let v1 = velocity(now, after);
+            let v = (v0 + v1) / 2.0;
+            let vdot = (v1 - v0) / dt;
+            data.set_state(&model, now, &v);
+            let mut tau = DofVector::zeros();
+            data.inverse_dynamics(&model, &vdot, &mut tau);
+            frames += 1;
+            // The floor's wrench on the body: the root's rows (force in M; torque in the pelvis
+            // frame, about the pelvis origin).
+            let force = Vector3::new(tau[0], tau[1], tau[2]);
+            let origin = data.fk().joint_in_world_m[0];
+            let moment = data.fk().world_from_joint[0] * Vector3::new(tau[3], tau[4], tau[5]);
+            if force.y <= 0.0 {
+                pulling += 1;
+                continue;
+            }
+            // Centre of pressure p on y = 0: moment = (p − origin) × force + free moment about y.
+            let cop = nalgebra::Vector2::new(
+                origin.x + (moment.z - origin.y * force.x) / force.y,
+                origin.z + (-moment.x - origin.y * force.z) / force.y,
+            );
+            let mut corners = Vec::new();
+            for foot in FEET {
+                let ankle = foot.parent().expect("feet have ankles");
+                let (a, b) = (ankle.index(), foot.index());
+                let foot_length = (rest[b].z - rest[a].z) / 0.45;
+                let heel_in_ankle = Vector3::new(0.0, -rest[a].y, -0.25 * foot_length);
+                let ball_in_ankle = rest[b] - rest[a] - Vector3::new(0.0, rest[b].y, 0.0);
+                for point in [heel_in_ankle, ball_in_ankle] {
+                    for side in [-1.0, 1.0] {
+                        let p = data.point_position(
+                            ankle,
+                            &(point + Vector3::new(side * half_width, 0.0, 0.0)),
+                        );
+                        if p.y < contact_height {
+                            corners.push(nalgebra::Vector2::new(p.x, p.z));
+                        }
+                    }
+                }
+            }
+            if corners.is_empty() {
+                continue;
+            }
+            supported += 1;
+            outside.push(distance_outside_hull(&cop, &corners));
+            outside_com.push(distance_outside_hull(&zmp, &corners));
+        }
+    }
+    outside.sort_by(f64::total_cmp);
+    outside_com.sort_by(f64::total_cmp);
+    let share_of = |values: &[f64], d: f64| {
+        values.iter().filter(|x| **x > d).count() as f64 / values.len().max(1) as f64 * 100.0
+    };
+    let share = |d: f64| share_of(&outside, d);
+    let share_com = |d: f64| share_of(&outside_com, d);
+    println!(
+        "{} clips, {frames} frames: {supported} with a foot down, {pulling} needing the floor to pull; centre of pressure outside the feet by > 1 cm in {:.1} %, > 3 cm in {:.1} %, > 10 cm in {:.1} % of the frames with a foot down (median {:.1} cm, p90 {:.1} cm)",
+        clips.len(),
+        share(0.01),
+        share(0.03),
+        share(0.10),
+        outside.get(outside.len() / 2).copied().unwrap_or(0.0) * 100.0,
+        outside.get(outside.len() * 9 / 10).copied().unwrap_or(0.0) * 100.0,
+    );
+    println!(
+        "  from the centre of mass alone (its acceleration, no angular momentum): outside by > 3 cm in {:.1} %, > 10 cm in {:.1} % (median {:.1} cm)",
+        share_com(0.03),
+        share_com(0.10),
+        outside_com
+            .get(outside_com.len() / 2)
+            .copied()
+            .unwrap_or(0.0)
+            * 100.0,
+    );
+    Ok(())
+}
+
+/// How far `p` lies outside the convex hull of `points` (0 inside), m.
+fn distance_outside_hull(p: &nalgebra::Vector2<f64>, points: &[nalgebra::Vector2<f64>]) -> f64 {
+    // Gift wrapping is plenty for at most 8 points.
+    let cross = |o: &nalgebra::Vector2<f64>,
+                 a: &nalgebra::Vector2<f64>,
+                 b: &nalgebra::Vector2<f64>| { (a - o).perp(&(b - o)) };
+    let mut hull: Vec<nalgebra::Vector2<f64>> = Vec::new();
+    let start = points
+        .iter()
+        .copied()
+        .min_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)))
+        .expect("points");
+    let mut current = start;
+    loop {
+        hull.push(current);
+        let mut next = points[0];
+        for q in points {
+            if next == current || cross(&current, &next, q) < 0.0 {
+                next = *q;
+            }
+        }
+        current = next;
+        if current == start || hull.len() > points.len() {
+            break;
+        }
+    }
+    let segment_distance = |a: &nalgebra::Vector2<f64>, b: &nalgebra::Vector2<f64>| {
+        let ab = b - a;
+        let t = if ab.norm_squared() > 0.0 {
+            ((p - a).dot(&ab) / ab.norm_squared()).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        (a + ab * t - p).norm()
+    };
+    if hull.len() < 3 {
+        return match hull.len() {
+            1 => (hull[0] - p).norm(),
+            _ => segment_distance(&hull[0], &hull[1]),
+        };
+    }
+    let inside = (0..hull.len()).all(|i| cross(&hull[i], &hull[(i + 1) % hull.len()], p) >= -1e-12);
+    if inside {
+        return 0.0;
+    }
+    (0..hull.len())
+        .map(|i| segment_distance(&hull[i], &hull[(i + 1) % hull.len()]))
+        .fold(f64::INFINITY, f64::min)
 }
 
 /// The stance feet's pitch in the estimate: over the frames where a ball of the foot is within
