@@ -17,6 +17,12 @@
 //!      feet 10/11, weight [`PipConfig::coeff_joint_velocity`]:
 //!      `J_j·v̇ ≈ kp_position·v_ref,j·dt − kd_position·v_j − J̇_j·v` (= 60·(v_ref − v) with the defaults;
 //!      `v_ref` is the networks' world-frame joint velocity, reference §2.2);
+//!    - instrumented bones' world orientation (imuflow, not PIP), the six bones that carry an IMU,
+//!      weight [`PipConfig::coeff_sensor_bone`]: `J_ω,j·v̇ ≈ kp_rotation·e_j − kd_rotation·ω_j −
+//!      J̇_ω,j·v`, `e_j` the world-axes rotation from the current to the reference orientation.
+//!      The reference carries those bones at their calibrated measurement (the kinematics stage
+//!      imposes it); with local-rotation PD alone the errors of every joint above a bone added up,
+//!      and PIP's output left its sensors by 7.0° on the holdout split (4.9° with these rows);
 //!    - "Signorini" force penalty (reference §5.2 cost 3): `coeff_lambda·max(height, 0.005)·λ_k ≈ 0`
 //!      per point, height = the point's height above its surface;
 //!    - torque regulariser (Eq. 12, reference §5.2 cost 4): `0.1·τ_root (6) ≈ 0`, `0.01·τ_joints ≈ 0`;
@@ -105,6 +111,10 @@ pub struct PipConfig {
     pub dt: f64,
     /// Weight of the joint-position PD rows (coeff_jvel = 1, Eq. 6).
     pub coeff_joint_velocity: f64,
+    /// Weight of the world-orientation PD rows of the six instrumented bones (imuflow, not PIP:
+    /// the reference carries their calibrated measurement, and the local-rotation PD alone let
+    /// its errors add up along each chain; same gains as the rotation PD; 0 turns it off).
+    pub coeff_sensor_bone: f64,
     /// Weight of the height-scaled force penalty (coeff_lambda = 10, reference §5.2 cost 3).
     pub coeff_lambda: f64,
     /// Smallest height used in that penalty (m; 0.005, reference §5.2 cost 3).
@@ -141,6 +151,7 @@ impl Default for PipConfig {
             friction: 0.6,
             dt: DT_S,
             coeff_joint_velocity: 1.0,
+            coeff_sensor_bone: 1.0,
             coeff_lambda: 10.0,
             lambda_min_height_m: 0.005,
             coeff_root_virtual: 0.1,

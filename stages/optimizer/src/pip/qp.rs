@@ -32,9 +32,9 @@ use clarabel::solver::{
     ZeroConeT,
 };
 use imuflow_body::dynamics::{
-    DofVector, DynamicsData, MassMatrix, NUM_DOFS, PointJacobian, joint_dof,
+    AngularJacobian, DofVector, DynamicsData, MassMatrix, NUM_DOFS, PointJacobian, joint_dof,
 };
-use imuflow_body::{JointId, Pose};
+use imuflow_body::{Imu, JointId, Pose};
 use imuflow_contact::ContactSet;
 use imuflow_contact::pip::FEET;
 use imuflow_graph::frames::MAX_CONTACT_POINTS;
@@ -100,6 +100,7 @@ pub struct Qp {
     tau_w: DofVector,
     nc: usize,
     jac: Box<PointJacobian>,
+    angular_jac: Box<AngularJacobian>,
     contact_jac: Box<[PointJacobian; MAX_CONTACT_POINTS]>,
     cols: Vec<usize>,
     /// Inequality rows `C·z ≤ d` over `z = [v̇, λ]`, as triplets.
@@ -120,6 +121,7 @@ impl Qp {
             tau_w: DofVector::zeros(),
             nc: 0,
             jac: Box::new(PointJacobian::zeros()),
+            angular_jac: Box::new(AngularJacobian::zeros()),
             contact_jac: Box::new([PointJacobian::zeros(); MAX_CONTACT_POINTS]),
             cols: Vec::with_capacity(NUM_DOFS),
             c_rows: Vec::new(),
@@ -253,6 +255,42 @@ impl Qp {
                     let s = w2 * ja.dot(&self.jac.column(cb));
                     let (r, c) = if ca <= cb { (ca, cb) } else { (cb, ca) };
                     self.paa[(r, c)] += s;
+                }
+            }
+        }
+        // World orientation of the instrumented bones (imuflow; `PipConfig::coeff_sensor_bone`):
+        // `J_ω,j·v̇ ≈ kp·e_j − kd·ω_j − J̇_ω,j·v`, with `e_j` the rotation from the current to the
+        // reference world orientation (world axes). `J̇_ω·v` = Σ over the chain of
+        // `ω_parent(k) × ω_k` (the derivative of `ω_k = ω_parent(k) + R_k·ω_rel,k`).
+        let w2 = config.coeff_sensor_bone * config.coeff_sensor_bone;
+        if w2 > 0.0 {
+            for imu in Imu::ALL {
+                let j = imu.joint();
+                let current = data.fk().world_from_joint[j.index()];
+                let wanted = world_rotation(&reference.pose, j);
+                let e = current * axis_angle_from_rotation(&(current.transpose() * wanted));
+                let omega = data.angular_velocity(j);
+                let mut jdot_v = Vector3::zeros();
+                let mut k = Some(j);
+                while let Some(link) = k {
+                    if let Some(parent) = link.parent() {
+                        jdot_v += data
+                            .angular_velocity(parent)
+                            .cross(&data.angular_velocity(link));
+                    }
+                    k = link.parent();
+                }
+                let want = e * config.kp_rotation - omega * config.kd_rotation - jdot_v;
+                data.angular_jacobian(j, &mut self.angular_jac);
+                chain_columns(j, &mut self.cols);
+                for (ia, &ca) in self.cols.iter().enumerate() {
+                    let ja = self.angular_jac.column(ca);
+                    self.q[ca] -= w2 * ja.dot(&want);
+                    for &cb in &self.cols[ia..] {
+                        let s = w2 * ja.dot(&self.angular_jac.column(cb));
+                        let (r, c) = if ca <= cb { (ca, cb) } else { (cb, ca) };
+                        self.paa[(r, c)] += s;
+                    }
                 }
             }
         }
@@ -656,6 +694,17 @@ fn settings(config: &PipConfig) -> DefaultSettings<f64> {
 }
 
 /// The columns of `v` a point of joint `j` depends on: the root translation and every ancestor's block.
+/// World orientation of joint `j` in `pose` (its local rotations composed from the root).
+fn world_rotation(pose: &Pose, j: JointId) -> nalgebra::Rotation3<f64> {
+    let mut r = pose.parent_from_joint[j.index()];
+    let mut k = j.parent();
+    while let Some(parent) = k {
+        r = pose.parent_from_joint[parent.index()] * r;
+        k = parent.parent();
+    }
+    r
+}
+
 fn chain_columns(j: JointId, out: &mut Vec<usize>) {
     out.clear();
     out.extend(0..3);

@@ -160,6 +160,51 @@ fn a_bent_knee_reference_is_tracked() {
 }
 
 #[test]
+fn the_sensor_bone_rows_bring_the_instrumented_bones_to_their_world_orientation() {
+    // A trunk bent 20° forward while the reference's joint velocities say "stand still": the
+    // local-rotation PD and the joint-position PD disagree, and the compromise leaves the bones
+    // below the trunk (the forearms and the head carry sensors) short of their reference world
+    // orientation. The sensor-bone rows must take that error down.
+    let sensor_error_deg = |coeff: f64| {
+        let mut m = pip(PipConfig {
+            coeff_sensor_bone: coeff,
+            ..PipConfig::default()
+        });
+        m.set_state(standing_pose(&m, 0.0), DofVector::zeros());
+        let mut r = standing_reference([0.9, 0.9]);
+        r.pose.parent_from_joint[JointId::SPINE1.index()] =
+            Rotation3::new(Vector3::new(20f64.to_radians(), 0.0, 0.0));
+        let mut out = MotionEstimate::default();
+        for _ in 0..30 {
+            assert!(!m.step(&r, None, &mut out).unwrap().fallback);
+        }
+        let world = |pose: &Pose, j: JointId| {
+            let mut fk = FkData::new();
+            imuflow_body::forward_kinematics(&m.physics.body.skeleton, pose, &mut fk);
+            fk.world_from_joint[j.index()]
+        };
+        imuflow_body::Imu::ALL
+            .iter()
+            .map(|imu| {
+                let j = imu.joint();
+                world(&out.pose, j)
+                    .angle_to(&world(&r.pose, j))
+                    .to_degrees()
+            })
+            .sum::<f64>()
+            / 6.0
+    };
+    let without = sensor_error_deg(0.0);
+    let with = sensor_error_deg(1.0);
+    eprintln!("sensor-bone world error: {without:.2}° without the rows, {with:.2}° with");
+    assert!(without > 1.0, "the test needs a conflict: {without}°");
+    assert!(
+        with < 0.5 * without,
+        "{with}° with the rows, {without}° without"
+    );
+}
+
+#[test]
 fn solver_failures_fall_back_instead_of_panicking() {
     // Every solution is "too large": both the QP and the unconstrained re-solve fail, so the step
     // follows the reference kinematically at the current root position, at rest.
@@ -244,8 +289,8 @@ fn compare_formulations(
 ) -> qp::Solution {
     use qp::Formulation;
     let config = PipConfig {
-        solver_tolerance: 1e-11,
-        solver_max_iterations: 200,
+        solver_tolerance: 1e-12,
+        solver_max_iterations: 400,
         ..m.config.clone()
     };
     let mut data = DynamicsData::new();
