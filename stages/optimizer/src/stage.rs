@@ -102,6 +102,13 @@ pub const SPEC: StageSpec = StageSpec {
             "pip 0.6, globalpose 0.7",
             "friction coefficient μ of the contact cones",
         ),
+        ParamSpec::float(
+            "sensor_bone_weight",
+            0.0,
+            1e3,
+            "1",
+            "pip: weight of the world-orientation PD on the six instrumented bones (0: PIP's own cost)",
+        ),
         ParamSpec {
             name: "terrain",
             ty: ParamType::Choice(&Terrain::NAMES),
@@ -136,6 +143,7 @@ fn build(stage: &str, params: &Params) -> anyhow::Result<(String, Box<dyn Method
                 kp_position: params.float("kp_position", d.kp_position),
                 kd_position: params.float("kd_position", d.kd_position),
                 friction: params.float("friction", d.friction),
+                coeff_sensor_bone: params.float("sensor_bone_weight", d.coeff_sensor_bone),
                 ..d
             };
             Box::new(Pip::new(physics, config)?)
