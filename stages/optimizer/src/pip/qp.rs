@@ -32,7 +32,7 @@ use clarabel::solver::{
     ZeroConeT,
 };
 use imuflow_body::dynamics::{
-    AngularJacobian, DofVector, DynamicsData, MassMatrix, NUM_DOFS, PointJacobian, joint_dof,
+    DofVector, DynamicsData, MassMatrix, NUM_DOFS, PointJacobian, joint_dof,
 };
 use imuflow_body::{Imu, JointId, Pose};
 use imuflow_contact::ContactSet;
@@ -99,8 +99,8 @@ pub struct Qp {
     /// Per DoF, the torque-regulariser weight (not squared).
     tau_w: DofVector,
     nc: usize,
+    /// A point's or a bone's angular Jacobian (both 3 × 75), one task at a time.
     jac: Box<PointJacobian>,
-    angular_jac: Box<AngularJacobian>,
     contact_jac: Box<[PointJacobian; MAX_CONTACT_POINTS]>,
     cols: Vec<usize>,
     /// Inequality rows `C·z ≤ d` over `z = [v̇, λ]`, as triplets.
@@ -121,7 +121,6 @@ impl Qp {
             tau_w: DofVector::zeros(),
             nc: 0,
             jac: Box::new(PointJacobian::zeros()),
-            angular_jac: Box::new(AngularJacobian::zeros()),
             contact_jac: Box::new([PointJacobian::zeros(); MAX_CONTACT_POINTS]),
             cols: Vec::with_capacity(NUM_DOFS),
             c_rows: Vec::new(),
@@ -248,15 +247,7 @@ impl Qp {
                 - vel * config.kd_position
                 - jdv;
             chain_columns(j, &mut self.cols);
-            for (ia, &ca) in self.cols.iter().enumerate() {
-                let ja = self.jac.column(ca);
-                self.q[ca] -= w2 * ja.dot(&want);
-                for &cb in &self.cols[ia..] {
-                    let s = w2 * ja.dot(&self.jac.column(cb));
-                    let (r, c) = if ca <= cb { (ca, cb) } else { (cb, ca) };
-                    self.paa[(r, c)] += s;
-                }
-            }
+            add_task(&mut self.paa, &mut self.q, &self.cols, &self.jac, &want, w2);
         }
         // World orientation of the instrumented bones (imuflow; `PipConfig::coeff_sensor_bone`):
         // `J_ω,j·v̇ ≈ kp·e_j − kd·ω_j − J̇_ω,j·v`, with `e_j` the rotation from the current to the
@@ -281,17 +272,9 @@ impl Qp {
                     k = link.parent();
                 }
                 let want = e * config.kp_rotation - omega * config.kd_rotation - jdot_v;
-                data.angular_jacobian(j, &mut self.angular_jac);
+                data.angular_jacobian(j, &mut self.jac);
                 chain_columns(j, &mut self.cols);
-                for (ia, &ca) in self.cols.iter().enumerate() {
-                    let ja = self.angular_jac.column(ca);
-                    self.q[ca] -= w2 * ja.dot(&want);
-                    for &cb in &self.cols[ia..] {
-                        let s = w2 * ja.dot(&self.angular_jac.column(cb));
-                        let (r, c) = if ca <= cb { (ca, cb) } else { (cb, ca) };
-                        self.paa[(r, c)] += s;
-                    }
-                }
+                add_task(&mut self.paa, &mut self.q, &self.cols, &self.jac, &want, w2);
             }
         }
         // Height-scaled force penalty ("Signorini", reference §5.2 cost 3).
@@ -694,6 +677,25 @@ fn settings(config: &PipConfig) -> DefaultSettings<f64> {
 }
 
 /// The columns of `v` a point of joint `j` depends on: the root translation and every ancestor's block.
+/// Adds the task `w2·½‖J·v̇ − want‖²` to the cost (`J` a 3 × 75 Jacobian whose nonzero columns
+/// are `cols`, ascending): `P_aa += w2·JᵀJ` (upper triangle), `q −= w2·Jᵀ·want`.
+fn add_task(
+    paa: &mut MassMatrix,
+    q: &mut DofVector,
+    cols: &[usize],
+    jac: &PointJacobian,
+    want: &Vector3<f64>,
+    w2: f64,
+) {
+    for (ia, &ca) in cols.iter().enumerate() {
+        let ja = jac.column(ca);
+        q[ca] -= w2 * ja.dot(want);
+        for &cb in &cols[ia..] {
+            paa[(ca, cb)] += w2 * ja.dot(&jac.column(cb));
+        }
+    }
+}
+
 /// World orientation of joint `j` in `pose` (its local rotations composed from the root).
 fn world_rotation(pose: &Pose, j: JointId) -> nalgebra::Rotation3<f64> {
     let mut r = pose.parent_from_joint[j.index()];
