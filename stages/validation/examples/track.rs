@@ -79,13 +79,12 @@ fn main() -> anyhow::Result<()> {
 
 /// Torques mode over every clip of `list`: the totals, and what preceded the falls and resyncs.
 fn batch(body: &BodyModel, list: &Path) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(list).with_context(|| list.display().to_string())?;
     let (mut frames, mut falls, mut resyncs) = (0u64, 0u64, 0u64);
     let (mut tracking, mut pose) = (0.0, 0.0);
     let mut causes = Causes::default();
     let mut step_us = Vec::new();
-    for clip in text.lines().map(str::trim).filter(|l| !l.is_empty()) {
-        let run = track(body, Mode::Torques, &load(Path::new(clip))?, 0);
+    for clip in clip_list(list)? {
+        let run = track(body, Mode::Torques, &load(Path::new(&clip))?, 0);
         let s = &run.validator.stats;
         if std::env::var("SIM_VERBOSE").is_ok() {
             println!("{clip}: {}", s.summary_line(false));
@@ -247,7 +246,7 @@ fn track(body: &BodyModel, mode: Mode, poses: &[Pose], first: usize) -> Run {
             println!(
                 "{:5} left: ball est {:.3} sim {:.3} (est moves {:.2} m/s), ankle est {:.3} sim {:.3} m, knee est {:5.1}° sim {:5.1}°",
                 first + i,
-                fk.joint_in_world_m[FEET[0].index()].y,
+                ball.y,
                 o.state.joint_position_m[FEET[0].index()].y,
                 ball_speed,
                 fk.joint_in_world_m[ankle].y,
@@ -286,6 +285,17 @@ fn track(body: &BodyModel, mode: Mode, poses: &[Pose], first: usize) -> Run {
 }
 
 /// The true poses of a BVH (retargeted, 60 Hz) or of a recording's truth channel.
+/// The clip paths of a list file, one a line (blank lines skipped).
+fn clip_list(list: &Path) -> anyhow::Result<Vec<String>> {
+    let text = std::fs::read_to_string(list).with_context(|| list.display().to_string())?;
+    Ok(text
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .map(str::to_owned)
+        .collect())
+}
+
 fn load(path: &Path) -> anyhow::Result<Vec<Pose>> {
     if path.extension().is_some_and(|e| e == "bvh") {
         return Ok(Motion::load(path, &Options::default(), 60.0)?.clip.poses);
@@ -313,14 +323,8 @@ fn load(path: &Path) -> anyhow::Result<Vec<Pose>> {
 fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
     use imuflow_body::dynamics::{DofVector, DynamicsData, RigidBodyModel, joint_dof};
     use imuflow_body::rotation::axis_angle_from_rotation;
-    let clips: Vec<String> = match clip.strip_prefix('@') {
-        Some(list) => std::fs::read_to_string(list)
-            .with_context(|| list.to_owned())?
-            .lines()
-            .map(str::trim)
-            .filter(|l| !l.is_empty())
-            .map(str::to_owned)
-            .collect(),
+    let clips = match clip.strip_prefix('@') {
+        Some(list) => clip_list(Path::new(list))?,
         None => vec![clip.to_owned()],
     };
     let model = RigidBodyModel::new(body);

@@ -34,11 +34,12 @@ use clarabel::solver::{
 use imuflow_body::dynamics::{
     DofVector, DynamicsData, MassMatrix, NUM_DOFS, PointJacobian, joint_dof,
 };
-use imuflow_body::{Imu, JointId, Pose};
+use imuflow_body::kinematics::local_to_global_rotations;
+use imuflow_body::{Imu, JointId, NUM_JOINTS, Pose};
 use imuflow_contact::ContactSet;
 use imuflow_contact::pip::FEET;
 use imuflow_graph::frames::MAX_CONTACT_POINTS;
-use nalgebra::{Cholesky, DMatrix, DVector, Vector3};
+use nalgebra::{Cholesky, DMatrix, DVector, Rotation3, Vector3};
 
 use super::{POSITION_PD_JOINTS, PipConfig, bound_qp};
 use crate::{PhysicsBody, Reference};
@@ -255,10 +256,12 @@ impl Qp {
         // `ω_parent(k) × ω_k` (the derivative of `ω_k = ω_parent(k) + R_k·ω_rel,k`).
         let w2 = config.coeff_sensor_bone * config.coeff_sensor_bone;
         if w2 > 0.0 {
+            let mut reference_world = [Rotation3::identity(); NUM_JOINTS];
+            local_to_global_rotations(&reference.pose.parent_from_joint, &mut reference_world);
             for imu in Imu::ALL {
                 let j = imu.joint();
                 let current = data.fk().world_from_joint[j.index()];
-                let wanted = world_rotation(&reference.pose, j);
+                let wanted = reference_world[j.index()];
                 let e = current * axis_angle_from_rotation(&(current.transpose() * wanted));
                 let omega = data.angular_velocity(j);
                 let mut jdot_v = Vector3::zeros();
@@ -676,7 +679,6 @@ fn settings(config: &PipConfig) -> DefaultSettings<f64> {
     }
 }
 
-/// The columns of `v` a point of joint `j` depends on: the root translation and every ancestor's block.
 /// Adds the task `w2·½‖J·v̇ − want‖²` to the cost (`J` a 3 × 75 Jacobian whose nonzero columns
 /// are `cols`, ascending): `P_aa += w2·JᵀJ` (upper triangle), `q −= w2·Jᵀ·want`.
 fn add_task(
@@ -696,17 +698,7 @@ fn add_task(
     }
 }
 
-/// World orientation of joint `j` in `pose` (its local rotations composed from the root).
-fn world_rotation(pose: &Pose, j: JointId) -> nalgebra::Rotation3<f64> {
-    let mut r = pose.parent_from_joint[j.index()];
-    let mut k = j.parent();
-    while let Some(parent) = k {
-        r = pose.parent_from_joint[parent.index()] * r;
-        k = parent.parent();
-    }
-    r
-}
-
+/// The columns of `v` a point of joint `j` depends on: the root translation and every ancestor's block.
 fn chain_columns(j: JointId, out: &mut Vec<usize>) {
     out.clear();
     out.extend(0..3);
