@@ -40,6 +40,10 @@ pub struct EvalArgs {
     /// With `--sensor-bones measured`: how far (degrees) a bone may stay from its sensor.
     #[arg(long, default_value_t = imuflow_kinematics::infer::SENSOR_BONE_TOLERANCE_DEG)]
     sensor_bone_tolerance_deg: f64,
+    /// Knees and elbows: anatomical joints (the kinematics stage's default) or the networks' free
+    /// 3-DoF joints (the papers').
+    #[arg(long, default_value = "anatomical", value_parser = ["anatomical", "free"])]
+    limb_joints: String,
     /// Evaluate at most this many sequences per method.
     #[arg(long, default_value_t = usize::MAX)]
     limit: usize,
@@ -67,6 +71,7 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
         copies: Copies::parse(&args.copies).unwrap_or(Copies::Augmented),
         sensor_bones: SensorBones::parse(&args.sensor_bones, args.sensor_bone_tolerance_deg)
             .context("--sensor-bone-tolerance-deg must be a finite angle ≥ 0")?,
+        anatomical_joints: args.limb_joints == "anatomical",
         limit: args.limit,
         progress: !args.no_progress,
     };

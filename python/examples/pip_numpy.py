@@ -3,8 +3,8 @@
 What a researcher plugging in their own network replaces: `load_safetensors` reads the weights,
 `Rnn` is the LSTM block every PIP network is made of (PyTorch's parameter names and gate order),
 and `PipNumpy.step` turns one calibrated IMU frame into one KinematicsFrame. It follows the Rust
-kinematics stage (stages/kinematics/src/infer.rs) with `sensor_bones = "network"`, so the two
-can be A/B-compared on identical input:
+kinematics stage (stages/kinematics/src/infer.rs) with `sensor_bones = "network"` and
+`limb_joints = "free"`, so the two can be A/B-compared on identical input:
 
     [stages.pynet]
     exec = "python3"

@@ -158,7 +158,8 @@ def test_pip_in_numpy_matches_the_rust_networks():
         out = os.path.join(d, "ab.mcap")
         text = HEAD.format(name="python-pip").replace(
             'weights = "models/pip.safetensors" }',
-            'weights = "models/pip.safetensors", sensor_bones = "network" }') + f"""
+            'weights = "models/pip.safetensors", sensor_bones = "network", '
+            'limb_joints = "free" }') + f"""
 [stages.pynet]
 exec = "{sys.executable}"
 args = ["{os.path.join(ROOT, 'python', 'examples', 'pip_numpy.py')}"]

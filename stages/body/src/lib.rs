@@ -7,6 +7,7 @@
 //! - [`body_model`]: dimensions, segment masses/inertias and IMU placement from `models/body.toml`.
 //! - [`rotation`]: 6D, Euler, axis-angle, from-to, slerp, geodesic angle.
 //! - [`kinematics`]: forward and inverse kinematics with preallocated buffers.
+//! - [`limb_joints`]: knees as hinges, elbows as flexion-and-twist joints; projection of a pose onto them.
 //! - [`dynamics`]: floating-base rigid-body dynamics (mass matrix, bias forces, inverse/forward dynamics,
 //!   point Jacobians) in GlobalPose's singularity-free coordinates; [`urdf`]: the same model as URDF.
 
@@ -19,6 +20,7 @@
 pub mod body_model;
 pub mod dynamics;
 pub mod kinematics;
+pub mod limb_joints;
 pub mod rotation;
 pub mod skeleton;
 pub mod urdf;

@@ -8,6 +8,7 @@
 
 use candle_core::{Device, Tensor};
 use imuflow_body::kinematics::{FkData, forward_kinematics, imu_positions_in_world};
+use imuflow_body::limb_joints::project_limb_joints;
 use imuflow_body::rotation::{from_to, rotation_from_r6d};
 use imuflow_body::skeleton::{
     CONTACT_JOINTS, FULL_JOINTS, IMU_JOINTS, LEAF_JOINTS, REDUCED_JOINTS,
@@ -136,6 +137,8 @@ pub enum Backend {
 pub struct Streamer {
     method: Method,
     sensor_bones: SensorBones,
+    /// Knees as hinges, elbows as flexion-and-twist joints ([`project_limb_joints`]).
+    anatomical_joints: bool,
     backend: Backend,
     nets: Vec<Rnn>,
     /// The nets' lean copies; they hold their own state.
@@ -203,6 +206,7 @@ impl Streamer {
         Ok(Streamer {
             method: weights.metadata.method,
             sensor_bones: SensorBones::default(),
+            anatomical_joints: true,
             backend: Backend::default(),
             nets: weights.nets,
             lean,
@@ -223,6 +227,12 @@ impl Streamer {
     /// Where the instrumented bones' orientations come from (default: measured).
     pub fn set_sensor_bones(&mut self, sensor_bones: SensorBones) {
         self.sensor_bones = sensor_bones;
+    }
+
+    /// Whether the knees and elbows are made anatomical joints after the sensor bones are set
+    /// (default: yes; no is the papers' behaviour).
+    pub fn set_anatomical_joints(&mut self, anatomical: bool) {
+        self.anatomical_joints = anatomical;
     }
 
     /// Step the nets with `backend` from the next session on (starts one: the two keep separate
@@ -359,6 +369,9 @@ impl Streamer {
         if let SensorBones::Measured { tolerance_rad } = self.sensor_bones {
             impose_measured_bones(&mut pose, imu, tolerance_rad);
         }
+        if self.anatomical_joints {
+            project_limb_joints(&mut pose);
+        }
         let mut joint_position = [Vector3::zeros(); NUM_JOINTS];
         for (k, j) in FULL_JOINTS.iter().enumerate() {
             joint_position[j.index()] = root * v3(&full[3 * k..3 * k + 3]);
@@ -419,6 +432,9 @@ impl Streamer {
             // Before the FK that feeds vrnet: its joint inputs then agree with the sensors too.
             // The root keeps GlobalPose's gravity-corrected orientation (paper Eq. 1-3).
             impose_measured_bones(&mut pose, imu, tolerance_rad);
+        }
+        if self.anatomical_joints {
+            project_limb_joints(&mut pose);
         }
         // pRJ recomputed by FK of the pose with the root at identity (reference §2.4).
         let mut local = Pose::t_pose(Vector3::zeros());
@@ -659,6 +675,59 @@ mod tests {
     #[test]
     fn lean_streaming_matches_candle_globalpose() {
         lean_streaming_matches_candle(Method::GlobalPose, "models/globalpose.safetensors");
+    }
+
+    /// The streamer's knees and elbows, with and without `limb_joints`, on the committed weights:
+    /// anatomical joints on every frame, the lower legs' and forearms' global orientations the
+    /// same either way, and the networks' own (free) joints visibly not anatomical, or the step
+    /// would have nothing to do.
+    fn anatomical_joints_are_imposed(method: Method, path: &str) {
+        let load = || {
+            let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../..")
+                .join(path);
+            Weights::load(&path, method).unwrap()
+        };
+        let mut anatomical = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
+        let mut free = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
+        free.set_anatomical_joints(false);
+        let knees = [JointId::LEFT_KNEE, JointId::RIGHT_KNEE];
+        let elbows = [JointId::LEFT_ELBOW, JointId::RIGHT_ELBOW];
+        let mut free_off_axis_deg: f64 = 0.0;
+        for f in 0..240 {
+            let input = crate::bench::swaying_sensors(f);
+            let a = anatomical.step(&input).unwrap();
+            let b = free.step(&input).unwrap();
+            for knee in knees {
+                let v = a.pose[knee.index()].scaled_axis();
+                assert!(v.y.abs() < 1e-9 && v.z.abs() < 1e-9, "{knee}: {v:?}");
+                let w = b.pose[knee.index()].scaled_axis();
+                free_off_axis_deg = free_off_axis_deg.max(w.y.hypot(w.z).to_degrees());
+            }
+            for elbow in elbows {
+                // Ry(a)·Rz(b)·Rx(c) has m[(1, 0)] = sin b.
+                assert!(a.pose[elbow.index()].matrix()[(1, 0)].abs() < 1e-9);
+            }
+            let (ga, gb) = (global_rotations(&a.pose), global_rotations(&b.pose));
+            for j in knees.into_iter().chain(elbows) {
+                let d = (ga[j.index()].matrix() - gb[j.index()].matrix()).norm();
+                assert!(d < 1e-9, "{method:?} frame {f}: {j} moved by {d}");
+            }
+        }
+        assert!(
+            free_off_axis_deg > 1.0,
+            "{method:?}: the networks' knees are hinges already ({free_off_axis_deg:.2}°)"
+        );
+    }
+
+    #[test]
+    fn anatomical_joints_are_imposed_pip() {
+        anatomical_joints_are_imposed(Method::Pip, "models/pip.safetensors");
+    }
+
+    #[test]
+    fn anatomical_joints_are_imposed_globalpose() {
+        anatomical_joints_are_imposed(Method::GlobalPose, "models/globalpose.safetensors");
     }
 
     fn some_rotation(k: usize) -> Rotation3<f64> {

@@ -5,6 +5,9 @@
 //! - The bones that carry a sensor stay within `sensor_bone_tolerance_deg` of its calibrated
 //!   orientation (`sensor_bones = "measured"`, [`SensorBones`]); `"network"` keeps the networks'
 //!   own estimate, as in the papers.
+//! - The knees are hinges and the elbows flex and twist (`limb_joints = "anatomical"`,
+//!   [`imuflow_body::limb_joints`]): what the networks' pose asks of them beyond that moves to the
+//!   hips and shoulders. `"free"` keeps the networks' 3-DoF joints, as in the papers.
 //! - A sensor without a valid sample holds its last valid one, and the output is flagged INVALID; before
 //!   any valid sample of a sensor the frame is not fed to the nets at all (the start pose goes out).
 //! - Restarted mid-stream (its `restart` policy), the subject is no longer in the start pose: the
@@ -80,6 +83,13 @@ pub const SPEC: StageSpec = StageSpec {
             "with sensor_bones = measured: how far a bone may stay from its sensor (0: the measurement itself)",
         ),
         ParamSpec {
+            name: "limb_joints",
+            ty: ParamType::Choice(&["anatomical", "free"]),
+            required: false,
+            default: "anatomical",
+            doc: "anatomical: knees turn about one axis, elbows flex and twist, and what the networks' pose asks beyond that moves to the hips and shoulders (the lower legs and forearms keep their orientation); free: the networks' 3-DoF joints, as in the papers",
+        },
+        ParamSpec {
             name: "warm_weights",
             ty: ParamType::Bool,
             required: false,
@@ -120,9 +130,15 @@ pub fn run() -> anyhow::Result<()> {
     let Some(sensor_bones) = SensorBones::parse(sensor_bones_name, tolerance_deg) else {
         bail!("stage '{stage}': unknown sensor_bones '{sensor_bones_name}' (measured or network)");
     };
+    let anatomical_joints = match params.str("limb_joints").unwrap_or("anatomical") {
+        "anatomical" => true,
+        "free" => false,
+        other => bail!("stage '{stage}': unknown limb_joints '{other}' (anatomical or free)"),
+    };
     let warm_weights = params.bool("warm_weights", true);
     let mut streamer = Streamer::new(weights, start.pose())?;
     streamer.set_sensor_bones(sensor_bones);
+    streamer.set_anatomical_joints(anatomical_joints);
     let input = ctx.input::<BodyImuFrame>("imu")?;
     let mut output = ctx.output::<KinematicsFrame>("kinematics")?;
     if !ctx.ready()? {

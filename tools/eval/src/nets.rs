@@ -42,6 +42,8 @@ pub struct NetsEval {
     /// Where the instrumented bones' orientations come from (the kinematics stage's
     /// `sensor_bones`).
     pub sensor_bones: SensorBones,
+    /// Knees and elbows as anatomical joints (the kinematics stage's `limb_joints`).
+    pub anatomical_joints: bool,
     /// At most this many sequences per method.
     pub limit: usize,
     /// Show a progress bar per method.
@@ -55,6 +57,7 @@ pub struct NetsReport {
     pub split: Split,
     pub copies: Copies,
     pub sensor_bones: SensorBones,
+    pub anatomical_joints: bool,
     pub rows: Vec<(Method, Scores)>,
 }
 
@@ -70,6 +73,7 @@ pub fn run(options: &NetsEval) -> anyhow::Result<NetsReport> {
         split: options.split,
         copies: options.copies,
         sensor_bones: options.sensor_bones,
+        anatomical_joints: options.anatomical_joints,
         rows,
     })
 }
@@ -78,7 +82,7 @@ impl fmt::Display for NetsReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "{} split of {} ({} copies; sensor bones {}; reduced protocol, reference §6)",
+            "{} split of {} ({} copies; sensor bones {}; {} knees and elbows; reduced protocol, reference §6)",
             self.split,
             self.data.display(),
             self.copies.name(),
@@ -86,6 +90,11 @@ impl fmt::Display for NetsReport {
                 SensorBones::Measured { tolerance_rad } =>
                     format!("within {:.1}° of their sensors", tolerance_rad.to_degrees()),
                 SensorBones::Network => "from the networks".to_owned(),
+            },
+            if self.anatomical_joints {
+                "anatomical"
+            } else {
+                "free"
             }
         )?;
         f.write_str(&table(&self.rows))
@@ -116,6 +125,7 @@ pub fn evaluate(method: Method, weights: &Path, options: &NetsEval) -> anyhow::R
         split,
         copies,
         sensor_bones,
+        anatomical_joints,
         limit,
         progress,
         ..
@@ -126,6 +136,7 @@ pub fn evaluate(method: Method, weights: &Path, options: &NetsEval) -> anyhow::R
         .with_context(|| format!("loading weights {}", weights.display()))?;
     let mut streamer = Streamer::new(loaded, Pose::t_pose(Vector3::zeros()))?;
     streamer.set_sensor_bones(sensor_bones);
+    streamer.set_anatomical_joints(*anatomical_joints);
     let body = BodyModel::new(&BodyParams::builtin()?, 1.75, 70.0)?;
     let bar = sequence_bar(method.name(), progress);
     let mut totals = Scores::default();
