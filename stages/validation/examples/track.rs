@@ -336,6 +336,9 @@ fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
     let mut outside: Vec<f64> = Vec::new();
     // The same with the centre of mass alone (no change of angular momentum): a second opinion.
     let mut outside_com: Vec<f64> = Vec::new();
+    let (mut along_cop, mut along_com) = (Vec::new(), Vec::new());
+    let mut standing: Vec<f64> = Vec::new();
+    let (mut lean, mut pelvis_ahead): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
     // Frames each way of the finite differences (2: one frame of the 30 Hz data).
     let k = env_f64("SIM_COP_FRAMES", 2.0).max(1.0) as usize;
     let dt = k as f64 * DT;
@@ -389,6 +392,7 @@ fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
                 origin.z + (-moment.x - origin.y * force.z) / force.y,
             );
             let mut corners = Vec::new();
+            let mut feet_down = Vec::new();
             for foot in FEET {
                 let ankle = foot.parent().expect("feet have ankles");
                 let (a, b) = (ankle.index(), foot.index());
@@ -405,6 +409,37 @@ fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
                             corners.push(nalgebra::Vector2::new(p.x, p.z));
                         }
                     }
+                }
+                let heel = data.point_position(ankle, &heel_in_ankle);
+                let ball = data.point_position(ankle, &ball_in_ankle);
+                if heel.y.min(ball.y) < contact_height {
+                    feet_down.push((heel.xz(), ball.xz()));
+                }
+            }
+            // Standing still on both feet: where the centre of mass is over the feet.
+            if let [(h0, b0), (h1, b1)] = feet_down[..]
+                && a_com.norm() < 0.3
+            {
+                let axis = ((b0 - h0) + (b1 - h1)).normalize();
+                let heels = (h0 + h1) / 2.0;
+                standing.push((com[1].xz() - heels).dot(&axis));
+                // The trunk's lean (pelvis to neck, forward positive) and the pelvis over the heels.
+                let fk = data.fk();
+                let pelvis = fk.joint_in_world_m[0];
+                let neck = fk.joint_in_world_m[JointId::NECK.index()];
+                let up = neck - pelvis;
+                lean.push(up.xz().dot(&axis).atan2(up.y).to_degrees());
+                pelvis_ahead.push((pelvis.xz() - heels).dot(&axis));
+            }
+            // Where along the single stance foot the needed centre of pressure lies: forward from
+            // the heel (m, the ball at the foot's length) and sideways from its midline.
+            if let [(heel, ball)] = feet_down[..] {
+                let axis = (ball - heel).normalize();
+                // Sideways positive away from the pelvis (outward).
+                let outward = axis.perp(&(heel - origin.xz())).signum();
+                for (point, list) in [(cop, &mut along_cop), (zmp, &mut along_com)] {
+                    let d = point - heel;
+                    list.push((d.dot(&axis), outward * axis.perp(&d), (ball - heel).norm()));
                 }
             }
             if corners.is_empty() {
@@ -441,6 +476,54 @@ fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
             .unwrap_or(0.0)
             * 100.0,
     );
+    standing.sort_by(f64::total_cmp);
+    if !standing.is_empty() {
+        let at = |q: f64| standing[((standing.len() - 1) as f64 * q) as usize] * 100.0;
+        println!(
+            "  standing still on both feet ({} frames): centre of mass forward of the heels p10/p50/p90 {:.1}/{:.1}/{:.1} cm",
+            standing.len(),
+            at(0.1),
+            at(0.5),
+            at(0.9)
+        );
+        lean.sort_by(f64::total_cmp);
+        pelvis_ahead.sort_by(f64::total_cmp);
+        println!(
+            "    the trunk (pelvis to neck) leans forward by {:.1}° (median); the pelvis is {:.1} cm forward of the heels",
+            lean[lean.len() / 2],
+            pelvis_ahead[pelvis_ahead.len() / 2] * 100.0
+        );
+    }
+    for (name, list) in [
+        ("inverse dynamics", &mut along_cop),
+        ("centre of mass", &mut along_com),
+    ] {
+        let quantile = |v: &mut Vec<f64>, q: f64| {
+            v.sort_by(f64::total_cmp);
+            v.get(((v.len().max(1) - 1) as f64 * q) as usize)
+                .copied()
+                .unwrap_or(0.0)
+                * 100.0
+        };
+        let mut forward: Vec<f64> = list.iter().map(|x| x.0).collect();
+        let mut side: Vec<f64> = list.iter().map(|x| x.1).collect();
+        let length = list.first().map_or(0.0, |x| x.2) * 100.0;
+        let behind = list.iter().filter(|x| x.0 < 0.0).count() as f64;
+        let beyond = list.iter().filter(|x| x.0 > x.2).count() as f64;
+        let n = list.len().max(1) as f64;
+        println!(
+            "  single stance ({} frames, {name}): forward from the heel p10/p50/p90 {:.1}/{:.1}/{:.1} cm (ball at {length:.1}); behind the heel {:.0} %, past the ball {:.0} %; outward p10/p50/p90 {:.1}/{:.1}/{:.1} cm",
+            list.len(),
+            quantile(&mut forward, 0.1),
+            quantile(&mut forward, 0.5),
+            quantile(&mut forward, 0.9),
+            100.0 * behind / n,
+            100.0 * beyond / n,
+            quantile(&mut side, 0.1),
+            quantile(&mut side, 0.5),
+            quantile(&mut side, 0.9),
+        );
+    }
     Ok(())
 }
 
