@@ -2,9 +2,9 @@
 //!
 //! - Frames flagged CALIBRATING pass through as the start pose (flagged CALIBRATING | INVALID); the nets
 //!   start (learned initialization from the start pose) at the first calibrated frame.
-//! - The bones that carry a sensor stay within `sensor_bone_tolerance_deg` of its calibrated
-//!   orientation (`sensor_bones = "measured"`, [`SensorBones`]); `"network"` keeps the networks'
-//!   own estimate, as in the papers.
+//! - The bones that carry a sensor take its calibrated orientation, or stay within
+//!   `sensor_bone_tolerance_deg` of it (`sensor_bones = "measured"`, [`SensorBones`]);
+//!   `"network"` keeps the networks' own estimate, as in the papers.
 //! - The knees are hinges and the elbows flex and twist (`limb_joints = "anatomical"`,
 //!   [`imuflow_body::limb_joints`]): what the networks' pose asks of them beyond that moves to the
 //!   hips and shoulders. `"free"` keeps the networks' 3-DoF joints, as in the papers.
@@ -73,13 +73,13 @@ pub const SPEC: StageSpec = StageSpec {
             ty: ParamType::Choice(&["measured", "network"]),
             required: false,
             default: "measured",
-            doc: "orientation of the bones that carry a sensor (forearms, lower legs, head): measured (the networks' estimate, turned to within sensor_bone_tolerance_deg of the calibrated sensor) or network (the networks' own, as in the papers)",
+            doc: "orientation of the bones that carry a sensor (forearms, lower legs, head): measured (the calibrated sensor's orientation, or the networks' estimate turned to within sensor_bone_tolerance_deg of it) or network (the networks' own, as in the papers)",
         },
         ParamSpec::float(
             "sensor_bone_tolerance_deg",
             0.0,
             180.0,
-            "5",
+            "0",
             "with sensor_bones = measured: how far a bone may stay from its sensor (0: the measurement itself)",
         ),
         ParamSpec {
