@@ -599,6 +599,14 @@ mod tests {
         assert!(off < 1e-5, "written {written:?}\nexpected {expected:.5?}");
     }
 
+    /// A weight file of models/ (path relative to the repository root).
+    fn committed_weights(method: Method, path: &str) -> Weights {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../..")
+            .join(path);
+        Weights::load(&path, method).unwrap()
+    }
+
     /// The whole streaming inference with the committed weights: the lean nets give the candle
     /// nets' estimates, every field of every frame within 1e-5. GlobalPose's joint velocities are
     /// the exception: they are FPS × the frame-to-frame change of the (compared) positions, so a
@@ -606,12 +614,7 @@ mod tests {
     /// 2.6e-7 on every field; GlobalPose 1.1e-6, 1.4e-5 on those velocities). The
     /// frames must also differ from each other (a comparison of constants would prove nothing).
     fn lean_streaming_matches_candle(method: Method, path: &str) {
-        let load = || {
-            let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("../..")
-                .join(path);
-            Weights::load(&path, method).unwrap()
-        };
+        let load = || committed_weights(method, path);
         let mut candle = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
         candle.set_backend(Backend::Candle);
         let mut lean = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
@@ -684,12 +687,7 @@ mod tests {
     /// same either way, and the networks' own (free) joints visibly not anatomical, or the step
     /// would have nothing to do.
     fn anatomical_joints_are_imposed(method: Method, path: &str) {
-        let load = || {
-            let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("../..")
-                .join(path);
-            Weights::load(&path, method).unwrap()
-        };
+        let load = || committed_weights(method, path);
         let mut anatomical = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
         let mut free = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
         free.set_anatomical_joints(false);
