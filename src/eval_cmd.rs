@@ -42,7 +42,7 @@ pub struct EvalArgs {
     sensor_bone_tolerance_deg: f64,
     /// Knees and elbows: anatomical joints (the kinematics stage's default) or the networks' free
     /// 3-DoF joints (the papers').
-    #[arg(long, default_value = "anatomical", value_parser = ["anatomical", "free"])]
+    #[arg(long, default_value = "anatomical", value_parser = imuflow_kinematics::infer::LIMB_JOINTS)]
     limb_joints: String,
     /// Evaluate at most this many sequences per method.
     #[arg(long, default_value_t = usize::MAX)]
@@ -71,7 +71,10 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
         copies: Copies::parse(&args.copies).unwrap_or(Copies::Augmented),
         sensor_bones: SensorBones::parse(&args.sensor_bones, args.sensor_bone_tolerance_deg)
             .context("--sensor-bone-tolerance-deg must be a finite angle ≥ 0")?,
-        anatomical_joints: args.limb_joints == "anatomical",
+        anatomical_joints: imuflow_kinematics::infer::anatomical_joints_from_name(
+            &args.limb_joints,
+        )
+        .context("--limb-joints must be anatomical or free")?,
         limit: args.limit,
         progress: !args.no_progress,
     };

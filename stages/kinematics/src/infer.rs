@@ -124,6 +124,19 @@ impl SensorBones {
     }
 }
 
+/// The names of the `limb_joints` choices (kinematics stage param, `imuflow eval --limb-joints`).
+pub const LIMB_JOINTS: [&str; 2] = ["anatomical", "free"];
+
+/// Whether `limb_joints = name` asks for anatomical knees and elbows (`Some(true)` for
+/// `"anatomical"`, `Some(false)` for `"free"`, `None` for anything else).
+pub fn anatomical_joints_from_name(name: &str) -> Option<bool> {
+    match name {
+        "anatomical" => Some(true),
+        "free" => Some(false),
+        _ => None,
+    }
+}
+
 /// What steps the nets each frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Backend {

@@ -24,8 +24,8 @@ use nalgebra::{Quaternion, Rotation3, UnitQuaternion};
 
 use crate::features::{ImuInput, ROOT_IMU};
 use crate::infer::{
-    Estimate, SENSOR_BONE_TOLERANCE_DEG, SensorBones, StartPose, Streamer, impose_measured_bones,
-    rot,
+    Estimate, LIMB_JOINTS, SENSOR_BONE_TOLERANCE_DEG, SensorBones, StartPose, Streamer,
+    anatomical_joints_from_name, impose_measured_bones, rot,
 };
 use crate::method::Method;
 use crate::weights::Weights;
@@ -84,7 +84,7 @@ pub const SPEC: StageSpec = StageSpec {
         ),
         ParamSpec {
             name: "limb_joints",
-            ty: ParamType::Choice(&["anatomical", "free"]),
+            ty: ParamType::Choice(&LIMB_JOINTS),
             required: false,
             default: "anatomical",
             doc: "anatomical: knees turn about one axis, elbows flex and twist, and what the networks' pose asks beyond that moves to the hips and shoulders (the lower legs and forearms keep their orientation); free: the networks' 3-DoF joints, as in the papers",
@@ -130,10 +130,9 @@ pub fn run() -> anyhow::Result<()> {
     let Some(sensor_bones) = SensorBones::parse(sensor_bones_name, tolerance_deg) else {
         bail!("stage '{stage}': unknown sensor_bones '{sensor_bones_name}' (measured or network)");
     };
-    let anatomical_joints = match params.str("limb_joints").unwrap_or("anatomical") {
-        "anatomical" => true,
-        "free" => false,
-        other => bail!("stage '{stage}': unknown limb_joints '{other}' (anatomical or free)"),
+    let limb_joints = params.str("limb_joints").unwrap_or("anatomical");
+    let Some(anatomical_joints) = anatomical_joints_from_name(limb_joints) else {
+        bail!("stage '{stage}': unknown limb_joints '{limb_joints}' (anatomical or free)");
     };
     let warm_weights = params.bool("warm_weights", true);
     let mut streamer = Streamer::new(weights, start.pose())?;

@@ -476,35 +476,26 @@ fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
             .unwrap_or(0.0)
             * 100.0,
     );
-    standing.sort_by(f64::total_cmp);
     if !standing.is_empty() {
-        let at = |q: f64| standing[((standing.len() - 1) as f64 * q) as usize] * 100.0;
+        let cm = |values: &mut Vec<f64>, q: f64| quantile(values, q) * 100.0;
         println!(
             "  standing still on both feet ({} frames): centre of mass forward of the heels p10/p50/p90 {:.1}/{:.1}/{:.1} cm",
             standing.len(),
-            at(0.1),
-            at(0.5),
-            at(0.9)
+            cm(&mut standing, 0.1),
+            cm(&mut standing, 0.5),
+            cm(&mut standing, 0.9)
         );
-        lean.sort_by(f64::total_cmp);
-        pelvis_ahead.sort_by(f64::total_cmp);
         println!(
             "    the trunk (pelvis to neck) leans forward by {:.1}° (median); the pelvis is {:.1} cm forward of the heels",
-            lean[lean.len() / 2],
-            pelvis_ahead[pelvis_ahead.len() / 2] * 100.0
+            quantile(&mut lean, 0.5),
+            cm(&mut pelvis_ahead, 0.5)
         );
     }
     for (name, list) in [
-        ("inverse dynamics", &mut along_cop),
-        ("centre of mass", &mut along_com),
+        ("inverse dynamics", &along_cop),
+        ("centre of mass", &along_com),
     ] {
-        let quantile = |v: &mut Vec<f64>, q: f64| {
-            v.sort_by(f64::total_cmp);
-            v.get(((v.len().max(1) - 1) as f64 * q) as usize)
-                .copied()
-                .unwrap_or(0.0)
-                * 100.0
-        };
+        let cm = |values: &mut Vec<f64>, q: f64| quantile(values, q) * 100.0;
         let mut forward: Vec<f64> = list.iter().map(|x| x.0).collect();
         let mut side: Vec<f64> = list.iter().map(|x| x.1).collect();
         let length = list.first().map_or(0.0, |x| x.2) * 100.0;
@@ -514,17 +505,26 @@ fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
         println!(
             "  single stance ({} frames, {name}): forward from the heel p10/p50/p90 {:.1}/{:.1}/{:.1} cm (ball at {length:.1}); behind the heel {:.0} %, past the ball {:.0} %; outward p10/p50/p90 {:.1}/{:.1}/{:.1} cm",
             list.len(),
-            quantile(&mut forward, 0.1),
-            quantile(&mut forward, 0.5),
-            quantile(&mut forward, 0.9),
+            cm(&mut forward, 0.1),
+            cm(&mut forward, 0.5),
+            cm(&mut forward, 0.9),
             100.0 * behind / n,
             100.0 * beyond / n,
-            quantile(&mut side, 0.1),
-            quantile(&mut side, 0.5),
-            quantile(&mut side, 0.9),
+            cm(&mut side, 0.1),
+            cm(&mut side, 0.5),
+            cm(&mut side, 0.9),
         );
     }
     Ok(())
+}
+
+/// The `q` quantile of `values` (sorted in place; the element at `(n − 1)·q`, 0 when empty).
+fn quantile(values: &mut [f64], q: f64) -> f64 {
+    values.sort_by(f64::total_cmp);
+    match values.len() {
+        0 => 0.0,
+        n => values[((n - 1) as f64 * q) as usize],
+    }
 }
 
 /// How far `p` lies outside the convex hull of `points` (0 inside), m.
@@ -602,13 +602,11 @@ fn stance_pitch(body: &BodyModel, poses: &[Pose]) {
         println!("no stance frames");
         return;
     }
-    pitches.sort_by(f64::total_cmp);
-    let at = |q: f64| pitches[((pitches.len() - 1) as f64 * q) as usize];
     println!(
         "stance pitch over {} foot-frames: p10 {:.1}°, median {:.1}°, p90 {:.1}°",
         pitches.len(),
-        at(0.1),
-        at(0.5),
-        at(0.9)
+        quantile(&mut pitches, 0.1),
+        quantile(&mut pitches, 0.5),
+        quantile(&mut pitches, 0.9)
     );
 }
