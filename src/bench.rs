@@ -574,6 +574,16 @@ fn bench_validation(input: &Path) -> anyhow::Result<()> {
             validator.stats.summary_line(mode == Mode::Residual)
         );
     }
+    // The controller-free support score alone (part of every frame above).
+    let mut judge = imuflow_validation::SupportJudge::new(&model);
+    let mut support_us = Vec::with_capacity(poses.len());
+    for pose in &poses {
+        let started = std::time::Instant::now();
+        std::hint::black_box(judge.push(Some(pose), 1.0 / 60.0));
+        support_us.push(started.elapsed().as_secs_f64() * 1e6);
+    }
+    let [mean, p50, p99, max] = summary(&support_us[1..]);
+    println!("{:<9} {mean:>10.1} {p50:>10.1} {p99:>10.1} {max:>10.1}  (included above)", "support");
     if cfg!(debug_assertions) {
         println!("(a debug build: use --release for the real numbers)");
     }

@@ -418,7 +418,7 @@ frame! {
 
 frame! {
     /// What the independent physics simulation measured while tracking the estimate.
-    ValidationFrame, "imuflow.ValidationFrame.v2", FrameType::Validation, {
+    ValidationFrame, "imuflow.ValidationFrame.v3", FrameType::Validation, {
         /// Mean distance between the simulated and the estimated joint positions in model frame M, m.
         tracking_error_m: f32,
         /// The same with both root positions removed (how well the joints follow), m.
@@ -437,6 +437,10 @@ frame! {
         resyncs: u32,
         /// Bit j set when simulated joint j touches the floor.
         sim_contact_mask: u32,
+        /// Distance of the centre of pressure the estimate needs (inverse dynamics, no simulation) outside its soles on the floor, m (0 inside or unless `support` is 1); for the frame 2 frames earlier.
+        support_gap_m: f32,
+        /// That frame's support: 0 not judged (start, gap), 1 feet push (`support_gap_m`), 2 little or no floor force needed (flight), 3 unsupported (no foot down, or the floor would have to pull).
+        support: u32,
         /// Residual force the root needed to follow the estimate, model frame M, N (0 in torques mode).
         residual_root_force_n: [f32; 3],
         /// Residual torque on the root, model frame M, N·m (0 in torques mode).
@@ -461,7 +465,7 @@ const _: () = assert!(std::mem::size_of::<BodyImuFrame>() == 32 + 96 + 72 + 72 +
 const _: () =
     assert!(std::mem::size_of::<KinematicsFrame>() == 32 + 384 + 288 + 288 + 8 + 20 + 24 + 4);
 const _: () = assert!(std::mem::align_of::<MotionFrame>() == 8);
-const _: () = assert!(std::mem::size_of::<ValidationFrame>() == 32 + 36 + 36 + 288);
+const _: () = assert!(std::mem::size_of::<ValidationFrame>() == 32 + 44 + 36 + 288);
 
 #[cfg(test)]
 mod tests {

@@ -83,6 +83,7 @@ fn batch(body: &BodyModel, list: &Path) -> anyhow::Result<()> {
     let (mut tracking, mut pose) = (0.0, 0.0);
     let mut causes = Causes::default();
     let mut step_us = Vec::new();
+    let (mut judged, mut violated) = (0u64, 0u64);
     for clip in clip_list(list)? {
         let run = track(body, Mode::Torques, &load(Path::new(&clip))?, 0);
         let s = &run.validator.stats;
@@ -96,15 +97,18 @@ fn batch(body: &BodyModel, list: &Path) -> anyhow::Result<()> {
         pose += s.pose_error_mean_m() * s.frames as f64;
         step_us.extend_from_slice(&s.step_us[1..]);
         causes.add(&run.causes);
+        judged += s.support_judged;
+        violated += s.support_outside + s.support_unsupported;
     }
     step_us.sort_by(f64::total_cmp);
     println!(
-        "{frames} frames: falls {falls} ({:.1}/min), resyncs {resyncs} ({:.1}/min), tracking {:.1} cm, pose {:.1} cm, p50 {:.0} µs/frame",
+        "{frames} frames: falls {falls} ({:.1}/min), resyncs {resyncs} ({:.1}/min), tracking {:.1} cm, pose {:.1} cm, p50 {:.0} µs/frame, support violated on {:.1} % of {judged} judged frames",
         falls as f64 * 3600.0 / frames as f64,
         resyncs as f64 * 3600.0 / frames as f64,
         100.0 * tracking / frames as f64,
         100.0 * pose / frames as f64,
-        step_us.get(step_us.len() / 2).copied().unwrap_or(0.0)
+        step_us.get(step_us.len() / 2).copied().unwrap_or(0.0),
+        100.0 * violated as f64 / judged.max(1) as f64,
     );
     println!(
         "of the {} falls and resyncs, {} followed a scuff (a simulated foot loaded while the estimate's sole, ball and heel, is 3 cm up) and {} a bounce (no simulated foot loaded while an estimate's foot is down) within 0.5 s",
@@ -321,8 +325,8 @@ fn load(path: &Path) -> anyhow::Result<Vec<Pose>> {
 /// A controller with joint torques and foot contacts cannot follow frames whose centre of
 /// pressure is outside the feet, or which need the floor to pull.
 fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
-    use imuflow_body::dynamics::{DofVector, DynamicsData, RigidBodyModel, joint_dof};
-    use imuflow_body::rotation::axis_angle_from_rotation;
+    use imuflow_body::dynamics::{DofVector, DynamicsData, RigidBodyModel};
+    use imuflow_validation::support::{distance_outside_hull, velocity};
     let clips = match clip.strip_prefix('@') {
         Some(list) => clip_list(Path::new(list))?,
         None => vec![clip.to_owned()],
@@ -342,19 +346,6 @@ fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
     // Frames each way of the finite differences (2: one frame of the 30 Hz data).
     let k = env_f64("SIM_COP_FRAMES", 2.0).max(1.0) as usize;
     let dt = k as f64 * DT;
-    let velocity = |a: &Pose, b: &Pose| {
-        let mut v = DofVector::zeros();
-        v.fixed_rows_mut::<3>(0)
-            .copy_from(&((b.root_in_world_m - a.root_in_world_m) / dt));
-        for j in JointId::all() {
-            let i = j.index();
-            let w = axis_angle_from_rotation(
-                &(a.parent_from_joint[i].inverse() * b.parent_from_joint[i]),
-            ) / dt;
-            v.fixed_rows_mut::<3>(joint_dof(j)).copy_from(&w);
-        }
-        v
-    };
     for path in &clips {
         let poses = load(Path::new(path))?;
         for t in k..poses.len().saturating_sub(k) {
@@ -369,8 +360,8 @@ fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
                 com[1].x - com[1].y * a_com.x / (a_com.y + 9.81),
                 com[1].z - com[1].y * a_com.z / (a_com.y + 9.81),
             );
-            let v0 = velocity(before, now);
-            let v1 = velocity(now, after);
+            let v0 = velocity(before, now, dt);
+            let v1 = velocity(now, after, dt);
             let v = (v0 + v1) / 2.0;
             let vdot = (v1 - v0) / dt;
             data.set_state(&model, now, &v);
@@ -525,56 +516,6 @@ fn quantile(values: &mut [f64], q: f64) -> f64 {
         0 => 0.0,
         n => values[((n - 1) as f64 * q) as usize],
     }
-}
-
-/// How far `p` lies outside the convex hull of `points` (0 inside), m.
-fn distance_outside_hull(p: &nalgebra::Vector2<f64>, points: &[nalgebra::Vector2<f64>]) -> f64 {
-    // Gift wrapping is plenty for at most 8 points.
-    let cross = |o: &nalgebra::Vector2<f64>,
-                 a: &nalgebra::Vector2<f64>,
-                 b: &nalgebra::Vector2<f64>| { (a - o).perp(&(b - o)) };
-    let mut hull: Vec<nalgebra::Vector2<f64>> = Vec::new();
-    let start = points
-        .iter()
-        .copied()
-        .min_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)))
-        .expect("points");
-    let mut current = start;
-    loop {
-        hull.push(current);
-        let mut next = points[0];
-        for q in points {
-            if next == current || cross(&current, &next, q) < 0.0 {
-                next = *q;
-            }
-        }
-        current = next;
-        if current == start || hull.len() > points.len() {
-            break;
-        }
-    }
-    let segment_distance = |a: &nalgebra::Vector2<f64>, b: &nalgebra::Vector2<f64>| {
-        let ab = b - a;
-        let t = if ab.norm_squared() > 0.0 {
-            ((p - a).dot(&ab) / ab.norm_squared()).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        (a + ab * t - p).norm()
-    };
-    if hull.len() < 3 {
-        return match hull.len() {
-            1 => (hull[0] - p).norm(),
-            _ => segment_distance(&hull[0], &hull[1]),
-        };
-    }
-    let inside = (0..hull.len()).all(|i| cross(&hull[i], &hull[(i + 1) % hull.len()], p) >= -1e-12);
-    if inside {
-        return 0.0;
-    }
-    (0..hull.len())
-        .map(|i| segment_distance(&hull[i], &hull[(i + 1) % hull.len()]))
-        .fold(f64::INFINITY, f64::min)
 }
 
 /// The stance feet's pitch in the estimate: over the frames where a ball of the foot is within

@@ -335,6 +335,8 @@ fn write_validation(outcome: &Outcome, falls: u32, resyncs: u32, out: &mut Valid
     out.falls = falls;
     out.resyncs = resyncs;
     out.sim_contact_mask = outcome.contact_mask;
+    out.support_gap_m = outcome.support.gap_m as f32;
+    out.support = outcome.support.state as u32;
     let f = &outcome.forces;
     out.residual_root_force_n = f.residual_force_n.cast::<f32>().into();
     out.residual_root_torque_nm = f.residual_torque_nm.cast::<f32>().into();

@@ -10,6 +10,7 @@ use nalgebra::Vector3;
 
 use crate::model::SimModel;
 use crate::sim::{FrameForces, SimConfig, SimState, Simulation, Target};
+use crate::support::{Support, SupportJudge, SupportState};
 
 /// A foot touches the floor when it carries at least this force, N. [inferred]
 const CONTACT_FORCE_N: f64 = 5.0;
@@ -65,6 +66,9 @@ pub struct Outcome {
     pub resynced: bool,
     /// Bit j set when joint j touches the floor.
     pub contact_mask: u32,
+    /// Whether the floor could carry the estimate [`crate::support::SUPPORT_FRAMES`] frames ago
+    /// (the controller-free score, independent of the simulation).
+    pub support: Support,
 }
 
 /// Run statistics, for the end-of-run summary and the evaluation.
@@ -83,6 +87,13 @@ pub struct Stats {
     pub penetration_sum_m: f64,
     pub penetration_max_m: f64,
     pub step_us: Vec<f64>,
+    /// Frames whose support was judged (see [`crate::support`]).
+    pub support_judged: u64,
+    /// Of those, frames whose needed centre of pressure lies outside the feet by more than
+    /// [`crate::support::OUTSIDE_TOLERANCE_M`].
+    pub support_outside: u64,
+    /// Of those, frames the floor could not carry at all (no foot down, or it would have to pull).
+    pub support_unsupported: u64,
 }
 
 fn mean(sum: f64, n: u64) -> f64 {
@@ -134,6 +145,25 @@ impl Stats {
     pub fn step_p99_us(&self) -> f64 {
         percentile(&self.step_us, 99.0)
     }
+    /// Share of the judged frames whose support is violated: outside the feet or unsupported.
+    pub fn support_violated_fraction(&self) -> f64 {
+        mean(
+            (self.support_outside + self.support_unsupported) as f64,
+            self.support_judged,
+        )
+    }
+    /// Counts one frame's support score.
+    pub fn add_support(&mut self, support: &Support) {
+        if support.state == SupportState::Unjudged {
+            return;
+        }
+        self.support_judged += 1;
+        if support.state == SupportState::Unsupported {
+            self.support_unsupported += 1;
+        } else if support.violated() {
+            self.support_outside += 1;
+        }
+    }
 
     /// One line for logs and run summaries.
     pub fn summary_line(&self, residual_mode: bool) -> String {
@@ -158,6 +188,17 @@ impl Stats {
                 self.residual_force_mean_fraction()
             );
         }
+        if self.support_judged > 0 {
+            let share = |n: u64| 100.0 * n as f64 / self.support_judged as f64;
+            line += &format!(
+                ", support violated on {:.1} % of {} judged frames (centre of pressure > {:.0} cm outside the feet {:.1} %, unsupported {:.1} %)",
+                100.0 * self.support_violated_fraction(),
+                self.support_judged,
+                100.0 * crate::support::OUTSIDE_TOLERANCE_M,
+                share(self.support_outside),
+                share(self.support_unsupported),
+            );
+        }
         line + &format!(
             ", {:.0} µs/frame (p99 {:.0})",
             self.step_mean_us(),
@@ -177,11 +218,13 @@ pub struct Validator {
     /// Lift applied to the estimate for this simulation (see [`MAX_FLOOR_LIFT_M`]), m.
     lift_m: f64,
     estimate_fk: FkData,
+    support: SupportJudge,
     pub stats: Stats,
 }
 
 impl Validator {
     pub fn new(model: SimModel, config: SimConfig, fall: FallRule) -> Validator {
+        let support = SupportJudge::new(&model);
         Validator {
             model,
             config,
@@ -190,6 +233,7 @@ impl Validator {
             previous: None,
             lift_m: 0.0,
             estimate_fk: FkData::new(),
+            support,
             stats: Stats::default(),
         }
     }
@@ -206,6 +250,7 @@ impl Validator {
     pub fn clear(&mut self) {
         self.sim = None;
         self.previous = None;
+        self.support.clear();
     }
 
     /// Whether a simulation is running.
@@ -217,6 +262,7 @@ impl Validator {
     /// usable estimate, holding still). `None` when there is nothing to simulate yet.
     pub fn frame(&mut self, estimate: Option<&Pose>, dt: f64) -> Option<Outcome> {
         let started = Instant::now();
+        let support = self.support.push(estimate, dt);
         let has_velocity = estimate.is_some() && self.previous.is_some();
         let mut target = match (estimate, &self.previous) {
             (Some(pose), previous) => Target::from_poses(previous.as_ref(), pose, dt),
@@ -242,7 +288,7 @@ impl Validator {
                 return Some(self.record(
                     started,
                     dt,
-                    target_outcome(self.estimate_state(&target.pose)),
+                    target_outcome(self.estimate_state(&target.pose), support),
                     false,
                     false,
                 ));
@@ -250,7 +296,7 @@ impl Validator {
             let sim = Simulation::new(&self.model, &self.config, &target.clone().folded());
             let state = sim.state();
             self.sim = Some(sim);
-            return Some(self.record(started, dt, target_outcome(state), false, false));
+            return Some(self.record(started, dt, target_outcome(state, support), false, false));
         };
         let forces = sim.step(&target.clone().folded(), dt);
         let state = sim.state();
@@ -279,6 +325,7 @@ impl Validator {
             fell,
             resynced,
             contact_mask,
+            support,
         };
         Some(self.record(started, dt, outcome, fell, resynced))
     }
@@ -307,6 +354,7 @@ impl Validator {
         }
         s.penetration_sum_m += score.penetration_m;
         s.penetration_max_m = s.penetration_max_m.max(score.penetration_m);
+        s.add_support(&outcome.support);
         s.step_us.push(started.elapsed().as_secs_f64() * 1e6);
         outcome
     }
@@ -372,7 +420,7 @@ impl Validator {
 }
 
 /// A fresh simulation's first frame: it starts in the estimate's pose, so it scores zero.
-fn target_outcome(state: SimState) -> Outcome {
+fn target_outcome(state: SimState, support: Support) -> Outcome {
     Outcome {
         score: FrameScore::default(),
         forces: FrameForces::default(),
@@ -380,6 +428,7 @@ fn target_outcome(state: SimState) -> Outcome {
         fell: false,
         resynced: false,
         contact_mask: 0,
+        support,
     }
 }
 

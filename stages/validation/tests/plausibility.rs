@@ -101,6 +101,9 @@ fn standing_still_carries_the_body_weight_on_the_feet_without_falling() {
         v.stats.foot_skate_mean_mps()
     );
     assert!(v.stats.penetration_max_m < 0.02);
+    // The controller-free score agrees: every judged frame is carried inside the feet.
+    assert_eq!(v.stats.support_judged, 180 - 4);
+    assert_eq!(v.stats.support_violated_fraction(), 0.0);
 }
 
 /// With the root helped (residual mode, rapier's default of one solver iteration per step) the
@@ -189,6 +192,18 @@ fn a_floating_root_needs_the_body_weight_as_residual_force() {
         root_error > 0.2,
         "root error while floating {root_error:.2} m"
     );
+    // Without any simulation: the floating frames need the floor to hold up a body with no foot
+    // on it (120 frames, less the few around the jumps up and down whose differences span them).
+    assert!(
+        t.stats.support_unsupported >= 110,
+        "{}",
+        t.stats.summary_line(false)
+    );
+    assert!(
+        t.stats.support_outside <= 10,
+        "{}",
+        t.stats.summary_line(false)
+    );
 }
 
 #[test]
@@ -226,6 +241,10 @@ fn leaning_past_the_feet_falls_and_the_simulation_carries_on() {
     report("leaning", &v.stats);
     assert!(v.stats.falls >= 1, "{}", v.stats.summary_line(false));
     assert_eq!(v.stats.frames, 180, "every frame is scored, falls included");
+    // And without the simulation: the centre of pressure this still lean needs is the centre of
+    // mass's projection, far ahead of the toes, on every judged frame.
+    assert_eq!(v.stats.support_judged, 180 - 4);
+    assert_eq!(v.stats.support_outside, v.stats.support_judged);
 }
 
 #[test]

@@ -216,6 +216,8 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
             table.set("validation tracking error", "cm", true, k, tracking);
             let skate = Some(val.foot_skate_mean_mps);
             table.set("validation foot skate", "m/s", true, k, skate);
+            let support = Some(100.0 * val.support_violated_fraction);
+            table.set("validation support violated", "%", true, k, support);
         }
         let latency_ms = latency_ms(&v.motion, &source_publish);
         if !latency_ms.is_empty() {

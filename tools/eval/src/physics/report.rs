@@ -18,8 +18,8 @@ impl fmt::Display for PhysicsReport {
         if let Some(truth) = &self.truth_validation {
             writeln!(
                 f,
-                "\nvalidation (rapier3d simulation tracking each output; torques mode unless noted)\n{:<11} {:>10} {:>10} {:>10} {:>11}",
-                "motion", "falls/min", "track cm", "skate m/s", "resid. mg"
+                "\nvalidation (rapier3d simulation tracking each output; torques mode unless noted)\n{:<11} {:>10} {:>10} {:>10} {:>11} {:>10}",
+                "motion", "falls/min", "track cm", "skate m/s", "resid. mg", "support %"
             )?;
             writeln!(f, "{:<11} {}", "truth", truth.columns())?;
             for (name, totals) in &self.methods {
@@ -29,7 +29,7 @@ impl fmt::Display for PhysicsReport {
             }
             writeln!(
                 f,
-                "track: mean joint distance simulation-estimate; skate: simulated feet in contact; resid.: residual mode's mean root force / body weight"
+                "track: mean joint distance simulation-estimate; skate: simulated feet in contact; resid.: residual mode's mean root force / body weight; support: judged frames whose needed centre of pressure is > 3 cm outside the feet or unsupported (no simulation)"
             )?;
         }
         Ok(())

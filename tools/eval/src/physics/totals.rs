@@ -43,6 +43,9 @@ pub struct ValidationTotals {
     pub residual_sum: f64,
     pub skate_sum: f64,
     pub skate_frames: u64,
+    /// Frames judged for support, and those violated (the controller-free score).
+    pub support_judged: u64,
+    pub support_violated: u64,
 }
 
 impl ValidationTotals {
@@ -66,21 +69,25 @@ impl ValidationTotals {
                     self.tracking_sum_m += st.tracking_errors_m.iter().sum::<f64>();
                     self.skate_sum += st.skate_sum_mps;
                     self.skate_frames += st.skate_frames;
+                    self.support_judged += st.support_judged;
+                    self.support_violated += st.support_outside + st.support_unsupported;
                 }
                 Mode::Residual => self.residual_sum += st.residual_fraction_sum,
             }
         }
     }
 
-    /// Falls/min, tracking cm, skate m/s and residual mg, as the report's columns.
+    /// Falls/min, tracking cm, skate m/s, residual mg and support violated %, as the report's
+    /// columns.
     pub(super) fn columns(&self) -> String {
         let n = self.frames.max(1) as f64;
         format!(
-            "{:>10.2} {:>10.1} {:>10.3} {:>11.3}",
+            "{:>10.2} {:>10.1} {:>10.3} {:>11.3} {:>10.1}",
             self.falls as f64 / (self.simulated_s / 60.0).max(1e-9),
             100.0 * self.tracking_sum_m / n,
             self.skate_sum / self.skate_frames.max(1) as f64,
             self.residual_sum / n,
+            100.0 * self.support_violated as f64 / self.support_judged.max(1) as f64,
         )
     }
 }

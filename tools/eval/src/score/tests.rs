@@ -216,6 +216,22 @@ fn a_validation_stream_summarizes_like_the_stage() {
                 f.foot_skate_mps = 0.2;
             }
             f.residual_root_force_n = [0.0, (0.5 * mass_kg * 9.81) as f32, 0.0];
+            // Support: the first 4 frames not judged; then every 10th frame unsupported, every
+            // 10th (shifted) with the centre of pressure 5 cm outside the feet, one 2 cm outside
+            // (within the 3 cm tolerance), the rest inside or in flight.
+            f.support = match k {
+                0..4 => 0,
+                _ if k % 10 == 0 => 3,
+                _ if k % 3 == 0 => 2,
+                _ => 1,
+            };
+            if k >= 4 && k % 10 == 5 {
+                f.support = 1;
+                f.support_gap_m = 0.05;
+            }
+            if k == 7 {
+                f.support_gap_m = 0.02;
+            }
             f
         })
         .collect();
@@ -241,6 +257,13 @@ fn a_validation_stream_summarizes_like_the_stage() {
     assert_relative_eq!(v.tracking_error_p95_m, 0.569, epsilon = 1e-6);
     assert_relative_eq!(v.foot_skate_mean_mps, 0.2, epsilon = 1e-6);
     assert_relative_eq!(v.residual_force_mean_fraction, 0.5, epsilon = 1e-6);
+    // 596 judged frames: 60 unsupported (10, 20, ..., 590, and 0 is not judged: 59) and 60
+    // outside (5, 15, ..., 595).
+    assert_relative_eq!(
+        v.support_violated_fraction,
+        (59.0 + 60.0) / 596.0,
+        epsilon = 1e-12
+    );
 }
 
 #[test]

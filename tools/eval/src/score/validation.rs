@@ -6,7 +6,7 @@
 
 use imuflow_body::JointId;
 use imuflow_graph::frames::ValidationFrame;
-use imuflow_validation::Stats;
+use imuflow_validation::{Stats, Support, SupportState};
 use serde::Serialize;
 
 use super::pairing::is_scored;
@@ -45,6 +45,24 @@ pub struct ValidationScores {
     pub penetration_max_m: f64,
     /// Mean residual root force / (m·g): how much help the root needed (0 in torques mode).
     pub residual_force_mean_fraction: f64,
+    /// Share of the frames judged for support whose needed centre of pressure lies outside the
+    /// feet or that no floor could carry (the controller-free score, `imuflow_validation::support`).
+    pub support_violated_fraction: f64,
+}
+
+/// A recorded frame's support score, as the stage wrote it.
+fn support_of(f: &ValidationFrame) -> Support {
+    let state = match f.support {
+        1 => SupportState::Feet,
+        2 => SupportState::Light,
+        3 => SupportState::Unsupported,
+        _ => SupportState::Unjudged,
+    };
+    Support {
+        state,
+        gap_m: f64::from(f.support_gap_m),
+        ..Support::default()
+    }
 }
 
 /// The validation stage's run statistics rebuilt from its recorded frames, at `rate_hz`, for a
@@ -78,6 +96,7 @@ pub fn validation_stats(frames: &[ValidationFrame], rate_hz: f64, mass_kg: f64) 
             stats.skate_sum_mps += f64::from(f.foot_skate_mps);
             stats.skate_frames += 1;
         }
+        stats.add_support(&support_of(f));
         let penetration = f64::from(f.penetration_m);
         stats.penetration_sum_m += penetration;
         stats.penetration_max_m = stats.penetration_max_m.max(penetration);
@@ -111,5 +130,6 @@ pub fn summarize_validation(
         penetration_mean_m: stats.penetration_mean_m(),
         penetration_max_m: stats.penetration_max_m,
         residual_force_mean_fraction: stats.residual_force_mean_fraction(),
+        support_violated_fraction: stats.support_violated_fraction(),
     }
 }
