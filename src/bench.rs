@@ -583,7 +583,10 @@ fn bench_validation(input: &Path) -> anyhow::Result<()> {
         support_us.push(started.elapsed().as_secs_f64() * 1e6);
     }
     let [mean, p50, p99, max] = summary(&support_us[1..]);
-    println!("{:<9} {mean:>10.1} {p50:>10.1} {p99:>10.1} {max:>10.1}  (included above)", "support");
+    println!(
+        "{:<9} {mean:>10.1} {p50:>10.1} {p99:>10.1} {max:>10.1}  (included above)",
+        "support"
+    );
     if cfg!(debug_assertions) {
         println!("(a debug build: use --release for the real numbers)");
     }

@@ -1,7 +1,8 @@
 //! The `kinematics` stage: calibrated IMU frames in, the nets' estimate out, one step per frame.
 //!
 //! - Frames flagged CALIBRATING pass through as the start pose (flagged CALIBRATING | INVALID); the nets
-//!   start (learned initialization from the start pose) at the first calibrated frame.
+//!   start (learned initialization from the start pose) at the first calibrated frame, from the
+//!   pose its forearm sensors show (T-pose or N-pose, `start_pose = "auto"`) unless one is set.
 //! - The bones that carry a sensor take its calibrated orientation, or stay within
 //!   `sensor_bone_tolerance_deg` of it (`sensor_bones = "measured"`, [`SensorBones`]);
 //!   `"network"` keeps the networks' own estimate, as in the papers.
@@ -63,10 +64,10 @@ pub const SPEC: StageSpec = StageSpec {
         },
         ParamSpec {
             name: "start_pose",
-            ty: ParamType::Choice(&["tpose", "npose"]),
+            ty: ParamType::Choice(&["auto", "tpose", "npose"]),
             required: false,
-            default: "tpose for pip, npose for globalpose",
-            doc: "the pose the subject holds when calibration ends (initializes the networks' state)",
+            default: "auto",
+            doc: "the pose the subject holds when calibration ends (initializes the networks' state); auto: the one the calibrated forearm sensors show",
         },
         ParamSpec {
             name: "sensor_bones",
@@ -112,13 +113,21 @@ pub fn run() -> anyhow::Result<()> {
         .str("weights")
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from(format!("models/{}.safetensors", method.name())));
-    let start = match params.str("start_pose") {
-        Some("tpose") => StartPose::TPose,
-        Some("npose") => StartPose::NPose,
-        Some(other) => bail!("stage '{stage}': unknown start_pose '{other}' (tpose or npose)"),
-        None if method == Method::Pip => StartPose::TPose,
-        None => StartPose::NPose,
+    // `None`: the pose the sensors show when the calibration ends (see `StartPose::shown_by`).
+    let fixed_start = match params.str("start_pose") {
+        Some("tpose") => Some(StartPose::TPose),
+        Some("npose") => Some(StartPose::NPose),
+        Some("auto") | None => None,
+        Some(other) => {
+            bail!("stage '{stage}': unknown start_pose '{other}' (auto, tpose or npose)")
+        }
     };
+    // Until a calibrated frame shows it: each paper's own calibration pose.
+    let mut start = fixed_start.unwrap_or(if method == Method::Pip {
+        StartPose::TPose
+    } else {
+        StartPose::NPose
+    });
     let weights = Weights::load(&weights_path, method).with_context(|| {
         format!(
             "stage '{stage}': loading weights '{}'",
@@ -144,8 +153,9 @@ pub fn run() -> anyhow::Result<()> {
         return Ok(());
     }
     let mut held = HeldSamples::default();
-    let start_estimate = start_estimate(start);
     let mut resume_from_sensors = ctx.restarts() > 0;
+    // The nets are not running: the next calibrated frame starts them.
+    let mut stopped = true;
     while let Some(step) = ctx.next_warming(&mut |stop| {
         if warm_weights {
             streamer.warm(stop);
@@ -159,9 +169,14 @@ pub fn run() -> anyhow::Result<()> {
         resume_from_sensors &= !calibrating;
         let estimate = if calibrating || !complete {
             streamer.reset();
+            stopped = true;
             header.flags |= flags::INVALID;
-            start_estimate.clone()
+            start_estimate(start)
         } else {
+            if std::mem::take(&mut stopped) && fixed_start.is_none() {
+                start = StartPose::shown_by(&held.input);
+                streamer.set_start(start.pose());
+            }
             if std::mem::take(&mut resume_from_sensors) {
                 streamer.set_start(pose_from_sensors(start, &held.input));
             }
@@ -262,6 +277,7 @@ pub fn fill(out: &mut KinematicsFrame, e: &Estimate) {
 mod tests {
     use super::*;
     use crate::infer::global_rotations;
+    use imuflow_body::JointId;
     use imuflow_body::skeleton::IMU_JOINTS;
     use nalgebra::{Unit, Vector3};
 
@@ -293,6 +309,47 @@ mod tests {
         for j in [3, 6, 9, 12, 13, 14, 16, 17, 1, 2] {
             let off = (pose.parent_from_joint[j].transpose() * start.parent_from_joint[j]).angle();
             assert!(off < 1e-12, "joint {j} moved by {off} rad");
+        }
+    }
+
+    /// The sensors of `pose` turned as a whole by `heading` about the vertical, with the arms
+    /// `lowered` radians further down (a subject never holds the reference poses exactly).
+    fn sensors_of(start: StartPose, heading: f64, lowered: f64) -> ImuInput {
+        let mut pose = start.pose();
+        let z = Vector3::z_axis();
+        for (joint, sign) in [
+            (JointId::LEFT_SHOULDER, -1.0),
+            (JointId::RIGHT_SHOULDER, 1.0),
+        ] {
+            pose.parent_from_joint[joint.index()] *= Rotation3::from_axis_angle(&z, sign * lowered);
+        }
+        pose.parent_from_joint[0] = Rotation3::from_axis_angle(&Vector3::y_axis(), heading);
+        let global = global_rotations(&pose.parent_from_joint);
+        let mut imu = ImuInput::default();
+        for (sensor, joint) in IMU_JOINTS.iter().enumerate() {
+            imu.orientation[sensor] = row_major(&global[joint.index()]);
+        }
+        imu
+    }
+
+    #[test]
+    fn the_start_pose_is_the_one_the_forearm_sensors_show() {
+        for heading in [0.0, 1.0, -2.5] {
+            // Held exactly, or 30° off towards the other pose: still the nearer one.
+            for lowered in [0.0, 0.5] {
+                let t = sensors_of(StartPose::TPose, heading, lowered);
+                assert_eq!(
+                    StartPose::shown_by(&t),
+                    StartPose::TPose,
+                    "{heading} {lowered}"
+                );
+                let n = sensors_of(StartPose::NPose, heading, -lowered);
+                assert_eq!(
+                    StartPose::shown_by(&n),
+                    StartPose::NPose,
+                    "{heading} {lowered}"
+                );
+            }
         }
     }
 }

@@ -177,7 +177,9 @@ impl SupportJudge {
         // that a real ankle would have laid flat.
         let mut corners: Vec<Vector2<f64>> = Vec::with_capacity(self.sole_corners.len());
         for foot in self.sole_corners.chunks(4) {
-            let points = foot.iter().map(|(joint, corner)| self.data.point_position(*joint, corner));
+            let points = foot
+                .iter()
+                .map(|(joint, corner)| self.data.point_position(*joint, corner));
             if points.clone().any(|p| p.y < CONTACT_HEIGHT_M) {
                 corners.extend(points.map(|p| Vector2::new(p.x, p.z)));
             }
