@@ -312,7 +312,7 @@ mod tests {
         }
     }
 
-    /// The sensors of `pose` turned as a whole by `heading` about the vertical, with the arms
+    /// The sensors of a body in `start` turned as a whole by `heading` about the vertical, with the arms
     /// `lowered` radians further down (a subject never holds the reference poses exactly).
     fn sensors_of(start: StartPose, heading: f64, lowered: f64) -> ImuInput {
         let mut pose = start.pose();
