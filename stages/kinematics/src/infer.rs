@@ -300,6 +300,12 @@ impl Streamer {
         self.started = false;
     }
 
+    /// Whether the networks are running: stepped since the last [`Streamer::reset`] or
+    /// [`Streamer::set_start`].
+    pub fn is_started(&self) -> bool {
+        self.started
+    }
+
     /// Start the next session (after [`Streamer::reset`]) from `pose`.
     pub fn set_start(&mut self, pose: Pose) {
         self.start = pose;

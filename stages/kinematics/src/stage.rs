@@ -154,8 +154,6 @@ pub fn run() -> anyhow::Result<()> {
     }
     let mut held = HeldSamples::default();
     let mut resume_from_sensors = ctx.restarts() > 0;
-    // The nets are not running: the next calibrated frame starts them.
-    let mut stopped = true;
     while let Some(step) = ctx.next_warming(&mut |stop| {
         if warm_weights {
             streamer.warm(stop);
@@ -169,11 +167,11 @@ pub fn run() -> anyhow::Result<()> {
         resume_from_sensors &= !calibrating;
         let estimate = if calibrating || !complete {
             streamer.reset();
-            stopped = true;
             header.flags |= flags::INVALID;
             start_estimate(start)
         } else {
-            if std::mem::take(&mut stopped) && fixed_start.is_none() {
+            // The first calibrated frame: the networks start from the pose it shows.
+            if !streamer.is_started() && fixed_start.is_none() {
                 start = StartPose::shown_by(&held.input);
                 streamer.set_start(start.pose());
             }

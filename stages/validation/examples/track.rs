@@ -98,7 +98,7 @@ fn batch(body: &BodyModel, list: &Path) -> anyhow::Result<()> {
         step_us.extend_from_slice(&s.step_us[1..]);
         causes.add(&run.causes);
         judged += s.support_judged;
-        violated += s.support_outside + s.support_unsupported;
+        violated += s.support_violated();
     }
     step_us.sort_by(f64::total_cmp);
     println!(
@@ -326,7 +326,7 @@ fn load(path: &Path) -> anyhow::Result<Vec<Pose>> {
 /// pressure is outside the feet, or which need the floor to pull.
 fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
     use imuflow_body::dynamics::{DofVector, DynamicsData, RigidBodyModel};
-    use imuflow_validation::support::{distance_outside_hull, velocity};
+    use imuflow_validation::support::{distance_outside_hull, floor_force, velocity};
     let clips = match clip.strip_prefix('@') {
         Some(list) => clip_list(Path::new(list))?,
         None => vec![clip.to_owned()],
@@ -368,20 +368,12 @@ fn support(body: &BodyModel, clip: &str) -> anyhow::Result<()> {
             let mut tau = DofVector::zeros();
             data.inverse_dynamics(&model, &vdot, &mut tau);
             frames += 1;
-            // The floor's wrench on the body: the root's rows (force in M; torque in the pelvis
-            // frame, about the pelvis origin).
-            let force = Vector3::new(tau[0], tau[1], tau[2]);
+            // The pelvis, for which side of a stance foot is outward.
             let origin = data.fk().joint_in_world_m[0];
-            let moment = data.fk().world_from_joint[0] * Vector3::new(tau[3], tau[4], tau[5]);
-            if force.y <= 0.0 {
+            let Some(cop) = floor_force(&data, &tau).1 else {
                 pulling += 1;
                 continue;
-            }
-            // Centre of pressure p on y = 0: moment = (p − origin) × force + free moment about y.
-            let cop = nalgebra::Vector2::new(
-                origin.x + (moment.z - origin.y * force.x) / force.y,
-                origin.z + (-moment.x - origin.y * force.z) / force.y,
-            );
+            };
             let mut corners = Vec::new();
             let mut feet_down = Vec::new();
             for foot in FEET {

@@ -56,6 +56,19 @@ pub enum SupportState {
     Unsupported = 3,
 }
 
+impl SupportState {
+    /// The state a `ValidationFrame`'s `support` field holds (`state as u32`); unknown values read
+    /// as not judged.
+    pub fn from_wire(value: u32) -> SupportState {
+        match value {
+            1 => SupportState::Feet,
+            2 => SupportState::Light,
+            3 => SupportState::Unsupported,
+            _ => SupportState::Unjudged,
+        }
+    }
+}
+
 /// The support score of one frame.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Support {
@@ -165,11 +178,7 @@ impl SupportJudge {
         self.data.set_state(&self.model, pose, v);
         let mut tau = DofVector::zeros();
         self.data.inverse_dynamics(&self.model, vdot, &mut tau);
-        // The floor's wrench on the body: the root's rows (force in M; torque in the pelvis frame,
-        // about the pelvis origin).
-        let force = Vector3::new(tau[0], tau[1], tau[2]);
-        let origin = self.data.fk().joint_in_world_m[0];
-        let moment = self.data.fk().world_from_joint[0] * Vector3::new(tau[3], tau[4], tau[5]);
+        let (force, centre_of_pressure) = floor_force(&self.data, &tau);
         let load_fraction = force.y / self.weight_n;
         // A foot touches when any of its sole corners is near the floor, and then supports with
         // its whole sole: the papers' networks do not estimate the ankles (they stay at the rest
@@ -184,42 +193,44 @@ impl SupportJudge {
                 corners.extend(points.map(|p| Vector2::new(p.x, p.z)));
             }
         }
-        if load_fraction < -LIGHT_LOAD_FRACTION {
-            return Support {
-                state: SupportState::Unsupported,
-                gap_m: 0.0,
-                centre_of_pressure_m: None,
-                load_fraction,
-            };
-        }
-        if load_fraction < LIGHT_LOAD_FRACTION {
-            return Support {
-                state: SupportState::Light,
-                gap_m: 0.0,
-                centre_of_pressure_m: None,
-                load_fraction,
-            };
-        }
-        // Centre of pressure p on y = 0: moment = (p − origin) × force + a free moment about y.
-        let cop = Vector2::new(
-            origin.x + (moment.z - origin.y * force.x) / force.y,
-            origin.z + (-moment.x - origin.y * force.z) / force.y,
-        );
-        if corners.is_empty() {
-            return Support {
-                state: SupportState::Unsupported,
-                gap_m: 0.0,
-                centre_of_pressure_m: Some(cop),
-                load_fraction,
-            };
-        }
+        let (state, gap_m) = match centre_of_pressure {
+            _ if load_fraction < -LIGHT_LOAD_FRACTION => (SupportState::Unsupported, 0.0),
+            Some(cop) if load_fraction >= LIGHT_LOAD_FRACTION => {
+                if corners.is_empty() {
+                    (SupportState::Unsupported, 0.0)
+                } else {
+                    (SupportState::Feet, distance_outside_hull(&cop, &corners))
+                }
+            }
+            _ => (SupportState::Light, 0.0),
+        };
         Support {
-            state: SupportState::Feet,
-            gap_m: distance_outside_hull(&cop, &corners),
-            centre_of_pressure_m: Some(cop),
+            state,
+            gap_m,
+            // Only a floor that pushes hard enough to matter has a centre of pressure to report.
+            centre_of_pressure_m: centre_of_pressure
+                .filter(|_| load_fraction >= LIGHT_LOAD_FRACTION),
             load_fraction,
         }
     }
+}
+
+/// The floor's force on the body (model frame M, N) that the root's rows of inverse dynamics
+/// `tau`, at the state in `data`, ask for, and its centre of pressure on the floor y = 0 (x, z of
+/// M, m) when that force pushes (its vertical part is positive).
+pub fn floor_force(data: &DynamicsData, tau: &DofVector) -> (Vector3<f64>, Option<Vector2<f64>>) {
+    // The root's rows: the force in M; the torque in the pelvis frame, about the pelvis origin.
+    let force = Vector3::new(tau[0], tau[1], tau[2]);
+    let origin = data.fk().joint_in_world_m[0];
+    let moment = data.fk().world_from_joint[0] * Vector3::new(tau[3], tau[4], tau[5]);
+    // Centre of pressure p on y = 0: moment = (p − origin) × force + a free moment about y.
+    let centre_of_pressure = (force.y > 0.0).then(|| {
+        Vector2::new(
+            origin.x + (moment.z - origin.y * force.x) / force.y,
+            origin.z + (-moment.x - origin.y * force.z) / force.y,
+        )
+    });
+    (force, centre_of_pressure)
 }
 
 /// The generalized velocity that takes pose `a` to pose `b` in `dt` seconds (the coordinates of
@@ -398,6 +409,15 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn a_state_reads_back_from_the_wire_as_written() {
+        use SupportState::*;
+        for state in [Unjudged, Feet, Light, Unsupported] {
+            assert_eq!(SupportState::from_wire(state as u32), state);
+        }
+        assert_eq!(SupportState::from_wire(7), Unjudged);
     }
 
     fn judge() -> (SupportJudge, BodyModel) {

@@ -145,12 +145,13 @@ impl Stats {
     pub fn step_p99_us(&self) -> f64 {
         percentile(&self.step_us, 99.0)
     }
-    /// Share of the judged frames whose support is violated: outside the feet or unsupported.
+    /// Judged frames whose support is violated: outside the feet or unsupported.
+    pub fn support_violated(&self) -> u64 {
+        self.support_outside + self.support_unsupported
+    }
+    /// Their share of the judged frames.
     pub fn support_violated_fraction(&self) -> f64 {
-        mean(
-            (self.support_outside + self.support_unsupported) as f64,
-            self.support_judged,
-        )
+        mean(self.support_violated() as f64, self.support_judged)
     }
     /// Counts one frame's support score.
     pub fn add_support(&mut self, support: &Support) {

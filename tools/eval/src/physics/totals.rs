@@ -70,7 +70,7 @@ impl ValidationTotals {
                     self.skate_sum += st.skate_sum_mps;
                     self.skate_frames += st.skate_frames;
                     self.support_judged += st.support_judged;
-                    self.support_violated += st.support_outside + st.support_unsupported;
+                    self.support_violated += st.support_violated();
                 }
                 Mode::Residual => self.residual_sum += st.residual_fraction_sum,
             }

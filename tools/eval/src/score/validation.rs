@@ -52,14 +52,8 @@ pub struct ValidationScores {
 
 /// A recorded frame's support score, as the stage wrote it.
 fn support_of(f: &ValidationFrame) -> Support {
-    let state = match f.support {
-        1 => SupportState::Feet,
-        2 => SupportState::Light,
-        3 => SupportState::Unsupported,
-        _ => SupportState::Unjudged,
-    };
     Support {
-        state,
+        state: SupportState::from_wire(f.support),
         gap_m: f64::from(f.support_gap_m),
         ..Support::default()
     }
