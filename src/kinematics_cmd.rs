@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use imuflow_kinematics::Method;
-use imuflow_kinematics::train::{TrainOptions, train};
+use imuflow_kinematics::train::{TrainDevice, TrainOptions, train};
 
 /// Options of `imuflow train`.
 #[derive(Args)]
@@ -68,6 +68,14 @@ pub struct TrainArgs {
     /// Don't show progress bars.
     #[arg(long)]
     no_progress: bool,
+    /// Where to train: cpu, or cuda / cuda:N for a CUDA GPU (an imuflow built with
+    /// `--features cuda`; stages/kinematics/README.md, "Training on a GPU").
+    #[arg(long, default_value = "cpu", value_parser = parse_device)]
+    device: TrainDevice,
+}
+
+fn parse_device(text: &str) -> Result<TrainDevice, String> {
+    TrainDevice::parse(text).ok_or_else(|| format!("unknown device '{text}' (cpu, cuda or cuda:N)"))
 }
 
 fn parse_method(text: &str) -> Result<Method, String> {
@@ -94,6 +102,7 @@ pub fn run(args: TrainArgs) -> anyhow::Result<()> {
         max_minutes: args.max_minutes,
         seed: args.seed,
         progress: !args.no_progress,
+        device: args.device,
     };
     train(&options)?;
     Ok(())

@@ -123,8 +123,14 @@ fn bad_rank(net: &str, key: &str, dims: &[usize]) -> WeightsError {
 }
 
 /// Fresh parameters with PyTorch's default initialization: U(−1/√fan_in, 1/√fan_in) for Linear
-/// weights and biases, U(−1/√H, 1/√H) for every LSTM parameter.
-pub fn init_parameters(spec: &RnnSpec, device: &Device) -> CandleResult<Vec<(String, Var)>> {
+/// weights and biases, U(−1/√H, 1/√H) for every LSTM parameter. Drawn from `rng` on the host and
+/// then placed on `device`, so that a seed gives the same starting weights on every device (candle's
+/// own CPU generator cannot be seeded).
+pub fn init_parameters(
+    spec: &RnnSpec,
+    device: &Device,
+    rng: &mut impl rand::Rng,
+) -> CandleResult<Vec<(String, Var)>> {
     let mut out = Vec::new();
     for (name, shape) in spec.parameter_shapes() {
         let bound = if name.contains(".rnn.") {
@@ -138,8 +144,12 @@ pub fn init_parameters(spec: &RnnSpec, device: &Device) -> CandleResult<Vec<(Str
                 .map(|(_, s)| s[1])
                 .unwrap_or(1);
             1.0 / (fan_in as f64).sqrt()
-        };
-        let t = Tensor::rand(-bound as f32, bound as f32, shape, device)?;
+        } as f32;
+        let count: usize = shape.iter().product();
+        let values: Vec<f32> = (0..count)
+            .map(|_| rng.random_range(-bound..bound))
+            .collect();
+        let t = Tensor::from_vec(values, shape, &Device::Cpu)?.to_device(device)?;
         out.push((name, Var::from_tensor(&t)?));
     }
     Ok(out)
@@ -250,8 +260,9 @@ impl Rnn {
         match (&self.init_net, init) {
             (Some([a, b, c]), Some(x)) => {
                 let v = c.forward(&b.forward(&a.forward(x)?.relu()?)?.relu()?)?;
-                // Layout [h_l0 … h_l(L−1), c_l0 … c_l(L−1)] (reference §2.0).
-                let chunk = |i: usize| v.narrow(1, i * h, h);
+                // Layout [h_l0 … h_l(L−1), c_l0 … c_l(L−1)] (reference §2.0). Each piece is made
+                // contiguous: candle's CUDA matmul takes no row-strided operand.
+                let chunk = |i: usize| v.narrow(1, i * h, h)?.contiguous();
                 Ok(LstmState {
                     h: (0..l).map(chunk).collect::<CandleResult<_>>()?,
                     c: (l..2 * l).map(chunk).collect::<CandleResult<_>>()?,
@@ -357,7 +368,12 @@ mod tests {
     use super::*;
 
     fn random_net(spec: &RnnSpec) -> (Rnn, HashMap<String, Tensor>) {
-        let vars = init_parameters(spec, &Device::Cpu).unwrap();
+        let vars = init_parameters(
+            spec,
+            &Device::Cpu,
+            &mut <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(7),
+        )
+        .unwrap();
         let tensors: HashMap<String, Tensor> = vars
             .into_iter()
             .map(|(n, v)| (n, v.as_tensor().clone()))

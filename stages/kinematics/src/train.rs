@@ -59,6 +59,59 @@ pub struct TrainOptions {
     pub max_minutes: f64,
     pub seed: u64,
     pub progress: bool,
+    /// Where the nets train: the CPU (default) or a CUDA GPU (a build with the `cuda` feature).
+    #[serde(default)]
+    pub device: TrainDevice,
+}
+
+/// The device a training run computes on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TrainDevice {
+    #[default]
+    Cpu,
+    /// CUDA GPU number N (`cuda` or `cuda:N`).
+    Cuda(usize),
+}
+
+impl TrainDevice {
+    /// `cpu`, `cuda` or `cuda:N`.
+    pub fn parse(text: &str) -> Option<TrainDevice> {
+        match text {
+            "cpu" => Some(TrainDevice::Cpu),
+            "cuda" => Some(TrainDevice::Cuda(0)),
+            _ => text
+                .strip_prefix("cuda:")
+                .and_then(|n| n.parse().ok())
+                .map(TrainDevice::Cuda),
+        }
+    }
+
+    /// Opens the device; a CUDA device in a build without the `cuda` feature, or on a machine
+    /// without a usable GPU, is an error that says which.
+    pub fn open(self) -> anyhow::Result<Device> {
+        match self {
+            TrainDevice::Cpu => Ok(Device::Cpu),
+            TrainDevice::Cuda(n) => {
+                if !candle_core::utils::cuda_is_available() {
+                    bail!(
+                        "--device cuda:{n}: this imuflow was built without CUDA; build it with `cargo build --release --features cuda` (needs the CUDA toolkit, nvcc on the PATH)"
+                    );
+                }
+                Device::new_cuda(n).with_context(|| {
+                    format!("--device cuda:{n}: no usable CUDA GPU number {n} on this machine")
+                })
+            }
+        }
+    }
+}
+
+impl std::fmt::Display for TrainDevice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            TrainDevice::Cpu => write!(f, "CPU"),
+            TrainDevice::Cuda(n) => write!(f, "CUDA GPU {n}"),
+        }
+    }
 }
 
 /// How a net's loss is computed.
@@ -281,6 +334,7 @@ fn make_batch(
     starts: &[usize],
     chunk: usize,
     noise: Option<&mut StdRng>,
+    device: &Device,
 ) -> anyhow::Result<Batch> {
     let b = starts.len();
     let mut rng = noise;
@@ -313,7 +367,7 @@ fn make_batch(
         }
         batch
             .inputs
-            .push(Tensor::from_vec(x, (b, chunk, width), &Device::Cpu)?);
+            .push(Tensor::from_vec(x, (b, chunk, width), device)?);
         let target = set.array(task.target)?;
         let mut y = Vec::with_capacity(b * chunk * target.dim);
         for &s in starts {
@@ -321,12 +375,12 @@ fn make_batch(
         }
         batch
             .targets
-            .push(Tensor::from_vec(y, (b, chunk, target.dim), &Device::Cpu)?);
+            .push(Tensor::from_vec(y, (b, chunk, target.dim), device)?);
         batch.inits.push(match task.init {
             Some(name) => {
                 let a = set.array(name)?;
                 let v: Vec<f32> = starts.iter().flat_map(|&s| a.row(s).to_vec()).collect();
-                Some(Tensor::from_vec(v, (b, a.dim), &Device::Cpu)?)
+                Some(Tensor::from_vec(v, (b, a.dim), device)?)
             }
             None => None,
         });
@@ -470,10 +524,15 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
         started.elapsed().as_secs_f64()
     );
 
+    let device = options.device.open()?;
+    if options.device != TrainDevice::Cpu {
+        eprintln!("training on {}", options.device);
+    }
     let specs = method.specs(options.hidden, options.layers);
     let mut params = Vec::new();
+    let mut init_rng = StdRng::seed_from_u64(options.seed ^ 0x1417);
     for spec in &specs {
-        params.extend(init_parameters(spec, &Device::Cpu)?);
+        params.extend(init_parameters(spec, &device, &mut init_rng)?);
     }
     let mut opt = Optimizer::new(params, &specs)?;
     let ckpt_tensors = options.checkpoint_dir.join("latest.safetensors");
@@ -494,7 +553,7 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
                 options.checkpoint_dir.display()
             );
         }
-        state = resume(&mut opt, &ckpt_tensors, &ckpt_state, &specs)?;
+        state = resume(&mut opt, &ckpt_tensors, &ckpt_state, &specs, &device)?;
         eprintln!(
             "resuming from {} (epoch {}, step {}, best validation {:.5} at epoch {})",
             options.checkpoint_dir.display(),
@@ -504,7 +563,7 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
             state.best_epoch
         );
     } else if let Some(path) = &options.init_weights {
-        state.initialized_from = Some(init_from_weights(&mut opt, path, method)?);
+        state.initialized_from = Some(init_from_weights(&mut opt, path, method, &device)?);
         eprintln!("starting from the weights in {}", path.display());
     }
 
@@ -569,6 +628,7 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
         let mut counted = vec![0usize; tasks.len()];
         let mut skipped = vec![0usize; tasks.len()];
         let mut done = 0usize;
+        let epoch_started = Instant::now();
         for batch_starts in starts.chunks_exact(options.batch) {
             let batch = make_batch(
                 &train_set,
@@ -576,6 +636,7 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
                 batch_starts,
                 options.chunk,
                 Some(&mut rng),
+                &device,
             )?;
             let nets = build_nets(&specs, &opt)?;
             let losses = batch_losses(&nets, tasks, &batch, options.dropout)?;
@@ -607,6 +668,7 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
             }
         }
         bar.finish_and_clear();
+        let step_s = epoch_started.elapsed().as_secs_f64() / done.max(1) as f64;
         let train_losses: Vec<f64> = sums
             .iter()
             .zip(&counted)
@@ -635,9 +697,10 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
         )?;
         log.flush()?;
         eprintln!(
-            "epoch {:>3} ({} steps{}): train {}  val {}  [{:.0} min]",
+            "epoch {:>3} ({} steps, {:.2} s each{}): train {}  val {}  [{:.0} min]",
             state.epoch,
             done,
+            step_s,
             if stopped_early {
                 ", stopped at the time limit"
             } else {
@@ -718,10 +781,15 @@ fn validate(
     options: &TrainOptions,
 ) -> anyhow::Result<Vec<f64>> {
     let nets = build_nets(specs, opt)?;
+    let device = opt
+        .vars
+        .first()
+        .map(|v| v.as_tensor().device().clone())
+        .unwrap_or(Device::Cpu);
     let mut sums = vec![0.0f64; tasks.len()];
     let mut n = 0usize;
     for chunk in starts.chunks(options.batch) {
-        let batch = make_batch(set, tasks, chunk, options.chunk, None)?;
+        let batch = make_batch(set, tasks, chunk, options.chunk, None, &device)?;
         let losses = batch_losses(&nets, tasks, &batch, 0.0)?;
         for (s, l) in sums.iter_mut().zip(&losses) {
             *s += l.to_scalar::<f32>()? as f64 * chunk.len() as f64;
@@ -759,10 +827,11 @@ fn init_from_weights(
     opt: &mut Optimizer,
     path: &Path,
     method: Method,
+    device: &Device,
 ) -> anyhow::Result<serde_json::Value> {
     let weights = crate::weights::Weights::load(path, method)
         .with_context(|| format!("--init-weights {}", path.display()))?;
-    let tensors = candle_core::safetensors::load(path, &Device::Cpu)
+    let tensors = candle_core::safetensors::load(path, device)
         .with_context(|| format!("reading {}", path.display()))?;
     for (i, name) in opt.names.iter().enumerate() {
         let tensor = tensors
@@ -790,6 +859,7 @@ fn resume(
     tensors_path: &Path,
     state_path: &Path,
     specs: &[RnnSpec],
+    device: &Device,
 ) -> anyhow::Result<CheckpointState> {
     let text = std::fs::read_to_string(state_path)
         .with_context(|| format!("reading {}", state_path.display()))?;
@@ -808,7 +878,7 @@ fn resume(
                 .collect::<Vec<_>>()
         );
     }
-    let tensors = candle_core::safetensors::load(tensors_path, &Device::Cpu)
+    let tensors = candle_core::safetensors::load(tensors_path, device)
         .with_context(|| format!("reading {}", tensors_path.display()))?;
     for (i, name) in opt.names.iter().enumerate() {
         let get = |prefix: &str| {
@@ -875,7 +945,7 @@ fn export(
         nets: specs.to_vec(),
         normalization: weights::normalization(options.method).to_owned(),
         provenance: serde_json::json!({
-            "trainer": "imuflow train (candle, CPU)",
+            "trainer": format!("imuflow train (candle, {})", options.device),
             "data": options.data.display().to_string(),
             "dataset_format": first_meta.get("format"),
             "body_model": first_meta.get("body_model"),
@@ -958,6 +1028,60 @@ mod tests {
             input_linear: false,
             init_input: None,
         }
+    }
+
+    #[test]
+    fn devices_parse_and_a_cpu_build_names_the_feature_for_cuda() {
+        assert_eq!(TrainDevice::parse("cpu"), Some(TrainDevice::Cpu));
+        assert_eq!(TrainDevice::parse("cuda"), Some(TrainDevice::Cuda(0)));
+        assert_eq!(TrainDevice::parse("cuda:2"), Some(TrainDevice::Cuda(2)));
+        assert_eq!(TrainDevice::parse("gpu"), None);
+        assert_eq!(TrainDevice::parse("cuda:x"), None);
+        assert!(matches!(TrainDevice::Cpu.open(), Ok(Device::Cpu)));
+        if !candle_core::utils::cuda_is_available() {
+            let err = TrainDevice::Cuda(0).open().unwrap_err().to_string();
+            assert!(err.contains("--features cuda"), "{err}");
+        }
+    }
+
+    /// The same seed gives the same starting weights (on every device: they are drawn on the
+    /// host), another seed others, all within PyTorch's bounds: U(±1/√H) for the LSTM, U(±1/√fan_in)
+    /// for a linear layer.
+    #[test]
+    fn initial_weights_follow_the_seed_and_pytorchs_bounds() -> candle_core::Result<()> {
+        let spec = RnnSpec {
+            input_linear: true,
+            hidden: 16,
+            input: 9,
+            ..spec("net")
+        };
+        let draw = |seed: u64| -> candle_core::Result<Vec<(String, Vec<f32>)>> {
+            init_parameters(&spec, &Device::Cpu, &mut StdRng::seed_from_u64(seed))?
+                .into_iter()
+                .map(|(n, v)| Ok((n, v.as_tensor().flatten_all()?.to_vec1::<f32>()?)))
+                .collect()
+        };
+        let (a, b, c) = (draw(5)?, draw(5)?, draw(6)?);
+        assert_eq!(a, b);
+        assert_ne!(a, c);
+        for (name, values) in &a {
+            let bound = if name.contains(".rnn.") {
+                1.0 / 16f32.sqrt()
+            } else if name.contains("linear1") {
+                1.0 / 9f32.sqrt()
+            } else {
+                1.0 / 16f32.sqrt()
+            };
+            let largest = values.iter().fold(0f32, |m, v| m.max(v.abs()));
+            assert!(largest <= bound, "{name}: {largest} > {bound}");
+            if values.len() >= 30 {
+                assert!(
+                    largest > 0.8 * bound,
+                    "{name}: {largest} fills too little of ±{bound}"
+                );
+            }
+        }
+        Ok(())
     }
 
     /// A net whose gradient is NaN keeps its weights; the other net still takes its Adam step.

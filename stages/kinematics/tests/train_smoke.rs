@@ -68,6 +68,7 @@ fn options(data: &Path, dir: &Path, epochs: usize) -> TrainOptions {
         max_minutes: f64::INFINITY,
         seed: 1,
         progress: false,
+        device: Default::default(),
     }
 }
 
