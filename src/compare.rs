@@ -13,7 +13,7 @@ use clap::Args;
 use imuflow_dataset::Split;
 use imuflow_eval::compare::batch::{self, BatchOptions};
 use imuflow_graph::Graph;
-use imuflow_graph::combine::{self, AblationVariant, Combined, SinkPaths, Variant};
+use imuflow_graph::combine::{self, AblationVariant, Combined, SensorErrors, SinkPaths, Variant};
 use imuflow_graph::launch::{self, LaunchOptions};
 
 use crate::registry;
@@ -49,6 +49,12 @@ pub struct CompareArgs {
     /// With a .bvh --input or --data: the joint-mapping TOML of the skeleton (default: Bandai Namco).
     #[arg(long, value_name = "FILE")]
     mapping: Option<PathBuf>,
+    /// With a .bvh --input or --data: what the synthesized IMUs get wrong besides their random
+    /// mounting. `reference`: GlobalPose's model (mounting residual and its walk, noise, bias
+    /// walks, heading drift); `none`: exact signals, so the calibration's residual is the only
+    /// sensor error (run both on the same clips to see what the sensors cost).
+    #[arg(long, value_name = "ERRORS", default_value = "reference", value_parser = SensorErrors::NAMES)]
+    sensor_errors: String,
     /// Name of the comparison (the graph's name and its files' stem; default: the ablation
     /// file's name, or "compare").
     #[arg(long)]
@@ -138,8 +144,13 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
         .clone()
         .unwrap_or_else(|| PathBuf::from(format!("out/{name}")));
     if let Some(input) = &args.input {
-        combine::replace_source(&mut variants[0].graph, input, args.mapping.as_deref())
-            .context("--input")?;
+        combine::replace_source(
+            &mut variants[0].graph,
+            input,
+            args.mapping.as_deref(),
+            sensor_errors(args),
+        )
+        .context("--input")?;
     }
     let stem = out.join(&name);
     let sinks = SinkPaths {
@@ -255,6 +266,10 @@ fn batch(
         let text = std::fs::read(m).with_context(|| format!("cannot read {}", m.display()))?;
         fingerprint.push_str(&format!("{:016x}", imuflow_dataset::fnv1a64(&text)));
     }
+    // Other signals are other results: a resumed batch must synthesize the same ones.
+    if sensor_errors(args) != SensorErrors::default() {
+        fingerprint.push_str(&format!("-sensor-errors={}", args.sensor_errors));
+    }
     let options = BatchOptions {
         name: name.to_owned(),
         out: out.clone(),
@@ -262,6 +277,7 @@ fn batch(
         split,
         limit: args.limit,
         mapping: args.mapping.clone(),
+        sensor_errors: sensor_errors(args),
         imuflow_exe: std::env::current_exe().context("cannot find the imuflow executable")?,
         progress: !args.no_progress,
         keep_recordings: args.keep_recordings,
@@ -295,6 +311,11 @@ fn batch(
         return Ok(ExitCode::FAILURE);
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `--sensor-errors` (clap has checked the name).
+fn sensor_errors(args: &CompareArgs) -> SensorErrors {
+    SensorErrors::parse(&args.sensor_errors).unwrap_or_default()
 }
 
 /// What runs: shared stages and each variant's branch.

@@ -399,3 +399,57 @@ fn ablation_files_expand_into_variants_and_bad_ones_are_named() {
         "{stderr}"
     );
 }
+
+#[test]
+fn a_bvh_input_is_synthesized_with_the_sensor_errors_asked_for() {
+    let sb = Sandbox::new("compare-sensor-errors");
+    let root = env!("CARGO_MANIFEST_DIR");
+    let walk = format!("{root}/stages/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
+    let (pip, gp) = (
+        format!("{root}/configs/pip.toml"),
+        format!("{root}/configs/globalpose.toml"),
+    );
+    let source_params = |errors: Option<&str>| {
+        let mut args = vec!["compare", "--print-graph", "--input", &walk, &pip, &gp];
+        if let Some(e) = errors {
+            args.extend(["--sensor-errors", e]);
+        }
+        let out = sb.run(&args);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let combined: toml::Table = text(&out.stdout)
+            .parse()
+            .expect("the combined graph is TOML");
+        combined["stages"]["source"]["params"]
+            .as_table()
+            .expect("source params")
+            .clone()
+    };
+    // The default is the reference model; `none` turns every error off but keeps the mountings
+    // random, so the calibrations still have to find them.
+    for (errors, augmented) in [
+        (None, true),
+        (Some("reference"), true),
+        (Some("none"), false),
+    ] {
+        let params = source_params(errors);
+        assert_eq!(params["mode"].as_str(), Some("synthesize"), "{errors:?}");
+        assert_eq!(params["augment"].as_bool(), Some(augmented), "{errors:?}");
+        assert_eq!(params["mounting"].as_str(), Some("random"), "{errors:?}");
+    }
+    let out = sb.run(&[
+        "compare",
+        "--print-graph",
+        "--input",
+        &walk,
+        &pip,
+        &gp,
+        "--sensor-errors",
+        "ideal",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        text(&out.stderr).contains("reference, none"),
+        "{}",
+        text(&out.stderr)
+    );
+}

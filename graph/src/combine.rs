@@ -420,11 +420,48 @@ pub fn read_ablation(path: &Path) -> Result<Option<AblationFile>, AblationError>
 #[error("{0}")]
 pub struct InputError(String);
 
-/// Points the first variant's source at `input`: an mcap replay, or IMUs synthesized from a BVH.
+/// What the IMUs synthesized from a BVH input get wrong, beyond their random mounting (which the
+/// calibrations must find either way).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SensorErrors {
+    /// The reference model (GlobalPose §3): a residual mounting error and its slow walk, sensor
+    /// noise and bias walks, heading drift. What the published comparisons use.
+    #[default]
+    Reference,
+    /// Exact signals: the only error left is what the calibration makes of the prelude. Against
+    /// `Reference` on the same clips it separates what the sensors cost from what the rest costs.
+    None,
+}
+
+impl SensorErrors {
+    /// The names the command line takes, in variant order.
+    pub const NAMES: [&'static str; 2] = ["reference", "none"];
+
+    /// Parses one of [`SensorErrors::NAMES`].
+    pub fn parse(name: &str) -> Option<SensorErrors> {
+        match name {
+            "reference" => Some(SensorErrors::Reference),
+            "none" => Some(SensorErrors::None),
+            _ => None,
+        }
+    }
+
+    /// How a report describes the synthesized signals.
+    pub fn describe(self) -> &'static str {
+        match self {
+            SensorErrors::Reference => "the reference noise",
+            SensorErrors::None => "no sensor errors (exact signals)",
+        }
+    }
+}
+
+/// Points the first variant's source at `input`: an mcap replay, or IMUs synthesized from a BVH
+/// with `errors` (an mcap replays what was recorded: `errors` does not apply).
 pub fn replace_source(
     graph: &mut Graph,
     input: &Path,
     mapping: Option<&Path>,
+    errors: SensorErrors,
 ) -> Result<(), InputError> {
     if !input.is_file() {
         return Err(InputError(format!("{}: no such file", input.display())));
@@ -462,7 +499,7 @@ pub fn replace_source(
             params.insert("mode".into(), "synthesize".into());
             params.insert("path".into(), path);
             params.insert("prelude".into(), "tpose+walk".into());
-            params.insert("augment".into(), true.into());
+            params.insert("augment".into(), (errors == SensorErrors::Reference).into());
             params.insert("mounting".into(), "random".into());
             params.insert("frame".into(), "z-up".into());
             // The facing the shipped graphs' T-pose calibration assumes (`heading_deg = 30.0`).

@@ -73,7 +73,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-use nalgebra::{Matrix3, Rotation3, SMatrix, SVector, Vector3};
+use nalgebra::{Matrix3, Rotation3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use crate::body_model::{BodyModel, GRAVITY_IN_MODEL_MPS2};
 use crate::kinematics::{FkData, Pose};
@@ -786,9 +786,11 @@ pub fn displace(pose: &mut Pose, delta: &DofVector) {
     for j in JointId::all() {
         let i = j.index();
         let r = pose.parent_from_joint[i] * Rotation3::new(dof3(delta, joint_dof(j)));
-        pose.parent_from_joint[i] = r;
-        // Keep the product of many small rotations orthonormal over long simulations.
-        pose.parent_from_joint[i].renormalize();
+        // Keep the product of many small rotations orthonormal over long simulations. Through a
+        // unit quaternion, not `Rotation3::renormalize`: that iterates until converged with no
+        // bound and never returns on a non-finite matrix (a diverged step hung the optimizer).
+        let q = *UnitQuaternion::from_rotation_matrix(&r).quaternion();
+        pose.parent_from_joint[i] = UnitQuaternion::new_normalize(q).to_rotation_matrix();
     }
 }
 
@@ -855,6 +857,36 @@ mod tests {
         let mut v = DofVector::zeros();
         v[k] = 1.0;
         v
+    }
+
+    #[test]
+    fn displacing_keeps_rotations_orthonormal_and_returns_on_non_finite_steps() {
+        // Many small steps: each joint's rotation stays a rotation and equals the product of the
+        // steps' exact rotations (composed independently here).
+        let (mut pose, _) = random_state(5);
+        let mut exact = pose.parent_from_joint;
+        let mut rng = XorShift(9);
+        for _ in 0..2000 {
+            let delta = random_vector(&mut rng, 0.05);
+            displace(&mut pose, &delta);
+            for j in JointId::all() {
+                let i = j.index();
+                exact[i] *= Rotation3::new(dof3(&delta, joint_dof(j)));
+            }
+        }
+        for (r, want) in pose.parent_from_joint.iter().zip(&exact) {
+            let m = r.matrix();
+            assert!((m.transpose() * m - Matrix3::identity()).norm() < 1e-12);
+            assert!((m.determinant() - 1.0).abs() < 1e-12);
+            let off = axis_angle_from_rotation(&(r.inverse() * want)).norm();
+            assert!(off < 1e-6, "{off}");
+        }
+        // A diverged step (NaN) comes back as a non-finite pose the callers detect, instead of
+        // never returning (nalgebra's iterative renormalization loops forever on NaN).
+        let mut nan = DofVector::zeros();
+        nan[joint_dof(JointId::LEFT_KNEE)] = f64::NAN;
+        displace(&mut pose, &nan);
+        assert!(!pose.is_finite());
     }
 
     fn displaced(pose: &Pose, delta: &DofVector) -> Pose {

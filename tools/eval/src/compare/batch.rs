@@ -23,7 +23,7 @@ use std::time::Instant;
 use anyhow::Context;
 use imuflow_dataset::{Split, find_bvh_files, split_of};
 use imuflow_graph::Graph;
-use imuflow_graph::combine::{self, SinkPaths, Variant};
+use imuflow_graph::combine::{self, SensorErrors, SinkPaths, Variant};
 use imuflow_graph::launch::{self, LaunchOptions};
 use imuflow_graph::spec::Registry;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -53,6 +53,8 @@ pub struct BatchOptions {
     pub limit: Option<usize>,
     /// The clips' joint-mapping TOML (default: Bandai Namco).
     pub mapping: Option<PathBuf>,
+    /// What the synthesized IMUs get wrong besides their mounting.
+    pub sensor_errors: SensorErrors,
     /// How each clip's graph is launched (its own progress bar and logs stay off).
     pub imuflow_exe: PathBuf,
     /// The batch's progress bar.
@@ -342,9 +344,12 @@ fn run_clip(
         wall_s: start.elapsed().as_secs_f64(),
     };
     let mut variants = variants.to_vec();
-    if let Err(e) =
-        combine::replace_source(&mut variants[0].graph, path, options.mapping.as_deref())
-    {
+    if let Err(e) = combine::replace_source(
+        &mut variants[0].graph,
+        path,
+        options.mapping.as_deref(),
+        options.sensor_errors,
+    ) {
         return Ok(Some(failed(e.to_string())));
     }
     let recordings = options.out.join("recordings");
@@ -521,7 +526,7 @@ fn markdown(
     );
     let _ = writeln!(
         md,
-        "{} clips of `{}` scored ({frames} frames){}{}. Each clip ran as one combined graph (every variant on byte-identical input: six IMUs synthesized from the clip with a T-pose + walk calibration prelude, random sensor mountings and the reference noise), scored on the frames all variants share. Means are over clips (each clip counts once, whatever its length).\n",
+        "{} clips of `{}` scored ({frames} frames){}{}. Each clip ran as one combined graph (every variant on byte-identical input: six IMUs synthesized from the clip with a T-pose + walk calibration prelude, random sensor mountings and {}), scored on the frames all variants share. Means are over clips (each clip counts once, whatever its length).\n",
         scored.len(),
         options.data.display(),
         if failed.is_empty() {
@@ -536,6 +541,7 @@ fn markdown(
         } else {
             String::new()
         },
+        options.sensor_errors.describe(),
     );
     let _ = writeln!(md, "Regenerate: `{}`\n", options.command);
 
