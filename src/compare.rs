@@ -10,6 +10,7 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::Args;
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use imuflow_dataset::Split;
 use imuflow_eval::compare::batch::{self, BatchOptions};
 use imuflow_graph::Graph;
@@ -53,8 +54,14 @@ pub struct CompareArgs {
     /// mounting. `reference`: GlobalPose's model (mounting residual and its walk, noise, bias
     /// walks, heading drift); `none`: exact signals, so the calibration's residual is the only
     /// sensor error (run both on the same clips to see what the sensors cost).
-    #[arg(long, value_name = "ERRORS", default_value = "reference", value_parser = SensorErrors::NAMES)]
-    sensor_errors: String,
+    #[arg(
+        long,
+        value_name = "ERRORS",
+        default_value = "reference",
+        value_parser = PossibleValuesParser::new(SensorErrors::NAMES)
+            .try_map(|name| SensorErrors::parse(&name).ok_or("not a sensor-error model")),
+    )]
+    sensor_errors: SensorErrors,
     /// Name of the comparison (the graph's name and its files' stem; default: the ablation
     /// file's name, or "compare").
     #[arg(long)]
@@ -148,7 +155,7 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
             &mut variants[0].graph,
             input,
             args.mapping.as_deref(),
-            sensor_errors(args),
+            args.sensor_errors,
         )
         .context("--input")?;
     }
@@ -267,8 +274,8 @@ fn batch(
         fingerprint.push_str(&format!("{:016x}", imuflow_dataset::fnv1a64(&text)));
     }
     // Other signals are other results: a resumed batch must synthesize the same ones.
-    if sensor_errors(args) != SensorErrors::default() {
-        fingerprint.push_str(&format!("-sensor-errors={}", args.sensor_errors));
+    if args.sensor_errors != SensorErrors::default() {
+        fingerprint.push_str(&format!("-sensor-errors={:?}", args.sensor_errors));
     }
     let options = BatchOptions {
         name: name.to_owned(),
@@ -277,7 +284,7 @@ fn batch(
         split,
         limit: args.limit,
         mapping: args.mapping.clone(),
-        sensor_errors: sensor_errors(args),
+        sensor_errors: args.sensor_errors,
         imuflow_exe: std::env::current_exe().context("cannot find the imuflow executable")?,
         progress: !args.no_progress,
         keep_recordings: args.keep_recordings,
@@ -311,11 +318,6 @@ fn batch(
         return Ok(ExitCode::FAILURE);
     }
     Ok(ExitCode::SUCCESS)
-}
-
-/// `--sensor-errors` (clap has checked the name).
-fn sensor_errors(args: &CompareArgs) -> SensorErrors {
-    SensorErrors::parse(&args.sensor_errors).unwrap_or_default()
 }
 
 /// What runs: shared stages and each variant's branch.

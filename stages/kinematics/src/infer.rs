@@ -80,7 +80,7 @@ impl StartPose {
     /// calibration, 10.56° after a walking one when both started from the T-pose; GlobalPose's
     /// networks 6.20° after walking, 8.37° after a T-pose when both started from the N-pose).
     pub fn shown_by(imu: &ImuInput) -> StartPose {
-        let pelvis = rot(&imu.orientation[ROOT_IMU]);
+        let pelvis = sensor_rotation(&imu.orientation[ROOT_IMU]);
         let mismatch = |start: StartPose| -> f64 {
             // The start poses' root is at identity: their global rotations are relative to it.
             let expected = global_rotations(&start.pose().parent_from_joint);
@@ -88,7 +88,7 @@ impl StartPose {
                 .iter()
                 .enumerate()
                 .map(|(sensor, joint)| {
-                    let measured = pelvis.transpose() * rot(&imu.orientation[sensor]);
+                    let measured = pelvis.transpose() * sensor_rotation(&imu.orientation[sensor]);
                     (measured * expected[joint.index()].transpose()).angle()
                 })
                 .sum()
@@ -211,8 +211,9 @@ fn v3(v: &[f32]) -> Vector3<f64> {
     Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64)
 }
 
-/// A row-major 3×3 (an [`ImuInput`] orientation) as a rotation.
-pub(crate) fn rot(m: &[f32; 9]) -> Rotation3<f64> {
+/// A row-major 3×3 (an [`ImuInput`] orientation) as a rotation, taken as it is (the calibration
+/// publishes rotations; no iterative projection, which would never return on a NaN sample).
+pub fn sensor_rotation(m: &[f32; 9]) -> Rotation3<f64> {
     Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(&m.map(|v| v as f64)))
 }
 
@@ -382,7 +383,7 @@ impl Streamer {
 
     /// One frame.
     pub fn step(&mut self, imu: &ImuInput) -> anyhow::Result<Estimate> {
-        let root = rot(&imu.orientation[ROOT_IMU]);
+        let root = sensor_rotation(&imu.orientation[ROOT_IMU]);
         if !self.started {
             self.initialize(&root)?;
         }
@@ -457,7 +458,10 @@ impl Streamer {
             (0..5)
                 .flat_map(|i| {
                     row_major(
-                        &(tilt * rot(&x[36 + 9 * i..45 + 9 * i].try_into().unwrap_or([0.0; 9]))),
+                        &(tilt
+                            * sensor_rotation(
+                                &x[36 + 9 * i..45 + 9 * i].try_into().unwrap_or([0.0; 9]),
+                            )),
                     )
                 })
                 .collect()
@@ -562,7 +566,7 @@ pub fn impose_measured_bones(
             continue; // the root: each method sets its own
         };
         let estimated = global[joint.index()];
-        let measured = rot(&imu.orientation[sensor]);
+        let measured = sensor_rotation(&imu.orientation[sensor]);
         // measured = difference · estimated, the difference in world axes.
         let difference = measured * estimated.transpose();
         let angle = difference.angle();

@@ -26,7 +26,7 @@ use nalgebra::{Quaternion, Rotation3, UnitQuaternion};
 use crate::features::{ImuInput, ROOT_IMU};
 use crate::infer::{
     Estimate, LIMB_JOINTS, SENSOR_BONE_TOLERANCE_DEG, SensorBones, StartPose, Streamer,
-    anatomical_joints_from_name, impose_measured_bones, rot,
+    anatomical_joints_from_name, impose_measured_bones, sensor_rotation,
 };
 use crate::method::Method;
 use crate::weights::Weights;
@@ -235,7 +235,7 @@ impl HeldSamples {
 /// of it as the sensors measure.
 pub fn pose_from_sensors(start: StartPose, imu: &ImuInput) -> imuflow_body::Pose {
     let mut pose = start.pose();
-    pose.parent_from_joint[0] = rot(&imu.orientation[ROOT_IMU]);
+    pose.parent_from_joint[0] = sensor_rotation(&imu.orientation[ROOT_IMU]);
     impose_measured_bones(&mut pose.parent_from_joint, imu, 0.0);
     pose
 }

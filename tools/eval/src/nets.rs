@@ -19,9 +19,10 @@ use imuflow_dataset::Split;
 use imuflow_kinematics::Method;
 use imuflow_kinematics::data::{FPS, pose_of};
 use imuflow_kinematics::features::ImuInput;
+use imuflow_kinematics::infer::sensor_rotation;
 use imuflow_kinematics::infer::{SensorBones, Streamer};
 use imuflow_kinematics::weights::Weights;
-use nalgebra::{Matrix3, Rotation3, Vector3};
+use nalgebra::{Rotation3, Vector3};
 
 use crate::metrics::{
     IGNORED_JOINTS, apply_ignored_joints, global_angle_error_deg, jitter_km_per_s3,
@@ -188,10 +189,10 @@ pub fn evaluate(method: Method, weights: &Path, options: &NetsEval) -> anyhow::R
     })
 }
 
-/// The calibrated sensor orientations `R_MB` of one frame's network input.
+/// The calibrated sensor orientations `R_MB` of one frame's network input, read as the kinematics
+/// stage reads them.
 fn measured_bones(imu: &ImuInput) -> [Rotation3<f64>; NUM_IMUS] {
-    imu.orientation
-        .map(|m| Rotation3::from_matrix(&Matrix3::from_row_slice(&m.map(f64::from))))
+    imu.orientation.map(|m| sensor_rotation(&m))
 }
 
 fn positions(fk: &FkData) -> [Vector3<f64>; NUM_JOINTS] {
