@@ -40,8 +40,9 @@ pub struct EvalArgs {
     /// With `--sensor-bones measured`: how far (degrees) a bone may stay from its sensor.
     #[arg(long, default_value_t = imuflow_kinematics::infer::SENSOR_BONE_TOLERANCE_DEG)]
     sensor_bone_tolerance_deg: f64,
-    /// Knees and elbows: anatomical joints (the kinematics stage's default) or the networks' free
-    /// 3-DoF joints (the papers').
+    /// Knees and elbows: anatomical joints with their flexion from the networks' joint positions
+    /// (the kinematics stage's default), the same with the flexion from the rotations alone
+    /// (anatomical-rotations), or the networks' free 3-DoF joints (the papers').
     #[arg(long, default_value = "anatomical", value_parser = imuflow_kinematics::infer::LIMB_JOINTS)]
     limb_joints: String,
     /// Evaluate at most this many sequences per method.
@@ -71,10 +72,8 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
         copies: Copies::parse(&args.copies).unwrap_or(Copies::Augmented),
         sensor_bones: SensorBones::parse(&args.sensor_bones, args.sensor_bone_tolerance_deg)
             .context("--sensor-bone-tolerance-deg must be a finite angle ≥ 0")?,
-        anatomical_joints: imuflow_kinematics::infer::anatomical_joints_from_name(
-            &args.limb_joints,
-        )
-        .context("--limb-joints must be anatomical or free")?,
+        limb_joints: imuflow_kinematics::infer::LimbJoints::parse(&args.limb_joints)
+            .context("--limb-joints must be anatomical, anatomical-rotations or free")?,
         limit: args.limit,
         progress: !args.no_progress,
     };

@@ -350,6 +350,17 @@ fn ablation_files_expand_into_variants_and_bad_ones_are_named() {
         ("nets", &["pip-nets", "globalpose-nets"][..]),
         ("calibration", &["tpose", "walking"][..]),
         ("full", &["pip", "globalpose", "no-physics"][..]),
+        (
+            "limb-flexion",
+            &[
+                "pip-rotations",
+                "pip-positions",
+                "gp-rotations",
+                "gp-positions",
+                "nophys-rotations",
+                "nophys-positions",
+            ][..],
+        ),
     ] {
         let path = format!("{root}/configs/ab/{file}.toml");
         let out = sb.run(&["compare", &path, "--print-graph"]);

@@ -18,7 +18,8 @@
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 
 use crate::NUM_JOINTS;
-use crate::skeleton::JointId;
+use crate::kinematics::local_to_global_rotations;
+use crate::skeleton::{JointId, Skeleton};
 
 /// The knees, each with its hip (the joint whose local rotation takes the correction).
 const KNEES: [JointId; 2] = [JointId::LEFT_KNEE, JointId::RIGHT_KNEE];
@@ -74,6 +75,91 @@ pub fn project_limb_joints(pose: &mut [Rotation3<f64>; NUM_JOINTS]) {
             pose[j] = projected;
         }
     }
+}
+
+/// Sets each knee's and elbow's flexion from where the networks put the joints, keeping everything
+/// [`project_limb_joints`] fixed: the lower legs' and forearms' global orientations (their sensors)
+/// and each elbow's twist. The upper leg (upper arm) then turns about the knee's (elbow's) flexion
+/// axis until it points as nearly as it can at the predicted knee (elbow) as seen from the hip
+/// (shoulder). `pose` must already be anatomical (after [`project_limb_joints`]).
+///
+/// Why: with the lower bone on its sensor, the flexion is all that is left to estimate of the
+/// upper bone, and the networks' rotations give it only as the angle between their upper bone and
+/// the measurement, which carries the rotation network's own error of that upper bone. Both papers'
+/// networks also predict every joint's position (PIP's rnn2, GlobalPose's iknet.net1, trained on
+/// positions), and the direction from hip to knee pins the same angle independently of it. On the
+/// validation split it took PIP's SIP error from 6.97° to 6.40° and GlobalPose's from 5.72° to
+/// 5.68° end to end (stages/kinematics/README.md, "Limb joints").
+///
+/// `positions` are the predicted joint positions relative to the root, in the frame the pose's
+/// root orientation (`pose[0]`) maps to; `skeleton` gives the rest offsets. A prediction along the
+/// flexion axis (no direction in the plane the joint allows) leaves that joint as it was.
+pub fn flex_toward_positions(
+    pose: &mut [Rotation3<f64>; NUM_JOINTS],
+    positions: &[Vector3<f64>; NUM_JOINTS],
+    skeleton: &Skeleton,
+) {
+    let mut global = [Rotation3::identity(); NUM_JOINTS];
+    for knee in KNEES {
+        local_to_global_rotations(pose, &mut global);
+        let Some(hip) = knee.parent() else { continue };
+        let lower = global[knee.index()];
+        // The upper leg is `lower · Rx(θ)ᵀ`: its rest offset to the knee, b, turned by Rx(−θ) in
+        // the lower leg's frame, should point at the predicted knee, u in that frame.
+        let b = skeleton.offset_in_parent_m(knee);
+        let u = lower.transpose() * (positions[knee.index()] - positions[hip.index()]);
+        let Some(angle) = angle_in_plane((b.y, b.z), (u.y, u.z)) else {
+            continue;
+        };
+        let flexed = Rotation3::from_axis_angle(&Vector3::x_axis(), -angle);
+        set_joint_keeping_child(pose, &global, knee, flexed);
+    }
+    for elbow in ELBOWS {
+        local_to_global_rotations(pose, &mut global);
+        let Some(shoulder) = elbow.parent() else {
+            continue;
+        };
+        let forearm = global[elbow.index()];
+        // The elbow is Ry(a)·Rx(c) (hinge_elbow); the twist c stays. The upper arm is then
+        // `forearm · Rx(c)ᵀ · Ry(a)ᵀ` and its offset b, turned by Ry(−a), should point at u.
+        let m = pose[elbow.index()].matrix();
+        let twist = Rotation3::from_axis_angle(&Vector3::x_axis(), (-m[(1, 2)]).atan2(m[(1, 1)]));
+        let b = skeleton.offset_in_parent_m(elbow);
+        let u =
+            twist * forearm.transpose() * (positions[elbow.index()] - positions[shoulder.index()]);
+        // Ry(ψ) turns (z, x) by ψ, as Rx(ψ) turns (y, z).
+        let Some(angle) = angle_in_plane((b.z, b.x), (u.z, u.x)) else {
+            continue;
+        };
+        let flexed = Rotation3::from_axis_angle(&Vector3::y_axis(), -angle) * twist;
+        set_joint_keeping_child(pose, &global, elbow, flexed);
+    }
+}
+
+/// The angle that turns the planar vector `from` onto the direction of `to` (counter-clockwise
+/// from the first axis to the second); `None` when either is too short to have a direction.
+fn angle_in_plane(from: (f64, f64), to: (f64, f64)) -> Option<f64> {
+    let cross = from.0 * to.1 - from.1 * to.0;
+    let dot = from.0 * to.0 + from.1 * to.1;
+    let lengths = (from.0.hypot(from.1), to.0.hypot(to.1));
+    (lengths.0 > 1e-9 && lengths.1 > 1e-9).then(|| cross.atan2(dot))
+}
+
+/// Gives `joint` the local rotation `local` and its parent whatever keeps `joint`'s global
+/// orientation (`global`, of the pose before the change).
+fn set_joint_keeping_child(
+    pose: &mut [Rotation3<f64>; NUM_JOINTS],
+    global: &[Rotation3<f64>; NUM_JOINTS],
+    joint: JointId,
+    local: Rotation3<f64>,
+) {
+    let Some(parent) = joint.parent() else { return };
+    let Some(grandparent) = parent.parent() else {
+        return;
+    };
+    let parent_global = global[joint.index()] * local.transpose();
+    pose[parent.index()] = global[grandparent.index()].transpose() * parent_global;
+    pose[joint.index()] = local;
 }
 
 #[cfg(test)]
@@ -144,6 +230,129 @@ mod tests {
         for elbow in ELBOWS {
             // The abduction Rz between the flexion and the twist is gone: m[(1, 0)] = sin b.
             assert!(projected[elbow.index()].matrix()[(1, 0)].abs() < 1e-9);
+        }
+    }
+
+    fn skeleton() -> Skeleton {
+        let params = crate::BodyParams::builtin().unwrap();
+        crate::BodyModel::new(&params, 1.75, 70.0).unwrap().skeleton
+    }
+
+    /// A random pose with anatomical knees and elbows.
+    fn anatomical_pose(seed: u64) -> [Rotation3<f64>; NUM_JOINTS] {
+        let random = random_rotations(NUM_JOINTS, seed);
+        let mut pose: [Rotation3<f64>; NUM_JOINTS] = std::array::from_fn(|j| random[j]);
+        project_limb_joints(&mut pose);
+        pose
+    }
+
+    /// Joint positions relative to the root, in the root's parent frame (forward kinematics).
+    fn positions(
+        pose: &[Rotation3<f64>; NUM_JOINTS],
+        skeleton: &Skeleton,
+    ) -> [Vector3<f64>; NUM_JOINTS] {
+        let mut full = crate::Pose::t_pose(Vector3::zeros());
+        full.parent_from_joint = *pose;
+        let mut fk = crate::FkData::new();
+        crate::forward_kinematics(skeleton, &full, &mut fk);
+        std::array::from_fn(|j| *fk.position(JointId::all().nth(j).unwrap()))
+    }
+
+    /// Turns a knee or elbow by `angle` about its flexion axis, keeping its child bone's global
+    /// orientation (what a wrong flexion estimate looks like after `project_limb_joints`).
+    fn misflex(
+        pose: &mut [Rotation3<f64>; NUM_JOINTS],
+        joint: JointId,
+        axis: Vector3<f64>,
+        angle: f64,
+    ) {
+        let (j, p) = (joint.index(), joint.parent().unwrap().index());
+        let turned =
+            Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), angle) * pose[j];
+        pose[p] = pose[p] * pose[j] * turned.transpose();
+        pose[j] = turned;
+    }
+
+    #[test]
+    fn the_flexion_of_an_anatomical_pose_is_recovered_from_its_joint_positions() {
+        let skeleton = skeleton();
+        let mut rng = XorShift(7);
+        for seed in 1..40 {
+            let truth = anatomical_pose(seed);
+            let predicted = positions(&truth, &skeleton);
+            let mut pose = truth;
+            for knee in KNEES {
+                misflex(&mut pose, knee, Vector3::x(), 1.2 * rng.signed());
+            }
+            for elbow in ELBOWS {
+                misflex(&mut pose, elbow, Vector3::y(), 1.2 * rng.signed());
+            }
+            flex_toward_positions(&mut pose, &predicted, &skeleton);
+            for j in JointId::all() {
+                let d = angle_between(&pose[j.index()], &truth[j.index()]);
+                assert!(d < 1e-9, "seed {seed}: {} off by {d} rad", j.name());
+            }
+        }
+    }
+
+    #[test]
+    fn the_upper_bone_points_nearest_the_prediction_and_the_sensor_bones_stay() {
+        let skeleton = skeleton();
+        let mut rng = XorShift(11);
+        for seed in 1..20 {
+            let mut pose = anatomical_pose(100 + seed);
+            // Predictions that no anatomical pose matches exactly: each joint moved up to 10 cm.
+            let mut predicted = positions(&anatomical_pose(200 + seed), &skeleton);
+            for p in predicted.iter_mut() {
+                *p += 0.1 * Vector3::new(rng.signed(), rng.signed(), rng.signed());
+            }
+            let before = global(&pose);
+            let twist = |r: &Rotation3<f64>| (-r.matrix()[(1, 2)]).atan2(r.matrix()[(1, 1)]);
+            let twists = ELBOWS.map(|e| twist(&pose[e.index()]));
+            flex_toward_positions(&mut pose, &predicted, &skeleton);
+            let after = global(&pose);
+            for (i, elbow) in ELBOWS.iter().enumerate() {
+                assert!((twist(&pose[elbow.index()]) - twists[i]).abs() < 1e-9);
+                assert!(
+                    pose[elbow.index()].matrix()[(1, 0)].abs() < 1e-9,
+                    "still Ry·Rx"
+                );
+            }
+            for knee in KNEES {
+                let axis = pose[knee.index()].scaled_axis();
+                assert!(
+                    axis.y.abs() < 1e-9 && axis.z.abs() < 1e-9,
+                    "still a hinge: {axis:?}"
+                );
+            }
+            // Only the upper legs and arms turn; the lower bones (the sensors') and all else stay.
+            let uppers = KNEES.iter().chain(&ELBOWS).map(|j| j.parent().unwrap());
+            let uppers: Vec<JointId> = uppers.collect();
+            for j in JointId::all().filter(|j| !uppers.contains(j)) {
+                let d = angle_between(&before[j.index()], &after[j.index()]);
+                assert!(d < 1e-9, "{} moved {d} rad", j.name());
+            }
+            for (joint, axis) in KNEES
+                .map(|k| (k, Vector3::x()))
+                .into_iter()
+                .chain(ELBOWS.map(|e| (e, Vector3::y())))
+            {
+                let parent = joint.parent().unwrap();
+                // A second algorithm: no other flexion (0.05° grid) points the upper bone closer.
+                let target = (predicted[joint.index()] - predicted[parent.index()]).normalize();
+                let offset = skeleton.offset_in_parent_m(joint).normalize();
+                let best = (after[parent.index()] * offset).dot(&target);
+                let lower = after[joint.index()];
+                let local = pose[joint.index()];
+                for k in 0..7200 {
+                    let extra = Rotation3::from_axis_angle(
+                        &nalgebra::Unit::new_normalize(axis),
+                        (k as f64 * 0.05).to_radians(),
+                    );
+                    let other = lower * (extra * local).transpose();
+                    assert!((other * offset).dot(&target) <= best + 1e-12);
+                }
+            }
         }
     }
 }

@@ -8,7 +8,7 @@
 
 use candle_core::{Device, Tensor};
 use imuflow_body::kinematics::{FkData, forward_kinematics, imu_positions_in_world};
-use imuflow_body::limb_joints::project_limb_joints;
+use imuflow_body::limb_joints::{flex_toward_positions, project_limb_joints};
 use imuflow_body::rotation::{from_to, rotation_from_r6d};
 use imuflow_body::skeleton::{
     CONTACT_JOINTS, FULL_JOINTS, IMU_JOINTS, LEAF_JOINTS, REDUCED_JOINTS,
@@ -152,16 +152,63 @@ impl SensorBones {
     }
 }
 
-/// The names of the `limb_joints` choices (kinematics stage param, `imuflow eval --limb-joints`).
-pub const LIMB_JOINTS: [&str; 2] = ["anatomical", "free"];
+/// The names of the `limb_joints` choices (kinematics stage param, `imuflow eval --limb-joints`),
+/// in the order of [`LimbJoints::NAMES`].
+pub const LIMB_JOINTS: [&str; 3] = LimbJoints::NAMES;
 
-/// Whether `limb_joints = name` asks for anatomical knees and elbows (`Some(true)` for
-/// `"anatomical"`, `Some(false)` for `"free"`, `None` for anything else).
-pub fn anatomical_joints_from_name(name: &str) -> Option<bool> {
-    match name {
-        "anatomical" => Some(true),
-        "free" => Some(false),
-        _ => None,
+/// What the knees and elbows may do (kinematics stage param `limb_joints`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum LimbJoints {
+    /// Knees as hinges and elbows as flexion-and-twist joints ([`project_limb_joints`]), their
+    /// flexion from the networks' joint positions ([`flex_toward_positions`]). The default.
+    #[default]
+    Anatomical,
+    /// The same joints, their flexion from the networks' rotations only (the angle between the
+    /// networks' upper bone and the measured lower bone): the default before 2026-11-26's sixth
+    /// session.
+    AnatomicalRotations,
+    /// The networks' free 3-DoF joints, as in the papers.
+    Free,
+}
+
+impl LimbJoints {
+    /// The param values, in declaration order.
+    pub const NAMES: [&'static str; 3] = ["anatomical", "anatomical-rotations", "free"];
+
+    /// The choice a param value names, if any.
+    pub fn parse(name: &str) -> Option<LimbJoints> {
+        match name {
+            "anatomical" => Some(LimbJoints::Anatomical),
+            "anatomical-rotations" => Some(LimbJoints::AnatomicalRotations),
+            "free" => Some(LimbJoints::Free),
+            _ => None,
+        }
+    }
+
+    /// The param value that names this choice.
+    pub fn name(self) -> &'static str {
+        match self {
+            LimbJoints::Anatomical => Self::NAMES[0],
+            LimbJoints::AnatomicalRotations => Self::NAMES[1],
+            LimbJoints::Free => Self::NAMES[2],
+        }
+    }
+
+    /// Makes `pose` what these joints allow; `positions` are the networks' joint positions
+    /// relative to the root in the frame `pose[0]` maps to.
+    fn impose(
+        self,
+        pose: &mut [Rotation3<f64>; NUM_JOINTS],
+        positions: &[Vector3<f64>; NUM_JOINTS],
+        body: &BodyModel,
+    ) {
+        if self == LimbJoints::Free {
+            return;
+        }
+        project_limb_joints(pose);
+        if self == LimbJoints::Anatomical {
+            flex_toward_positions(pose, positions, &body.skeleton);
+        }
     }
 }
 
@@ -180,8 +227,8 @@ pub enum Backend {
 pub struct Streamer {
     method: Method,
     sensor_bones: SensorBones,
-    /// Knees as hinges, elbows as flexion-and-twist joints ([`project_limb_joints`]).
-    anatomical_joints: bool,
+    /// What the knees and elbows may do.
+    limb_joints: LimbJoints,
     backend: Backend,
     nets: Vec<Rnn>,
     /// The nets' lean copies; they hold their own state.
@@ -250,7 +297,7 @@ impl Streamer {
         Ok(Streamer {
             method: weights.metadata.method,
             sensor_bones: SensorBones::default(),
-            anatomical_joints: true,
+            limb_joints: LimbJoints::default(),
             backend: Backend::default(),
             nets: weights.nets,
             lean,
@@ -275,8 +322,8 @@ impl Streamer {
 
     /// Whether the knees and elbows are made anatomical joints after the sensor bones are set
     /// (default: yes; no is the papers' behaviour).
-    pub fn set_anatomical_joints(&mut self, anatomical: bool) {
-        self.anatomical_joints = anatomical;
+    pub fn set_limb_joints(&mut self, limb_joints: LimbJoints) {
+        self.limb_joints = limb_joints;
     }
 
     /// Step the nets with `backend` from the next session on (starts one: the two keep separate
@@ -415,17 +462,16 @@ impl Streamer {
         let r6d = self.run(2, &full_x)?;
         let vel = self.run(3, &full_x)?;
         let contact = self.run(4, &full_x)?;
-        let mut pose = pose_from_reduced_r6d(&r6d, root);
-        if let SensorBones::Measured { tolerance_rad } = self.sensor_bones {
-            impose_measured_bones(&mut pose, imu, tolerance_rad);
-        }
-        if self.anatomical_joints {
-            project_limb_joints(&mut pose);
-        }
         let mut joint_position = [Vector3::zeros(); NUM_JOINTS];
         for (k, j) in FULL_JOINTS.iter().enumerate() {
             joint_position[j.index()] = root * v3(&full[3 * k..3 * k + 3]);
         }
+        let mut pose = pose_from_reduced_r6d(&r6d, root);
+        if let SensorBones::Measured { tolerance_rad } = self.sensor_bones {
+            impose_measured_bones(&mut pose, imu, tolerance_rad);
+        }
+        self.limb_joints
+            .impose(&mut pose, &joint_position, &self.body);
         let mut joint_velocity = [Vector3::zeros(); NUM_JOINTS];
         for (j, v) in joint_velocity.iter_mut().enumerate() {
             // Reference §2.2: v_j = 3·R_root·out_j (m/s).
@@ -486,9 +532,13 @@ impl Streamer {
             // The root keeps GlobalPose's gravity-corrected orientation (paper Eq. 1-3).
             impose_measured_bones(&mut pose, imu, tolerance_rad);
         }
-        if self.anatomical_joints {
-            project_limb_joints(&mut pose);
+        // iknet.net1's joint positions, in the frame of the root its pose is assembled on.
+        let mut predicted_position = [Vector3::zeros(); NUM_JOINTS];
+        for (k, j) in FULL_JOINTS.iter().enumerate() {
+            predicted_position[j.index()] = root_c * v3(&ik1[3 * k..3 * k + 3]);
         }
+        self.limb_joints
+            .impose(&mut pose, &predicted_position, &self.body);
         // pRJ recomputed by FK of the pose with the root at identity (reference §2.4).
         let mut local = Pose::t_pose(Vector3::zeros());
         local.parent_from_joint = pose;
@@ -735,20 +785,29 @@ mod tests {
 
     /// The streamer's knees and elbows, with and without `limb_joints`, on the committed weights:
     /// anatomical joints on every frame, the lower legs' and forearms' global orientations the
-    /// same either way, and the networks' own (free) joints visibly not anatomical, or the step
-    /// would have nothing to do.
+    /// same either way, the networks' own (free) joints visibly not anatomical, or the step
+    /// would have nothing to do, and the flexion toward the joint positions visibly not the
+    /// rotations' flexion, or that step would have nothing to do.
     fn anatomical_joints_are_imposed(method: Method, path: &str) {
         let load = || committed_weights(method, path);
         let mut anatomical = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
+        let mut rotations = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
+        rotations.set_limb_joints(LimbJoints::AnatomicalRotations);
         let mut free = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
-        free.set_anatomical_joints(false);
+        free.set_limb_joints(LimbJoints::Free);
         let knees = [JointId::LEFT_KNEE, JointId::RIGHT_KNEE];
         let elbows = [JointId::LEFT_ELBOW, JointId::RIGHT_ELBOW];
         let mut free_off_axis_deg: f64 = 0.0;
+        let mut flexion_moved_deg: f64 = 0.0;
         for f in 0..240 {
             let input = crate::bench::swaying_sensors(f);
             let a = anatomical.step(&input).unwrap();
             let b = free.step(&input).unwrap();
+            let r = rotations.step(&input).unwrap();
+            for j in knees.into_iter().chain(elbows) {
+                let moved = (a.pose[j.index()].transpose() * r.pose[j.index()]).angle();
+                flexion_moved_deg = flexion_moved_deg.max(moved.to_degrees());
+            }
             for knee in knees {
                 let v = a.pose[knee.index()].scaled_axis();
                 assert!(v.y.abs() < 1e-9 && v.z.abs() < 1e-9, "{knee}: {v:?}");
@@ -759,12 +818,19 @@ mod tests {
                 // Ry(a)·Rz(b)·Rx(c) has m[(1, 0)] = sin b.
                 assert!(a.pose[elbow.index()].matrix()[(1, 0)].abs() < 1e-9);
             }
+            // The lower bones hold their sensors' orientations, which arrive as f32 matrices
+            // (orthonormal to about 1e-7): re-expressing them through a new flexion keeps them to
+            // that precision, not to f64's.
             let (ga, gb) = (global_rotations(&a.pose), global_rotations(&b.pose));
             for j in knees.into_iter().chain(elbows) {
                 let d = (ga[j.index()].matrix() - gb[j.index()].matrix()).norm();
-                assert!(d < 1e-9, "{method:?} frame {f}: {j} moved by {d}");
+                assert!(d < 1e-6, "{method:?} frame {f}: {j} moved by {d}");
             }
         }
+        assert!(
+            flexion_moved_deg > 1.0,
+            "{method:?}: the joint positions flex as the rotations do ({flexion_moved_deg:.2}°)"
+        );
         assert!(
             free_off_axis_deg > 1.0,
             "{method:?}: the networks' knees are hinges already ({free_off_axis_deg:.2}°)"

@@ -8,7 +8,9 @@
 //!   `"network"` keeps the networks' own estimate, as in the papers.
 //! - The knees are hinges and the elbows flex and twist (`limb_joints = "anatomical"`,
 //!   [`imuflow_body::limb_joints`]): what the networks' pose asks of them beyond that moves to the
-//!   hips and shoulders. `"free"` keeps the networks' 3-DoF joints, as in the papers.
+//!   hips and shoulders, and each flexion turns the upper bone toward the knee or elbow position
+//!   the networks predict (`"anatomical-rotations"`: from their rotations alone). `"free"` keeps
+//!   the networks' 3-DoF joints, as in the papers.
 //! - A sensor without a valid sample holds its last valid one, and the output is flagged INVALID; before
 //!   any valid sample of a sensor the frame is not fed to the nets at all (the start pose goes out).
 //! - Restarted mid-stream (its `restart` policy), the subject is no longer in the start pose: the
@@ -25,8 +27,8 @@ use nalgebra::{Quaternion, Rotation3, UnitQuaternion};
 
 use crate::features::{ImuInput, ROOT_IMU};
 use crate::infer::{
-    Estimate, LIMB_JOINTS, SENSOR_BONE_TOLERANCE_DEG, SensorBones, StartPose, Streamer,
-    anatomical_joints_from_name, impose_measured_bones, sensor_rotation,
+    Estimate, LIMB_JOINTS, LimbJoints, SENSOR_BONE_TOLERANCE_DEG, SensorBones, StartPose, Streamer,
+    impose_measured_bones, sensor_rotation,
 };
 use crate::method::Method;
 use crate::weights::Weights;
@@ -88,7 +90,7 @@ pub const SPEC: StageSpec = StageSpec {
             ty: ParamType::Choice(&LIMB_JOINTS),
             required: false,
             default: "anatomical",
-            doc: "anatomical: knees turn about one axis, elbows flex and twist, and what the networks' pose asks beyond that moves to the hips and shoulders (the lower legs and forearms keep their orientation); free: the networks' 3-DoF joints, as in the papers",
+            doc: "anatomical: knees turn about one axis, elbows flex and twist, and what the networks' pose asks beyond that moves to the hips and shoulders (the lower legs and forearms keep their orientation), each flexion set so the upper bone points at the networks' predicted knee or elbow; anatomical-rotations: the same joints, the flexion from the networks' rotations alone; free: the networks' 3-DoF joints, as in the papers",
         },
         ParamSpec {
             name: "warm_weights",
@@ -140,13 +142,16 @@ pub fn run() -> anyhow::Result<()> {
         bail!("stage '{stage}': unknown sensor_bones '{sensor_bones_name}' (measured or network)");
     };
     let limb_joints = params.str("limb_joints").unwrap_or("anatomical");
-    let Some(anatomical_joints) = anatomical_joints_from_name(limb_joints) else {
-        bail!("stage '{stage}': unknown limb_joints '{limb_joints}' (anatomical or free)");
+    let Some(limb_joints) = LimbJoints::parse(limb_joints) else {
+        bail!(
+            "stage '{stage}': unknown limb_joints '{limb_joints}' ({})",
+            LIMB_JOINTS.join(", ")
+        );
     };
     let warm_weights = params.bool("warm_weights", true);
     let mut streamer = Streamer::new(weights, start.pose())?;
     streamer.set_sensor_bones(sensor_bones);
-    streamer.set_anatomical_joints(anatomical_joints);
+    streamer.set_limb_joints(limb_joints);
     let input = ctx.input::<BodyImuFrame>("imu")?;
     let mut output = ctx.output::<KinematicsFrame>("kinematics")?;
     if !ctx.ready()? {

@@ -20,7 +20,7 @@ use imuflow_kinematics::Method;
 use imuflow_kinematics::data::{FPS, pose_of};
 use imuflow_kinematics::features::ImuInput;
 use imuflow_kinematics::infer::sensor_rotation;
-use imuflow_kinematics::infer::{SensorBones, Streamer};
+use imuflow_kinematics::infer::{LimbJoints, SensorBones, Streamer};
 use imuflow_kinematics::weights::Weights;
 use nalgebra::{Rotation3, Vector3};
 
@@ -43,8 +43,8 @@ pub struct NetsEval {
     /// Where the instrumented bones' orientations come from (the kinematics stage's
     /// `sensor_bones`).
     pub sensor_bones: SensorBones,
-    /// Knees and elbows as anatomical joints (the kinematics stage's `limb_joints`).
-    pub anatomical_joints: bool,
+    /// What the knees and elbows may do (the kinematics stage's `limb_joints`).
+    pub limb_joints: LimbJoints,
     /// At most this many sequences per method.
     pub limit: usize,
     /// Show a progress bar per method.
@@ -58,7 +58,7 @@ pub struct NetsReport {
     pub split: Split,
     pub copies: Copies,
     pub sensor_bones: SensorBones,
-    pub anatomical_joints: bool,
+    pub limb_joints: LimbJoints,
     pub rows: Vec<(Method, Scores)>,
 }
 
@@ -74,7 +74,7 @@ pub fn run(options: &NetsEval) -> anyhow::Result<NetsReport> {
         split: options.split,
         copies: options.copies,
         sensor_bones: options.sensor_bones,
-        anatomical_joints: options.anatomical_joints,
+        limb_joints: options.limb_joints,
         rows,
     })
 }
@@ -92,11 +92,7 @@ impl fmt::Display for NetsReport {
                     format!("within {:.1}° of their sensors", tolerance_rad.to_degrees()),
                 SensorBones::Network => "from the networks".to_owned(),
             },
-            if self.anatomical_joints {
-                "anatomical"
-            } else {
-                "free"
-            }
+            self.limb_joints.name()
         )?;
         f.write_str(&table(&self.rows))
     }
@@ -126,7 +122,7 @@ pub fn evaluate(method: Method, weights: &Path, options: &NetsEval) -> anyhow::R
         split,
         copies,
         sensor_bones,
-        anatomical_joints,
+        limb_joints,
         limit,
         progress,
         ..
@@ -137,7 +133,7 @@ pub fn evaluate(method: Method, weights: &Path, options: &NetsEval) -> anyhow::R
         .with_context(|| format!("loading weights {}", weights.display()))?;
     let mut streamer = Streamer::new(loaded, Pose::t_pose(Vector3::zeros()))?;
     streamer.set_sensor_bones(sensor_bones);
-    streamer.set_anatomical_joints(*anatomical_joints);
+    streamer.set_limb_joints(*limb_joints);
     let body = BodyModel::new(&BodyParams::builtin()?, 1.75, 70.0)?;
     let bar = sequence_bar(method.name(), progress);
     let mut totals = Scores::default();
