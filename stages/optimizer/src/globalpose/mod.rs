@@ -59,7 +59,8 @@
 //! # Fallback
 //!
 //! Never panics. When a solve fails (the normal matrix not positive definite) or produces non-finite
-//! values, the frame follows the reference pose kinematically at the previous root position with zero
+//! values or a body faster than a human's (root 15 m/s, a joint 150 rad/s: a diverged step), the
+//! frame follows the reference pose kinematically at the previous root position with zero
 //! velocity, no contacts and zero forces, and the step reports `fallback = true`; the next frame
 //! continues from that state. A non-finite reference keeps the previous state unchanged (also
 //! `fallback = true`) and does not enter the velocity refinement.
@@ -452,7 +453,7 @@ impl GlobalPose {
         let mut pose = self.pose.clone();
         let mut v = self.v;
         integrate(&mut pose, &mut v, &qddot, dt);
-        if !pose.is_finite() || !v.iter().all(|x| x.is_finite()) {
+        if !pose.is_finite() || !within_human_speeds(&v) {
             return None;
         }
 
@@ -502,6 +503,24 @@ impl GlobalPose {
 }
 
 /// Whether every value the method reads from `reference` is finite.
+/// Faster than a sprinter's pelvis (about 12 m/s at top speed) or a pitcher's shoulder (about
+/// 120 rad/s, the fastest human joint motion): a step that leaves the body moving so fast has
+/// diverged, and committing it lets the state run off to infinity within a few frames (seen on a
+/// bow with exact sensor signals, 2026-11-26: the root reached 1e39 m, past f32 on the wire).
+const MAX_ROOT_SPEED_MPS: f64 = 15.0;
+const MAX_JOINT_SPEED_RADPS: f64 = 150.0;
+
+/// Whether a generalized velocity is finite and within what a human body can do.
+fn within_human_speeds(v: &DofVector) -> bool {
+    let root = v.fixed_rows::<3>(0).norm();
+    let fastest_joint = (0..imuflow_body::NUM_JOINTS)
+        .map(|j| v.fixed_rows::<3>(3 + 3 * j).norm())
+        .fold(0.0, f64::max);
+    v.iter().all(|x| x.is_finite())
+        && root <= MAX_ROOT_SPEED_MPS
+        && fastest_joint <= MAX_JOINT_SPEED_RADPS
+}
+
 fn reference_is_finite(reference: &Reference) -> bool {
     reference
         .pose

@@ -142,6 +142,37 @@ fn globalpose_nan_reference_falls_back_without_panicking() {
 }
 
 #[test]
+fn globalpose_falls_back_instead_of_following_a_reference_faster_than_a_human() {
+    // A network velocity of 400 m/s, no stationary joints: tracking it would accelerate the root
+    // far past any human speed within a frame or two.
+    let mut m = method();
+    let mut out = MotionEstimate::default();
+    m.step(&standing(), None, &mut out).unwrap();
+    let start = out.pose.root_in_world_m;
+    let runaway = Reference {
+        root_velocity_mps: Vector3::new(400.0, 0.0, 0.0),
+        stationary_prob: [0.0; 5],
+        ..Reference::default()
+    };
+    let mut fallbacks = 0;
+    for frame in 1..=30 {
+        fallbacks += usize::from(m.step(&runaway, None, &mut out).unwrap().fallback);
+        let root_speed = out.v.fixed_rows::<3>(0).norm();
+        assert!(
+            root_speed <= MAX_ROOT_SPEED_MPS,
+            "frame {frame}: {root_speed} m/s"
+        );
+        let travelled = (out.pose.root_in_world_m - start).norm();
+        let bound = MAX_ROOT_SPEED_MPS * frame as f64 * m.config.dt_s + 1e-9;
+        assert!(travelled <= bound, "frame {frame}: {travelled} m");
+    }
+    assert!(
+        fallbacks > 0,
+        "the reference was not fast enough to test anything"
+    );
+}
+
+#[test]
 fn globalpose_rejects_bad_configurations() {
     let physics = PhysicsBody::new(1.75, 70.0).unwrap();
     let bad = GlobalPoseConfig {
