@@ -55,6 +55,9 @@ pub const CONTROL_PREFIX: &str = "@imuflow ";
 
 /// How often a blocked stage re-checks the stop flag.
 const POLL: Duration = Duration::from_millis(20);
+/// How long a sink told to stop keeps taking the frames its inputs already hold (well inside the
+/// launcher's grace before SIGKILL, so the recording is still finalized).
+const SINK_DRAIN: Duration = Duration::from_millis(1000);
 
 /// Why a stage could not start or run.
 #[derive(Debug, thiserror::Error)]
@@ -169,6 +172,9 @@ pub struct StageContext {
     last_step: Option<Step>,
     started: Instant,
     any_cursor: usize,
+    /// [`StageContext::next_any`] after a stop request: until when it still hands out the frames
+    /// already delivered (a sink told to stop while behind would otherwise lose them).
+    drain_deadline: Option<Instant>,
     waiter: ArrivalWaiter,
     /// The frames taken so far, as the seq after the newest one (0: none). The heartbeat thread
     /// reports it to the launcher's stall watchdog.
@@ -268,6 +274,7 @@ impl StageContext {
             last_step: None,
             started: Instant::now(),
             any_cursor: 0,
+            drain_deadline: None,
             waiter: ArrivalWaiter::default(),
             position: Arc::new(AtomicU64::new(0)),
             restarts,
@@ -560,7 +567,19 @@ impl StageContext {
         }
         let n = self.inputs.len();
         loop {
-            if self.should_stop() || n == 0 {
+            // Told to stop (a crashed stage's neighbours get SIGTERM), a sink still takes what
+            // its inputs already hold, for a bounded time, then ends: the frames a writer
+            // published before it died belong in the recording.
+            let stopping = self.should_stop();
+            if stopping {
+                let deadline = *self
+                    .drain_deadline
+                    .get_or_insert_with(|| Instant::now() + SINK_DRAIN);
+                if Instant::now() > deadline {
+                    return Ok(None);
+                }
+            }
+            if n == 0 {
                 return Ok(None);
             }
             self.take_ended_sources();
@@ -601,7 +620,7 @@ impl StageContext {
                 }
                 return Ok(Some(i));
             }
-            if self.inputs.iter().all(|s| s.ended) {
+            if self.inputs.iter().all(|s| s.ended) || stopping {
                 return Ok(None);
             }
             let Some(listener) = &self.listener else {
