@@ -175,14 +175,16 @@ impl LimbJoints {
     /// The param values, in declaration order.
     pub const NAMES: [&'static str; 3] = ["anatomical", "anatomical-rotations", "free"];
 
+    /// Every choice, in the order of [`LimbJoints::NAMES`].
+    const ALL: [LimbJoints; 3] = [
+        LimbJoints::Anatomical,
+        LimbJoints::AnatomicalRotations,
+        LimbJoints::Free,
+    ];
+
     /// The choice a param value names, if any.
     pub fn parse(name: &str) -> Option<LimbJoints> {
-        match name {
-            "anatomical" => Some(LimbJoints::Anatomical),
-            "anatomical-rotations" => Some(LimbJoints::AnatomicalRotations),
-            "free" => Some(LimbJoints::Free),
-            _ => None,
-        }
+        Self::ALL.into_iter().find(|choice| choice.name() == name)
     }
 
     /// The param value that names this choice.
@@ -320,8 +322,8 @@ impl Streamer {
         self.sensor_bones = sensor_bones;
     }
 
-    /// Whether the knees and elbows are made anatomical joints after the sensor bones are set
-    /// (default: yes; no is the papers' behaviour).
+    /// What the knees and elbows may do, imposed after the sensor bones are set (default:
+    /// anatomical, flexed toward the networks' joint positions; `Free` is the papers' behaviour).
     pub fn set_limb_joints(&mut self, limb_joints: LimbJoints) {
         self.limb_joints = limb_joints;
     }
@@ -835,6 +837,17 @@ mod tests {
             free_off_axis_deg > 1.0,
             "{method:?}: the networks' knees are hinges already ({free_off_axis_deg:.2}°)"
         );
+    }
+
+    #[test]
+    fn every_limb_joints_name_parses_to_the_choice_that_gives_it_back() {
+        for (k, name) in LIMB_JOINTS.iter().enumerate() {
+            let choice = LimbJoints::parse(name).unwrap();
+            assert_eq!(choice.name(), *name);
+            assert_eq!(LimbJoints::ALL[k], choice);
+        }
+        assert_eq!(LimbJoints::parse("anatomical"), Some(LimbJoints::default()));
+        assert_eq!(LimbJoints::parse("hinged"), None);
     }
 
     #[test]
