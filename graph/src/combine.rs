@@ -434,16 +434,15 @@ pub enum SensorErrors {
 }
 
 impl SensorErrors {
-    /// The names the command line takes, in variant order.
+    /// The names the command line takes, in the order of [`SensorErrors::ALL`].
     pub const NAMES: [&'static str; 2] = ["reference", "none"];
+    /// Every model, in variant order.
+    const ALL: [SensorErrors; 2] = [SensorErrors::Reference, SensorErrors::None];
 
     /// Parses one of [`SensorErrors::NAMES`].
     pub fn parse(name: &str) -> Option<SensorErrors> {
-        match name {
-            "reference" => Some(SensorErrors::Reference),
-            "none" => Some(SensorErrors::None),
-            _ => None,
-        }
+        let k = Self::NAMES.iter().position(|n| *n == name)?;
+        Some(Self::ALL[k])
     }
 
     /// How a report describes the synthesized signals.

@@ -99,9 +99,11 @@ pub fn flex_toward_positions(
     positions: &[Vector3<f64>; NUM_JOINTS],
     skeleton: &Skeleton,
 ) {
+    // Once for all four limbs: each change below keeps every global orientation but its own
+    // upper bone's, and no limb reads another's upper bone.
     let mut global = [Rotation3::identity(); NUM_JOINTS];
+    local_to_global_rotations(pose, &mut global);
     for knee in KNEES {
-        local_to_global_rotations(pose, &mut global);
         let Some(hip) = knee.parent() else { continue };
         let lower = global[knee.index()];
         // The upper leg is `lower · Rx(θ)ᵀ`: its rest offset to the knee, b, turned by Rx(−θ) in
@@ -115,7 +117,6 @@ pub fn flex_toward_positions(
         set_joint_keeping_child(pose, &global, knee, flexed);
     }
     for elbow in ELBOWS {
-        local_to_global_rotations(pose, &mut global);
         let Some(shoulder) = elbow.parent() else {
             continue;
         };

@@ -277,6 +277,16 @@ fn row_major(r: &Rotation3<f64>) -> [f32; 9] {
     out
 }
 
+/// The root-relative positions of the [`FULL_JOINTS`] (the first 69 values, root frame) turned
+/// into M by `root`; the root's own entry is zero.
+fn world_positions(root_frame: &[f32], root: &Rotation3<f64>) -> [Vector3<f64>; NUM_JOINTS] {
+    let mut world = [Vector3::zeros(); NUM_JOINTS];
+    for (k, j) in FULL_JOINTS.iter().enumerate() {
+        world[j.index()] = root * v3(&root_frame[3 * k..3 * k + 3]);
+    }
+    world
+}
+
 fn sigmoid(v: f32) -> f64 {
     1.0 / (1.0 + (-(v as f64)).exp())
 }
@@ -464,10 +474,7 @@ impl Streamer {
         let r6d = self.run(2, &full_x)?;
         let vel = self.run(3, &full_x)?;
         let contact = self.run(4, &full_x)?;
-        let mut joint_position = [Vector3::zeros(); NUM_JOINTS];
-        for (k, j) in FULL_JOINTS.iter().enumerate() {
-            joint_position[j.index()] = root * v3(&full[3 * k..3 * k + 3]);
-        }
+        let joint_position = world_positions(&full, root);
         let mut pose = pose_from_reduced_r6d(&r6d, root);
         if let SensorBones::Measured { tolerance_rad } = self.sensor_bones {
             impose_measured_bones(&mut pose, imu, tolerance_rad);
@@ -535,12 +542,8 @@ impl Streamer {
             impose_measured_bones(&mut pose, imu, tolerance_rad);
         }
         // iknet.net1's joint positions, in the frame of the root its pose is assembled on.
-        let mut predicted_position = [Vector3::zeros(); NUM_JOINTS];
-        for (k, j) in FULL_JOINTS.iter().enumerate() {
-            predicted_position[j.index()] = root_c * v3(&ik1[3 * k..3 * k + 3]);
-        }
         self.limb_joints
-            .impose(&mut pose, &predicted_position, &self.body);
+            .impose(&mut pose, &world_positions(&ik1, &root_c), &self.body);
         // pRJ recomputed by FK of the pose with the root at identity (reference §2.4).
         let mut local = Pose::t_pose(Vector3::zeros());
         local.parent_from_joint = pose;
@@ -574,10 +577,7 @@ impl Streamer {
         for (s, v) in stationary.iter_mut().zip(&vr[4..9]) {
             *s = sigmoid(*v);
         }
-        let mut joint_position = [Vector3::zeros(); NUM_JOINTS];
-        for (k, j) in FULL_JOINTS.iter().enumerate() {
-            joint_position[j.index()] = root_c * v3(&prj[3 * k..3 * k + 3]);
-        }
+        let joint_position = world_positions(&prj, &root_c);
         // GlobalPose predicts the root velocity only. The other joints' velocities (which the frame
         // promises, and PIP's physics tracks) follow from it and the change of the root-relative
         // positions: v_j = v_root + d(p_j − p_root)/dt (backward difference; root velocity only on

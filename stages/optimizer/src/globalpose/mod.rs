@@ -502,7 +502,6 @@ impl GlobalPose {
     }
 }
 
-/// Whether every value the method reads from `reference` is finite.
 /// Faster than a sprinter's pelvis (about 12 m/s at top speed) or a pitcher's shoulder (about
 /// 120 rad/s, the fastest human joint motion): a step that leaves the body moving so fast has
 /// diverged, and committing it lets the state run off to infinity within a few frames (seen on a
@@ -513,14 +512,15 @@ const MAX_JOINT_SPEED_RADPS: f64 = 150.0;
 /// Whether a generalized velocity is finite and within what a human body can do.
 fn within_human_speeds(v: &DofVector) -> bool {
     let root = v.fixed_rows::<3>(0).norm();
-    let fastest_joint = (0..imuflow_body::NUM_JOINTS)
-        .map(|j| v.fixed_rows::<3>(3 + 3 * j).norm())
+    let fastest_joint = JointId::all()
+        .map(|j| v.fixed_rows::<3>(joint_dof(j)).norm())
         .fold(0.0, f64::max);
     v.iter().all(|x| x.is_finite())
         && root <= MAX_ROOT_SPEED_MPS
         && fastest_joint <= MAX_JOINT_SPEED_RADPS
 }
 
+/// Whether every value the method reads from `reference` is finite.
 fn reference_is_finite(reference: &Reference) -> bool {
     reference
         .pose
