@@ -37,14 +37,19 @@ pub mod flags {
     pub const FEEDBACK_INITIAL: u32 = 1 << 3;
     /// Produced by a stage that was restarted during the run.
     pub const RESTARTED: u32 = 1 << 4;
+    /// Part of a constructed calibration prelude that a synthesizing source put in front of the
+    /// clip (T-pose hold, stand, step): the subject's motion, but not the clip's, so scores of the
+    /// clip leave it out. Only sources set it; stages do not carry it to their outputs.
+    pub const PRELUDE: u32 = 1 << 5;
 
     /// Every flag with its name, for logs and recorders.
-    pub const NAMES: [(u32, &str); 5] = [
+    pub const NAMES: [(u32, &str); 6] = [
         (END_OF_STREAM, "END_OF_STREAM"),
         (INVALID, "INVALID"),
         (CALIBRATING, "CALIBRATING"),
         (FEEDBACK_INITIAL, "FEEDBACK_INITIAL"),
         (RESTARTED, "RESTARTED"),
+        (PRELUDE, "PRELUDE"),
     ];
 }
 
@@ -291,7 +296,7 @@ macro_rules! frame {
                         field::<u64>("header.publish_ns", std::mem::offset_of!($name, header.publish_ns),
                             "publish time, ns since the Unix epoch"),
                         field::<u32>("header.flags", std::mem::offset_of!($name, header.flags),
-                            "bit set: 1 END_OF_STREAM, 2 INVALID, 4 CALIBRATING, 8 FEEDBACK_INITIAL, 16 RESTARTED"),
+                            "bit set: 1 END_OF_STREAM, 2 INVALID, 4 CALIBRATING, 8 FEEDBACK_INITIAL, 16 RESTARTED, 32 PRELUDE"),
                         field::<u32>("header.reserved", std::mem::offset_of!($name, header.reserved),
                             "reserved, zero"),
                     ];

@@ -220,14 +220,28 @@ fn heading_rotation(r: &Rotation3<f64>) -> Rotation3<f64> {
     Axis::Y.rotation(f.x.atan2(f.z))
 }
 
-/// `clip` with the prelude of `options` in front (the clip itself unchanged when the kind is
-/// `None`). The result has the clip's frame time.
-pub fn with_prelude(clip: &MotionClip, body: &BodyModel, options: &PreludeOptions) -> MotionClip {
+/// A clip with a prelude in front.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WithPrelude {
+    /// The prelude's frames, then the clip's (turned and moved; its first pose ends the prelude's
+    /// last blend). The clip's frame time.
+    pub clip: MotionClip,
+    /// How many frames come before the clip's first: frame `prelude_frames` is the clip's frame 0.
+    pub prelude_frames: usize,
+}
+
+/// `clip` with the prelude of `options` in front (the clip itself unchanged, and no prelude
+/// frames, when the kind is `None`).
+pub fn with_prelude(clip: &MotionClip, body: &BodyModel, options: &PreludeOptions) -> WithPrelude {
+    let unchanged = || WithPrelude {
+        clip: clip.clone(),
+        prelude_frames: 0,
+    };
     let Some(first) = clip.poses.first() else {
-        return clip.clone();
+        return unchanged();
     };
     if options.kind == PreludeKind::None {
-        return clip.clone();
+        return unchanged();
     }
     let origin = Vector3::new(0.0, standing_root_height_m(body), 0.0);
     let start = if options.kind.has_tpose() {
@@ -262,10 +276,15 @@ pub fn with_prelude(clip: &MotionClip, body: &BodyModel, options: &PreludeOption
     };
     track.blend_to(&place(first), options.blend_s);
     let mut poses = track.into_poses();
+    // The blend's last pose is the clip's first.
+    let prelude_frames = poses.len() - 1;
     poses.extend(clip.poses.iter().skip(1).map(place));
-    MotionClip {
-        frame_time_s: clip.frame_time_s,
-        poses,
+    WithPrelude {
+        clip: MotionClip {
+            frame_time_s: clip.frame_time_s,
+            poses,
+        },
+        prelude_frames,
     }
 }
 
@@ -329,9 +348,16 @@ mod tests {
             kind: PreludeKind::TposeWalk,
             ..PreludeOptions::default()
         };
-        let out = with_prelude(&clip, &body, &options);
+        let WithPrelude {
+            clip: out,
+            prelude_frames,
+        } = with_prelude(&clip, &body, &options);
         // T hold + blend + stand + step + stand + blend, then the clip's second frame.
         assert_eq!(out.poses.len(), 1 + 180 + 60 + 180 + 72 + 180 + 60 + 1);
+        assert_eq!(prelude_frames, 1 + 180 + 60 + 180 + 72 + 180 + 60 - 1);
+        // The clip's first frame, placed: facing +z (its heading was 1 rad).
+        let clip_start = &out.poses[prelude_frames];
+        assert!(angle_between(&clip_start.parent_from_joint[0], &Rotation3::identity()) < 1e-9);
         let last = &out.poses[out.poses.len() - 1];
         let prev = &out.poses[out.poses.len() - 2];
         let step = last.root_in_world_m - prev.root_in_world_m;
@@ -341,6 +367,6 @@ mod tests {
         );
         assert!(angle_between(&prev.parent_from_joint[0], &Rotation3::identity()) < 1e-9);
         let none = with_prelude(&clip, &body, &PreludeOptions::default());
-        assert_eq!(none, clip);
+        assert_eq!((none.clip, none.prelude_frames), (clip, 0));
     }
 }

@@ -7,7 +7,7 @@ use anyhow::Context;
 use imuflow_body::rotation::{Axis, quat_wxyz_from_rotation};
 use imuflow_body::{BodyModel, BodyParams, Pose};
 use imuflow_graph::StageContext;
-use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, NUM_IMUS, NUM_JOINTS};
+use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, NUM_IMUS, NUM_JOINTS, flags};
 use imuflow_motion::bvh::Bvh;
 use imuflow_motion::imu_synthesis::{
     AccelStencil, Augmentation, AugmentationConfig, ImuSample, SynthesisOptions, synthesize_imus,
@@ -20,7 +20,7 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use rand_distr::StandardNormal;
 
-use crate::prelude::{PreludeOptions, with_prelude};
+use crate::prelude::{PreludeOptions, WithPrelude, with_prelude};
 use crate::{ALL_VALID, Publisher, mark_invalid_sensors};
 
 /// How to turn a BVH into IMU signals.
@@ -149,6 +149,8 @@ pub struct Motion {
     pub rate_hz: f64,
     /// How the sensors are worn and what they report in.
     pub sensors: SensorFrames,
+    /// Frames of the calibration prelude before the clip's first (flagged PRELUDE).
+    pub prelude_frames: usize,
 }
 
 impl Motion {
@@ -177,7 +179,10 @@ impl Motion {
         body: &BodyModel,
         options: &Options,
     ) -> anyhow::Result<Motion> {
-        let clip = with_prelude(&clip, body, &options.prelude);
+        let WithPrelude {
+            clip,
+            prelude_frames,
+        } = with_prelude(&clip, body, &options.prelude);
         let rate_hz = clip.rate_hz();
         let synthesis = SynthesisOptions {
             stencil: if options.central_stencil {
@@ -196,6 +201,7 @@ impl Motion {
             imus: imus.frames,
             rate_hz,
             sensors: options.sensors.draw(options.seed),
+            prelude_frames,
         })
     }
 }
@@ -231,15 +237,26 @@ impl Motion {
         (seq as f64 * 1e9 / self.rate_hz) as u64
     }
 
-    /// The IMU frame `seq` (header: seq, capture time, INVALID when a sample is not finite).
+    /// The header of frame `seq`: its capture time, and PRELUDE before the clip's first frame.
+    fn header(&self, seq: usize) -> FrameHeader {
+        FrameHeader {
+            seq: seq as u64,
+            capture_ns: self.capture_ns(seq as u64),
+            flags: if seq < self.prelude_frames {
+                flags::PRELUDE
+            } else {
+                0
+            },
+            ..Default::default()
+        }
+    }
+
+    /// The IMU frame `seq` (header: seq, capture time, PRELUDE in the prelude, INVALID when a
+    /// sample is not finite).
     pub fn imu_frame(&self, seq: usize) -> Option<ImuFrame> {
         let samples = self.imus.get(seq)?;
         let mut f = ImuFrame {
-            header: FrameHeader {
-                seq: seq as u64,
-                capture_ns: self.capture_ns(seq as u64),
-                ..Default::default()
-            },
+            header: self.header(seq),
             valid_mask: ALL_VALID,
             ..Default::default()
         };
@@ -248,15 +265,12 @@ impl Motion {
         Some(f)
     }
 
-    /// The true pose of frame `seq` as a MotionFrame (physics fields zero).
+    /// The true pose of frame `seq` as a MotionFrame (physics fields zero; PRELUDE in the
+    /// prelude).
     pub fn truth_frame(&self, seq: usize) -> Option<MotionFrame> {
         let pose = self.clip.poses.get(seq)?;
         let mut m = MotionFrame {
-            header: FrameHeader {
-                seq: seq as u64,
-                capture_ns: self.capture_ns(seq as u64),
-                ..Default::default()
-            },
+            header: self.header(seq),
             ..Default::default()
         };
         fill_truth(&mut m, pose);
@@ -354,6 +368,39 @@ mod tests {
             assert_eq!(t.header.seq, seq as u64);
             assert_eq!(t.header.capture_ns, f.header.capture_ns);
         }
+    }
+
+    #[test]
+    fn prelude_frames_and_only_they_are_flagged_prelude() {
+        use crate::prelude::PreludeKind;
+        let plain = Motion::load(&fixture(), &Options::default(), 60.0).expect("fixture loads");
+        let options = Options {
+            prelude: PreludeOptions {
+                kind: PreludeKind::Tpose,
+                stand_s: 1.0,
+                blend_s: 0.5,
+                ..PreludeOptions::default()
+            },
+            ..Options::default()
+        };
+        let motion = Motion::load(&fixture(), &options, 60.0).expect("fixture loads");
+        // T-pose hold (1 s) and blend (0.5 s) at 60 Hz; then the clip, every frame of it.
+        assert_eq!(motion.prelude_frames, 60 + 30);
+        assert_eq!(motion.len(), motion.prelude_frames + plain.len());
+        for seq in 0..motion.len() {
+            let in_prelude = seq < motion.prelude_frames;
+            for header in [
+                motion.imu_frame(seq).expect("imu").header,
+                motion.truth_frame(seq).expect("truth").header,
+            ] {
+                assert_eq!(header.has(flags::PRELUDE), in_prelude, "frame {seq}");
+            }
+        }
+        // The first unflagged frame is the clip's first: its joints as in the clip (only the root
+        // is turned and moved).
+        let start = motion.truth_frame(motion.prelude_frames).expect("truth");
+        let first = plain.truth_frame(0).expect("truth");
+        assert_eq!(start.local_pose_wxyz[1..], first.local_pose_wxyz[1..]);
     }
 
     #[test]

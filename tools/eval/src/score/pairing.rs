@@ -13,8 +13,11 @@ use imuflow_body::Pose;
 use imuflow_graph::frames::{FrameHeader, MotionFrame, flags};
 
 /// Header flags that keep a frame out of every score: INVALID (the producer does not trust the
-/// payload), CALIBRATING (not yet a pose of the subject) and END_OF_STREAM (no payload).
-pub const SKIPPED_FLAGS: u32 = flags::INVALID | flags::CALIBRATING | flags::END_OF_STREAM;
+/// payload), CALIBRATING (not yet a pose of the subject), END_OF_STREAM (no payload) and PRELUDE
+/// (a truth frame of the calibration prelude a synthesizing source put before the clip: the scores
+/// are the clip's, and a few seconds of standing per clip would dilute them).
+pub const SKIPPED_FLAGS: u32 =
+    flags::INVALID | flags::CALIBRATING | flags::END_OF_STREAM | flags::PRELUDE;
 
 /// Whether a frame with this header is scored (none of [`SKIPPED_FLAGS`] set).
 pub fn is_scored(header: &FrameHeader) -> bool {
@@ -108,15 +111,17 @@ mod tests {
 
     #[test]
     fn flagged_and_undecodable_frames_are_not_usable() {
-        let mut frames = vec![MotionFrame::default(); 4];
+        let mut frames = vec![MotionFrame::default(); 5];
         for (k, f) in frames.iter_mut().enumerate() {
             f.header.seq = k as u64;
             f.local_pose_wxyz = [[1.0, 0.0, 0.0, 0.0]; 24];
         }
         frames[1].header.flags = flags::CALIBRATING;
         frames[2].local_pose_wxyz[5] = [0.0; 4];
+        frames[4].header.flags = flags::PRELUDE;
         let kept: Vec<u64> = usable(&frames).keys().copied().collect();
         assert_eq!(kept, vec![0, 3]);
         assert!(!is_scored(&frames[1].header));
+        assert!(!is_scored(&frames[4].header));
     }
 }
