@@ -14,7 +14,7 @@ use imuflow_body::skeleton::{
     CONTACT_JOINTS, FULL_JOINTS, IMU_JOINTS, LEAF_JOINTS, REDUCED_JOINTS,
 };
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
-use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
+use nalgebra::{Matrix3, Rotation3, Unit, UnitQuaternion, Vector3};
 
 use crate::data::{FPS, PIP_VELOCITY_SCALE};
 use crate::features::{
@@ -538,7 +538,8 @@ impl Streamer {
         let mut pose = pose_from_reduced_r6d(&r6d, &root_c);
         if let SensorBones::Measured { tolerance_rad } = self.sensor_bones {
             // Before the FK that feeds vrnet: its joint inputs then agree with the sensors too.
-            // The root keeps GlobalPose's gravity-corrected orientation (paper Eq. 1-3).
+            // The root keeps GlobalPose's gravity-corrected orientation (paper Eq. 1-3) for the
+            // networks; the output pose takes the pelvis's sensor below.
             impose_measured_bones(&mut pose, imu, tolerance_rad);
         }
         // iknet.net1's joint positions, in the frame of the root its pose is assembled on.
@@ -577,7 +578,28 @@ impl Streamer {
         for (s, v) in stationary.iter_mut().zip(&vr[4..9]) {
             *s = sigmoid(*v);
         }
-        let joint_position = world_positions(&prj, &root_c);
+        // The pelvis carries a sensor too. With the instrumented bones on their sensors it takes
+        // its calibrated orientation (within the tolerance) instead of the gravity-corrected
+        // root_c; every other bone keeps its orientation in M, and the network inputs above stay
+        // GlobalPose's. Positions follow the output pose (the hips turn with the pelvis).
+        let root_out = match self.sensor_bones {
+            SensorBones::Measured { tolerance_rad } => toward_within(&root_c, root, tolerance_rad),
+            SensorBones::Network => root_c,
+        };
+        let joint_position = if root_out == root_c {
+            world_positions(&prj, &root_c)
+        } else {
+            reroot(&mut pose, &root_out);
+            let mut local = Pose::t_pose(Vector3::zeros());
+            local.parent_from_joint = pose;
+            local.parent_from_joint[0] = Rotation3::identity();
+            forward_kinematics(&self.body.skeleton, &local, &mut self.fk);
+            let rerooted: Vec<f32> = FULL_JOINTS
+                .iter()
+                .flat_map(|&j| self.fk.position(j).cast::<f32>().data.0[0])
+                .collect();
+            world_positions(&rerooted, &root_out)
+        };
         // GlobalPose predicts the root velocity only. The other joints' velocities (which the frame
         // promises, and PIP's physics tracks) follow from it and the change of the root-relative
         // positions: v_j = v_root + d(p_j − p_root)/dt (backward difference; root velocity only on
@@ -597,9 +619,33 @@ impl Streamer {
             foot_contact: [stationary[1], stationary[2]],
             stationary,
             root_velocity,
-            gravity_in_root: g2.into_inner() * G,
+            gravity_in_root: root_out.transpose() * Vector3::new(0.0, -G, 0.0),
         })
     }
+}
+
+/// `from` turned toward `to` until it is within `tolerance_rad` of it (about the axis of their
+/// difference); `from` itself when it already is.
+fn toward_within(from: &Rotation3<f64>, to: &Rotation3<f64>, tolerance_rad: f64) -> Rotation3<f64> {
+    // Through the quaternion: `Rotation3::angle` takes the acos of the trace, NaN when a sensor's
+    // f32 matrix, not quite orthonormal, is within ~1e-8 of `from` (trace just above 3).
+    let difference = UnitQuaternion::from_rotation_matrix(&(to * from.transpose()));
+    match difference.axis_angle() {
+        Some((axis, angle)) if angle > tolerance_rad => {
+            Rotation3::from_axis_angle(&axis, angle - tolerance_rad) * from
+        }
+        _ => *from,
+    }
+}
+
+/// Gives the pose the root orientation `root`, keeping every other bone's orientation in M: the
+/// root's children take the change.
+fn reroot(pose: &mut [Rotation3<f64>; NUM_JOINTS], root: &Rotation3<f64>) {
+    let turn = root.transpose() * pose[0];
+    for child in JointId::all().filter(|j| j.parent() == Some(JointId::ROOT)) {
+        pose[child.index()] = turn * pose[child.index()];
+    }
+    pose[0] = *root;
 }
 
 /// Turns each bone that carries a non-root sensor onto the cone of half-angle `tolerance_rad`
@@ -625,10 +671,7 @@ pub fn impose_measured_bones(
         if angle <= tolerance_rad {
             continue;
         }
-        let turned = match difference.axis() {
-            Some(axis) => Rotation3::from_axis_angle(&axis, angle - tolerance_rad) * estimated,
-            None => measured, // a half turn: any axis is as good, take the measurement
-        };
+        let turned = toward_within(&estimated, &measured, tolerance_rad);
         pose[joint.index()] = global[parent.index()].transpose() * turned;
     }
 }
@@ -914,6 +957,83 @@ mod tests {
         let wrist = JointId::LEFT_WRIST;
         let want = some_rotation(40) * some_rotation(wrist.index());
         assert!((after.world_from(wrist).matrix() - want.matrix()).norm() < 1e-6);
+    }
+
+    #[test]
+    fn a_measurement_a_hair_from_the_estimate_is_taken_without_nan() {
+        // A sensor's f32 matrix: 1e-9 rad from the estimate and scaled by 1 + 1e-9, so its trace
+        // is just above 3 (the acos of the trace would be NaN) while its skew part is not zero.
+        let from = some_rotation(3);
+        let near = Rotation3::from_axis_angle(&Vector3::z_axis(), 1e-9) * from;
+        let to = Rotation3::from_matrix_unchecked(near.matrix() * (1.0 + 1e-9));
+        for tolerance in [0.0, 0.1] {
+            let got = toward_within(&from, &to, tolerance);
+            assert!(got.matrix().iter().all(|v| v.is_finite()), "{got:?}");
+            assert!((got.matrix() - from.matrix()).norm() < 1e-8);
+        }
+    }
+
+    #[test]
+    fn rerooting_turns_the_pelvis_alone() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let mut pose = some_pose();
+        let before = global_rotations(&pose.parent_from_joint);
+        reroot(&mut pose.parent_from_joint, &some_rotation(50));
+        let after = global_rotations(&pose.parent_from_joint);
+        assert_eq!(after[0], some_rotation(50));
+        for j in JointId::all().skip(1) {
+            let d = (after[j.index()].matrix() - before[j.index()].matrix()).norm();
+            assert!(d < 1e-12, "{} turned by {d}", j.name());
+        }
+        // Against forward kinematics, a second algorithm: the hips hang off the turned pelvis.
+        let mut fk = FkData::new();
+        forward_kinematics(&body.skeleton, &pose, &mut fk);
+        let hip = body.skeleton.offset_in_parent_m(JointId::LEFT_HIP);
+        let want = some_rotation(50) * hip;
+        let got = fk.position(JointId::LEFT_HIP) - fk.position(JointId::ROOT);
+        assert!((got - want).norm() < 1e-12, "{got:?} against {want:?}");
+    }
+
+    /// GlobalPose on the committed weights: with the instrumented bones on their sensors the
+    /// output's pelvis is the pelvis sensor's orientation, the joint positions and gravity belong
+    /// to that pose, and the papers' setting leaves the gravity-corrected root, measurably apart
+    /// (or the step would do nothing).
+    #[test]
+    fn globalpose_pelvis_takes_its_sensor_with_the_instrumented_bones() {
+        let load = || committed_weights(Method::GlobalPose, "models/globalpose.safetensors");
+        let mut measured = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
+        let mut papers = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
+        papers.set_sensor_bones(SensorBones::Network);
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let mut fk = FkData::new();
+        let mut apart_deg: f64 = 0.0;
+        for f in 0..120 {
+            let input = crate::bench::swaying_sensors(f);
+            let pelvis = sensor_rotation(&input.orientation[5]);
+            let e = measured.step(&input).unwrap();
+            // The sensor's f32 matrix is orthonormal to about 1e-7 (measured up to 1.1e-6 here).
+            let off = (e.pose[0].matrix() - pelvis.matrix()).norm();
+            assert!(off < 1e-5, "frame {f}: {off}");
+            let down = e.pose[0].transpose() * Vector3::new(0.0, -G, 0.0);
+            assert!((e.gravity_in_root - down).norm() < 1e-9);
+            let mut pose = Pose::t_pose(Vector3::zeros());
+            pose.parent_from_joint = e.pose;
+            forward_kinematics(&body.skeleton, &pose, &mut fk);
+            for j in FULL_JOINTS {
+                let want = fk.position(j) - fk.position(JointId::ROOT);
+                let got = e.joint_position[j.index()] - e.joint_position[0];
+                assert!(
+                    (got - want).norm() < 1e-5,
+                    "frame {f}: {j} at {got:?}, FK {want:?}"
+                );
+            }
+            let p = papers.step(&input).unwrap();
+            apart_deg = apart_deg.max(p.pose[0].angle_to(&pelvis).to_degrees());
+        }
+        assert!(
+            apart_deg > 0.5,
+            "the corrected root is the sensor's ({apart_deg:.3}°)"
+        );
     }
 
     #[test]
