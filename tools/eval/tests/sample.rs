@@ -29,7 +29,9 @@ fn the_truth_scored_against_itself_is_perfect() {
     assert!(truth.len() > 1000, "{} truth frames", truth.len());
     let body = body();
     let s = score_against_truth(&truth, &truth, &body, 60.0);
-    assert!(s.frames > 1000 && s.runs >= 1, "{s:?}");
+    // Only the walk is scored: the calibration prelude's 732 frames carry PRELUDE
+    // (models/sample/README.md), 779 of the 1511 remain.
+    assert_eq!((s.frames, s.runs), (779, 1), "{s:?}");
     assert!(s.joint_position_error_cm.unwrap() < 1e-9);
     assert!(s.angle_error_deg.unwrap() < 1e-4);
     assert!(s.sip_error_deg.unwrap() < 1e-4);
@@ -52,10 +54,11 @@ fn real_walking_has_plausible_own_motion_scores() {
     assert!((0.05..3.0).contains(&jitter), "jitter {jitter}");
     assert!(s.root_jitter_km_s3.unwrap() < jitter);
     // The height rule also counts the low parts of a swing (toe-off, heel strike) as contact, so
-    // real walking scores 0.36 m/s here: the metric's floor, well under the walking speed
-    // (about 1.3 m/s) that a foot gliding along with the body would score.
+    // real walking scores 0.69 m/s here (the walk alone; 0.36 with the prelude's standing, scored
+    // until the PRELUDE flag): the metric's floor, under the walking speed (about 1.3 m/s) that a
+    // foot gliding along with the body would score.
     let skating = s.foot_skating_mps.unwrap();
-    assert!((0.1..0.6).contains(&skating), "skating {skating}");
+    assert!((0.1..1.0).contains(&skating), "skating {skating}");
     // Real feet barely sink (the foot joint is the ball of the foot, its clearance the floor).
     assert!(s.ground_penetration_m.unwrap() < 0.02, "{s:?}");
 }

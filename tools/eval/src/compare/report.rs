@@ -473,7 +473,7 @@ fn markdown(
     let _ = writeln!(md, "# imuflow compare: {}\n", names.join(" vs "));
     let _ = writeln!(
         md,
-        "One run, identical input: shared stages {}; each variant's own stages ran as an isolated branch. {} every variant is scored on the same {frames} frames, those that no stream flagged calibrating or invalid.\n",
+        "One run, identical input: shared stages {}; each variant's own stages ran as an isolated branch. {} every variant is scored on the same {frames} frames, those that no stream flagged calibrating, invalid or prelude.\n",
         combined.shared.join(", "),
         if with_truth {
             "Scored against the source's truth;"
