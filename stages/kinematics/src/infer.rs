@@ -498,6 +498,19 @@ impl Streamer {
         })
     }
 
+    /// Forward kinematics of `pose` with the root at the origin and unturned, left in `self.fk`:
+    /// the positions of [`FULL_JOINTS`] in the root's frame, flattened (GlobalPose's pRJ).
+    fn positions_in_root_frame(&mut self, pose: &[Rotation3<f64>; NUM_JOINTS]) -> Vec<f32> {
+        let mut local = Pose::t_pose(Vector3::zeros());
+        local.parent_from_joint = *pose;
+        local.parent_from_joint[0] = Rotation3::identity();
+        forward_kinematics(&self.body.skeleton, &local, &mut self.fk);
+        FULL_JOINTS
+            .iter()
+            .flat_map(|&j| self.fk.position(j).cast::<f32>().data.0[0])
+            .collect()
+    }
+
     fn step_globalpose(
         &mut self,
         imu: &ImuInput,
@@ -546,14 +559,7 @@ impl Streamer {
         self.limb_joints
             .impose(&mut pose, &world_positions(&ik1, &root_c), &self.body);
         // pRJ recomputed by FK of the pose with the root at identity (reference §2.4).
-        let mut local = Pose::t_pose(Vector3::zeros());
-        local.parent_from_joint = pose;
-        local.parent_from_joint[0] = Rotation3::identity();
-        forward_kinematics(&self.body.skeleton, &local, &mut self.fk);
-        let prj: Vec<f32> = FULL_JOINTS
-            .iter()
-            .flat_map(|&j| self.fk.position(j).cast::<f32>().data.0[0])
-            .collect();
+        let prj = self.positions_in_root_frame(&pose);
         let rrj: Vec<f32> = REDUCED_JOINTS
             .iter()
             .flat_map(|&j| row_major(self.fk.world_from(j)))
@@ -590,15 +596,7 @@ impl Streamer {
             world_positions(&prj, &root_c)
         } else {
             reroot(&mut pose, &root_out);
-            let mut local = Pose::t_pose(Vector3::zeros());
-            local.parent_from_joint = pose;
-            local.parent_from_joint[0] = Rotation3::identity();
-            forward_kinematics(&self.body.skeleton, &local, &mut self.fk);
-            let rerooted: Vec<f32> = FULL_JOINTS
-                .iter()
-                .flat_map(|&j| self.fk.position(j).cast::<f32>().data.0[0])
-                .collect();
-            world_positions(&rerooted, &root_out)
+            world_positions(&self.positions_in_root_frame(&pose), &root_out)
         };
         // GlobalPose predicts the root velocity only. The other joints' velocities (which the frame
         // promises, and PIP's physics tracks) follow from it and the change of the root-relative
