@@ -109,6 +109,13 @@ pub const SPEC: StageSpec = StageSpec {
             "1",
             "pip: weight of the world-orientation PD on the six instrumented bones (0: PIP's own cost)",
         ),
+        ParamSpec::float(
+            "limb_bone_weight",
+            0.0,
+            1e3,
+            "1",
+            "pip: weight of the same PD on the upper legs and upper arms, which the kinematics stage sets from the sensors below them (0: PIP's own cost)",
+        ),
         ParamSpec {
             name: "terrain",
             ty: ParamType::Choice(&Terrain::NAMES),
@@ -144,6 +151,7 @@ fn build(stage: &str, params: &Params) -> anyhow::Result<(String, Box<dyn Method
                 kd_position: params.float("kd_position", d.kd_position),
                 friction: params.float("friction", d.friction),
                 coeff_sensor_bone: params.float("sensor_bone_weight", d.coeff_sensor_bone),
+                coeff_limb_bone: params.float("limb_bone_weight", d.coeff_limb_bone),
                 ..d
             };
             Box::new(Pip::new(physics, config)?)

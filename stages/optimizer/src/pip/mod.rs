@@ -23,6 +23,10 @@
 //!      The reference carries those bones at their calibrated measurement (the kinematics stage
 //!      imposes it); with local-rotation PD alone the errors of every joint above a bone added up,
 //!      and PIP's output left its sensors by 7.0° on the holdout split (4.9° with these rows);
+//!    - the same rows on the upper legs and upper arms (imuflow, not PIP), weight
+//!      [`PipConfig::coeff_limb_bone`]: the kinematics stage sets them from the lower bones'
+//!      sensors through the anatomical knee and elbow, and with local-rotation PD the physics root's
+//!      and spine's departures turned them (SIP on 60 validation clips 6.79 -> 6.59°);
 //!    - "Signorini" force penalty (reference §5.2 cost 3): `coeff_lambda·max(height, 0.005)·λ_k ≈ 0`
 //!      per point, height = the point's height above its surface;
 //!    - torque regulariser (Eq. 12, reference §5.2 cost 4): `0.1·τ_root (6) ≈ 0`, `0.01·τ_joints ≈ 0`;
@@ -115,6 +119,11 @@ pub struct PipConfig {
     /// the reference carries their calibrated measurement, and the local-rotation PD alone let
     /// its errors add up along each chain; same gains as the rotation PD; 0 turns it off).
     pub coeff_sensor_bone: f64,
+    /// Weight of the same rows on the upper legs and upper arms (imuflow, not PIP: the kinematics
+    /// stage sets them from the lower legs' and forearms' sensors through the anatomical knee and
+    /// elbow, and the local-rotation PD let the root's and spine's errors turn them; 0 turns it
+    /// off).
+    pub coeff_limb_bone: f64,
     /// Weight of the height-scaled force penalty (coeff_lambda = 10, reference §5.2 cost 3).
     pub coeff_lambda: f64,
     /// Smallest height used in that penalty (m; 0.005, reference §5.2 cost 3).
@@ -152,6 +161,7 @@ impl Default for PipConfig {
             dt: DT_S,
             coeff_joint_velocity: 1.0,
             coeff_sensor_bone: 1.0,
+            coeff_limb_bone: 1.0,
             coeff_lambda: 10.0,
             lambda_min_height_m: 0.005,
             coeff_root_virtual: 0.1,

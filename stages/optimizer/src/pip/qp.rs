@@ -39,6 +39,15 @@ use imuflow_body::{Imu, JointId, NUM_JOINTS, Pose};
 use imuflow_contact::ContactSet;
 use imuflow_contact::pip::FEET;
 use imuflow_graph::frames::MAX_CONTACT_POINTS;
+
+/// The upper legs and upper arms (their joints' frames), whose world orientation the
+/// limb-bone rows track.
+const UPPER_LIMB_BONES: [JointId; 4] = [
+    JointId::LEFT_HIP,
+    JointId::RIGHT_HIP,
+    JointId::LEFT_SHOULDER,
+    JointId::RIGHT_SHOULDER,
+];
 use nalgebra::{Cholesky, DMatrix, DVector, Rotation3, Vector3};
 
 use super::{POSITION_PD_JOINTS, PipConfig, bound_qp};
@@ -254,12 +263,15 @@ impl Qp {
         // `J_ω,j·v̇ ≈ kp·e_j − kd·ω_j − J̇_ω,j·v`, with `e_j` the rotation from the current to the
         // reference world orientation (world axes). `J̇_ω·v` = Σ over the chain of
         // `ω_parent(k) × ω_k` (the derivative of `ω_k = ω_parent(k) + R_k·ω_rel,k`).
-        let w2 = config.coeff_sensor_bone * config.coeff_sensor_bone;
-        if w2 > 0.0 {
-            let mut reference_world = [Rotation3::identity(); NUM_JOINTS];
-            local_to_global_rotations(&reference.pose.parent_from_joint, &mut reference_world);
-            for imu in Imu::ALL {
-                let j = imu.joint();
+        // The upper legs and upper arms get the same rows (`PipConfig::coeff_limb_bone`): the
+        // kinematics stage sets them from their lower bones' sensors through the knee and elbow.
+        let mut reference_world = [Rotation3::identity(); NUM_JOINTS];
+        local_to_global_rotations(&reference.pose.parent_from_joint, &mut reference_world);
+        let sensor_bones = Imu::ALL.map(|imu| (imu.joint(), config.coeff_sensor_bone));
+        let limb_bones = UPPER_LIMB_BONES.map(|j| (j, config.coeff_limb_bone));
+        for (j, weight) in sensor_bones.into_iter().chain(limb_bones) {
+            let w2 = weight * weight;
+            if w2 > 0.0 {
                 let current = data.fk().world_from_joint[j.index()];
                 let wanted = reference_world[j.index()];
                 let e = current * axis_angle_from_rotation(&(current.transpose() * wanted));
