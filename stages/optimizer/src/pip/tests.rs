@@ -159,44 +159,50 @@ fn a_bent_knee_reference_is_tracked() {
     assert!(root < 0.05, "{root}");
 }
 
+/// A trunk bent 20° forward while the reference's joint velocities say "stand still": the
+/// local-rotation PD and the joint-position PD disagree, and the compromise leaves the bones below
+/// the trunk short of their reference world orientation. The mean world-orientation error (deg) of
+/// `bones` after 30 steps of `config`.
+fn world_error_under_a_bent_trunk(config: PipConfig, bones: &[JointId]) -> f64 {
+    let mut m = pip(config);
+    m.set_state(standing_pose(&m, 0.0), DofVector::zeros());
+    let mut r = standing_reference([0.9, 0.9]);
+    r.pose.parent_from_joint[JointId::SPINE1.index()] =
+        Rotation3::new(Vector3::new(20f64.to_radians(), 0.0, 0.0));
+    let mut out = MotionEstimate::default();
+    for _ in 0..30 {
+        assert!(!m.step(&r, None, &mut out).unwrap().fallback);
+    }
+    let world = |pose: &Pose, j: JointId| {
+        let mut fk = FkData::new();
+        imuflow_body::forward_kinematics(&m.physics.body.skeleton, pose, &mut fk);
+        fk.world_from_joint[j.index()]
+    };
+    bones
+        .iter()
+        .map(|&j| {
+            world(&out.pose, j)
+                .angle_to(&world(&r.pose, j))
+                .to_degrees()
+        })
+        .sum::<f64>()
+        / bones.len() as f64
+}
+
 #[test]
 fn the_sensor_bone_rows_bring_the_instrumented_bones_to_their_world_orientation() {
-    // A trunk bent 20° forward while the reference's joint velocities say "stand still": the
-    // local-rotation PD and the joint-position PD disagree, and the compromise leaves the bones
-    // below the trunk (the forearms and the head carry sensors) short of their reference world
-    // orientation. The sensor-bone rows must take that error down.
-    let sensor_error_deg = |coeff: f64| {
-        let mut m = pip(PipConfig {
+    // The forearms and the head carry sensors below the bent trunk. The limb-bone rows are off,
+    // so only the sensor-bone rows act.
+    let sensor_bones = imuflow_body::Imu::ALL.map(|imu| imu.joint());
+    let error = |coeff: f64| {
+        let config = PipConfig {
             coeff_sensor_bone: coeff,
             coeff_limb_bone: 0.0,
             ..PipConfig::default()
-        });
-        m.set_state(standing_pose(&m, 0.0), DofVector::zeros());
-        let mut r = standing_reference([0.9, 0.9]);
-        r.pose.parent_from_joint[JointId::SPINE1.index()] =
-            Rotation3::new(Vector3::new(20f64.to_radians(), 0.0, 0.0));
-        let mut out = MotionEstimate::default();
-        for _ in 0..30 {
-            assert!(!m.step(&r, None, &mut out).unwrap().fallback);
-        }
-        let world = |pose: &Pose, j: JointId| {
-            let mut fk = FkData::new();
-            imuflow_body::forward_kinematics(&m.physics.body.skeleton, pose, &mut fk);
-            fk.world_from_joint[j.index()]
         };
-        imuflow_body::Imu::ALL
-            .iter()
-            .map(|imu| {
-                let j = imu.joint();
-                world(&out.pose, j)
-                    .angle_to(&world(&r.pose, j))
-                    .to_degrees()
-            })
-            .sum::<f64>()
-            / 6.0
+        world_error_under_a_bent_trunk(config, &sensor_bones)
     };
-    let without = sensor_error_deg(0.0);
-    let with = sensor_error_deg(1.0);
+    let (without, with) = (error(0.0), error(1.0));
     eprintln!("sensor-bone world error: {without:.2}° without the rows, {with:.2}° with");
     assert!(without > 1.0, "the test needs a conflict: {without}°");
     assert!(
@@ -207,46 +213,23 @@ fn the_sensor_bone_rows_bring_the_instrumented_bones_to_their_world_orientation(
 
 #[test]
 fn the_limb_bone_rows_bring_the_upper_limbs_to_their_world_orientation() {
-    // The same conflict (a trunk bent 20° forward against joint velocities that say "stand
-    // still") turns the upper arms, children of the spine, away from their reference world
-    // orientation; a leaning root turns the upper legs. The limb-bone rows must take that down.
-    let limb_error_deg = |coeff: f64| {
-        let mut m = pip(PipConfig {
+    // The upper arms hang off the bent spine, the upper legs off the root. The sensor-bone rows
+    // are off, so only the limb-bone rows act.
+    let upper_limbs = [
+        JointId::LEFT_HIP,
+        JointId::RIGHT_HIP,
+        JointId::LEFT_SHOULDER,
+        JointId::RIGHT_SHOULDER,
+    ];
+    let error = |coeff: f64| {
+        let config = PipConfig {
             coeff_limb_bone: coeff,
             coeff_sensor_bone: 0.0,
             ..PipConfig::default()
-        });
-        m.set_state(standing_pose(&m, 0.0), DofVector::zeros());
-        let mut r = standing_reference([0.9, 0.9]);
-        r.pose.parent_from_joint[JointId::SPINE1.index()] =
-            Rotation3::new(Vector3::new(20f64.to_radians(), 0.0, 0.0));
-        let mut out = MotionEstimate::default();
-        for _ in 0..30 {
-            assert!(!m.step(&r, None, &mut out).unwrap().fallback);
-        }
-        let world = |pose: &Pose, j: JointId| {
-            let mut fk = FkData::new();
-            imuflow_body::forward_kinematics(&m.physics.body.skeleton, pose, &mut fk);
-            fk.world_from_joint[j.index()]
         };
-        let upper = [
-            JointId::LEFT_HIP,
-            JointId::RIGHT_HIP,
-            JointId::LEFT_SHOULDER,
-            JointId::RIGHT_SHOULDER,
-        ];
-        upper
-            .iter()
-            .map(|&j| {
-                world(&out.pose, j)
-                    .angle_to(&world(&r.pose, j))
-                    .to_degrees()
-            })
-            .sum::<f64>()
-            / 4.0
+        world_error_under_a_bent_trunk(config, &upper_limbs)
     };
-    let without = limb_error_deg(0.0);
-    let with = limb_error_deg(1.0);
+    let (without, with) = (error(0.0), error(1.0));
     eprintln!("upper-limb world error: {without:.2}° without the rows, {with:.2}° with");
     assert!(without > 0.5, "the test needs a conflict: {without}°");
     assert!(
