@@ -52,9 +52,14 @@ pub fn hinge_elbow(local: &Rotation3<f64>) -> Rotation3<f64> {
     // Ry(a)·Rz(b)·Rx(c): first column (cos a cos b, sin b, −sin a cos b), second row
     // (sin b, cos b cos c, −cos b sin c).
     let flexion = (-m[(2, 0)]).atan2(m[(0, 0)]);
-    let twist = (-m[(1, 2)]).atan2(m[(1, 1)]);
-    Rotation3::from_axis_angle(&Vector3::y_axis(), flexion)
-        * Rotation3::from_axis_angle(&Vector3::x_axis(), twist)
+    Rotation3::from_axis_angle(&Vector3::y_axis(), flexion) * elbow_twist(local)
+}
+
+/// The twist `Rx(c)` of an elbow's local rotation written as `Ry(a)·Rz(b)·Rx(c)` (its second
+/// row is `(sin b, cos b cos c, −cos b sin c)`).
+fn elbow_twist(local: &Rotation3<f64>) -> Rotation3<f64> {
+    let m = local.matrix();
+    Rotation3::from_axis_angle(&Vector3::x_axis(), (-m[(1, 2)]).atan2(m[(1, 1)]))
 }
 
 /// Makes the knees hinges and the elbows flexion-and-twist joints, keeping every lower leg's and
@@ -88,8 +93,9 @@ pub fn project_limb_joints(pose: &mut [Rotation3<f64>; NUM_JOINTS]) {
 /// the measurement, which carries the rotation network's own error of that upper bone. Both papers'
 /// networks also predict every joint's position (PIP's rnn2, GlobalPose's iknet.net1, trained on
 /// positions), and the direction from hip to knee pins the same angle independently of it. On the
-/// validation split it took PIP's SIP error from 6.97° to 6.40° and GlobalPose's from 5.72° to
-/// 5.68° end to end (stages/kinematics/README.md, "Limb joints").
+/// validation split it took PIP's SIP error from 6.85° to 6.79° and GlobalPose's from 5.47° to
+/// 5.43° end to end, scored on the clips' own frames (6.97 to 6.40° and 5.72 to 5.68° while the
+/// calibration prelude's standing was scored too; stages/kinematics/README.md, "Limb joints").
 ///
 /// `positions` are the predicted joint positions relative to the root, in the frame the pose's
 /// root orientation (`pose[0]`) maps to; `skeleton` gives the rest offsets. A prediction along the
@@ -123,8 +129,7 @@ pub fn flex_toward_positions(
         let forearm = global[elbow.index()];
         // The elbow is Ry(a)·Rx(c) (hinge_elbow); the twist c stays. The upper arm is then
         // `forearm · Rx(c)ᵀ · Ry(a)ᵀ` and its offset b, turned by Ry(−a), should point at u.
-        let m = pose[elbow.index()].matrix();
-        let twist = Rotation3::from_axis_angle(&Vector3::x_axis(), (-m[(1, 2)]).atan2(m[(1, 1)]));
+        let twist = elbow_twist(&pose[elbow.index()]);
         let b = skeleton.offset_in_parent_m(elbow);
         let u =
             twist * forearm.transpose() * (positions[elbow.index()] - positions[shoulder.index()]);

@@ -588,15 +588,17 @@ impl Streamer {
         // its calibrated orientation (within the tolerance) instead of the gravity-corrected
         // root_c; every other bone keeps its orientation in M, and the network inputs above stay
         // GlobalPose's. Positions follow the output pose (the hips turn with the pelvis).
-        let root_out = match self.sensor_bones {
+        let pelvis_on_sensor = match self.sensor_bones {
             SensorBones::Measured { tolerance_rad } => toward_within(&root_c, root, tolerance_rad),
-            SensorBones::Network => root_c,
+            SensorBones::Network => None,
         };
-        let joint_position = if root_out == root_c {
-            world_positions(&prj, &root_c)
-        } else {
-            reroot(&mut pose, &root_out);
-            world_positions(&self.positions_in_root_frame(&pose), &root_out)
+        let (root_out, joint_position) = match pelvis_on_sensor {
+            Some(pelvis) => {
+                reroot(&mut pose, &pelvis);
+                let positions = self.positions_in_root_frame(&pose);
+                (pelvis, world_positions(&positions, &pelvis))
+            }
+            None => (root_c, world_positions(&prj, &root_c)),
         };
         // GlobalPose predicts the root velocity only. The other joints' velocities (which the frame
         // promises, and PIP's physics tracks) follow from it and the change of the root-relative
@@ -623,17 +625,17 @@ impl Streamer {
 }
 
 /// `from` turned toward `to` until it is within `tolerance_rad` of it (about the axis of their
-/// difference); `from` itself when it already is.
-fn toward_within(from: &Rotation3<f64>, to: &Rotation3<f64>, tolerance_rad: f64) -> Rotation3<f64> {
+/// difference); `None` when it already is.
+fn toward_within(
+    from: &Rotation3<f64>,
+    to: &Rotation3<f64>,
+    tolerance_rad: f64,
+) -> Option<Rotation3<f64>> {
     // Through the quaternion: `Rotation3::angle` takes the acos of the trace, NaN when a sensor's
     // f32 matrix, not quite orthonormal, is within ~1e-8 of `from` (trace just above 3).
     let difference = UnitQuaternion::from_rotation_matrix(&(to * from.transpose()));
-    match difference.axis_angle() {
-        Some((axis, angle)) if angle > tolerance_rad => {
-            Rotation3::from_axis_angle(&axis, angle - tolerance_rad) * from
-        }
-        _ => *from,
-    }
+    let (axis, angle) = difference.axis_angle()?;
+    (angle > tolerance_rad).then(|| Rotation3::from_axis_angle(&axis, angle - tolerance_rad) * from)
 }
 
 /// Gives the pose the root orientation `root`, keeping every other bone's orientation in M: the
@@ -663,14 +665,9 @@ pub fn impose_measured_bones(
         };
         let estimated = global[joint.index()];
         let measured = sensor_rotation(&imu.orientation[sensor]);
-        // measured = difference · estimated, the difference in world axes.
-        let difference = measured * estimated.transpose();
-        let angle = difference.angle();
-        if angle <= tolerance_rad {
-            continue;
+        if let Some(turned) = toward_within(&estimated, &measured, tolerance_rad) {
+            pose[joint.index()] = global[parent.index()].transpose() * turned;
         }
-        let turned = toward_within(&estimated, &measured, tolerance_rad);
-        pose[joint.index()] = global[parent.index()].transpose() * turned;
     }
 }
 
@@ -965,7 +962,7 @@ mod tests {
         let near = Rotation3::from_axis_angle(&Vector3::z_axis(), 1e-9) * from;
         let to = Rotation3::from_matrix_unchecked(near.matrix() * (1.0 + 1e-9));
         for tolerance in [0.0, 0.1] {
-            let got = toward_within(&from, &to, tolerance);
+            let got = toward_within(&from, &to, tolerance).unwrap_or(from);
             assert!(got.matrix().iter().all(|v| v.is_finite()), "{got:?}");
             assert!((got.matrix() - from.matrix()).norm() < 1e-8);
         }

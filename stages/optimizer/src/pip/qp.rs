@@ -35,19 +35,11 @@ use imuflow_body::dynamics::{
     DofVector, DynamicsData, MassMatrix, NUM_DOFS, PointJacobian, joint_dof,
 };
 use imuflow_body::kinematics::local_to_global_rotations;
+use imuflow_body::skeleton::SIP_JOINTS;
 use imuflow_body::{Imu, JointId, NUM_JOINTS, Pose};
 use imuflow_contact::ContactSet;
 use imuflow_contact::pip::FEET;
 use imuflow_graph::frames::MAX_CONTACT_POINTS;
-
-/// The upper legs and upper arms (their joints' frames), whose world orientation the
-/// limb-bone rows track.
-const UPPER_LIMB_BONES: [JointId; 4] = [
-    JointId::LEFT_HIP,
-    JointId::RIGHT_HIP,
-    JointId::LEFT_SHOULDER,
-    JointId::RIGHT_SHOULDER,
-];
 use nalgebra::{Cholesky, DMatrix, DVector, Rotation3, Vector3};
 
 use super::{POSITION_PD_JOINTS, PipConfig, bound_qp};
@@ -268,7 +260,8 @@ impl Qp {
         let mut reference_world = [Rotation3::identity(); NUM_JOINTS];
         local_to_global_rotations(&reference.pose.parent_from_joint, &mut reference_world);
         let sensor_bones = Imu::ALL.map(|imu| (imu.joint(), config.coeff_sensor_bone));
-        let limb_bones = UPPER_LIMB_BONES.map(|j| (j, config.coeff_limb_bone));
+        // The SIP joints' frames are exactly the upper legs and upper arms.
+        let limb_bones = SIP_JOINTS.map(|j| (j, config.coeff_limb_bone));
         for (j, weight) in sensor_bones.into_iter().chain(limb_bones) {
             let w2 = weight * weight;
             if w2 > 0.0 {

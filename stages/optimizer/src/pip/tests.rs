@@ -215,12 +215,7 @@ fn the_sensor_bone_rows_bring_the_instrumented_bones_to_their_world_orientation(
 fn the_limb_bone_rows_bring_the_upper_limbs_to_their_world_orientation() {
     // The upper arms hang off the bent spine, the upper legs off the root. The sensor-bone rows
     // are off, so only the limb-bone rows act.
-    let upper_limbs = [
-        JointId::LEFT_HIP,
-        JointId::RIGHT_HIP,
-        JointId::LEFT_SHOULDER,
-        JointId::RIGHT_SHOULDER,
-    ];
+    let upper_limbs = imuflow_body::skeleton::SIP_JOINTS;
     let error = |coeff: f64| {
         let config = PipConfig {
             coeff_limb_bone: coeff,
