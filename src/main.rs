@@ -150,6 +150,11 @@ enum DatasetCommand {
         /// bent further
         #[arg(long)]
         perturb: bool,
+        /// With --perturb: multiply the shoulders' offset ranges and the elbows' flexion range by
+        /// this (2: arms swung up to 90° forward and raised or lowered 50°, as in punches,
+        /// pointing or arms overhead)
+        #[arg(long, default_value_t = 1.0, value_name = "SCALE")]
+        perturb_arm_scale: f64,
         /// One training clip in eight also enters as 15 s of standing idle in its first standing
         /// posture: weight shifts from foot to foot (the feet planted, the legs by inverse
         /// kinematics), the upper body moving as with --perturb
@@ -527,6 +532,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
         speeds,
         recombine,
         perturb,
+        perturb_arm_scale,
         standing_idle,
         vary_stature,
         mapping,
@@ -549,6 +555,11 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
     options.speeds = speeds;
     options.recombine = recombine;
     options.perturb = perturb;
+    if !(perturb_arm_scale.is_finite() && (0.0..=3.0).contains(&perturb_arm_scale)) {
+        eprintln!("error: --perturb-arm-scale: {perturb_arm_scale} is not a scale between 0 and 3");
+        return ExitCode::FAILURE;
+    }
+    options.perturb_arm_scale = perturb_arm_scale;
     options.standing_idle = standing_idle;
     if let Some(range) = vary_stature {
         match range[..] {

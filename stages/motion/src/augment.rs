@@ -197,15 +197,23 @@ impl SmoothNoise {
 /// recorded local rotation R becomes R·exp(ω(t)), ω's components drawn from [`OFFSET_RANGES`];
 /// each elbow's flexion changes by [`ELBOW_FLEXION_DEG`] about the axis of its recorded bend,
 /// clamped to keep the elbow between straight and 145°. Legs, pelvis and root path stay recorded.
-pub fn perturb(clip: &MotionClip, seed: u64) -> MotionClip {
+///
+/// `arm_scale` multiplies the shoulders' ranges and the elbows' flexion range (1: as listed; 2:
+/// arms swung up to 90° forward, raised or lowered 50°: punches, pointing, arms overhead). The
+/// upper arms are the bones the networks get most wrong on unfamiliar motion (issue 12), and at
+/// 1 the shoulders stay near their recorded postures.
+pub fn perturb(clip: &MotionClip, seed: u64, arm_scale: f64) -> MotionClip {
     let mut rng = StdRng::seed_from_u64(seed);
     let joints: Vec<(JointId, [[f64; 2]; 3], [SmoothNoise; 3])> = OFFSET_RANGES
         .iter()
         .map(|r| {
             let noise = [(); 3].map(|_| SmoothNoise::new(&mut rng));
-            (r.joint, r.degrees, noise)
+            let is_shoulder = [JointId::LEFT_SHOULDER, JointId::RIGHT_SHOULDER].contains(&r.joint);
+            let scale = if is_shoulder { arm_scale } else { 1.0 };
+            (r.joint, r.degrees.map(|d| d.map(|v| v * scale)), noise)
         })
         .collect();
+    let elbow_flexion_deg = ELBOW_FLEXION_DEG.map(|v| v * arm_scale);
     let elbows =
         [JointId::LEFT_ELBOW, JointId::RIGHT_ELBOW].map(|j| (j, SmoothNoise::new(&mut rng)));
     let poses = clip
@@ -223,7 +231,7 @@ pub fn perturb(clip: &MotionClip, seed: u64) -> MotionClip {
             }
             for (joint, noise) in &elbows {
                 let r = &mut p.parent_from_joint[joint.index()];
-                *r = flex_elbow(*r, *joint, noise.in_range(t_s, ELBOW_FLEXION_DEG));
+                *r = flex_elbow(*r, *joint, noise.in_range(t_s, elbow_flexion_deg));
             }
             p
         })
@@ -573,72 +581,94 @@ mod tests {
             frame_time_s: 1.0 / 60.0,
             poses,
         };
-        let a = perturb(&clip, 7);
-        assert_eq!(a.poses.len(), clip.poses.len());
-        // Deterministic per seed, different across seeds.
-        let again = perturb(&clip, 7);
-        let other = perturb(&clip, 8);
-        let spine = JointId::SPINE2.index();
-        assert_eq!(
-            a.poses[300].parent_from_joint[spine],
-            again.poses[300].parent_from_joint[spine]
-        );
-        assert!(
-            a.poses[300].parent_from_joint[spine]
-                .angle_to(&other.poses[300].parent_from_joint[spine])
-                > 1e-3
-        );
-        let (mut fk, mut fk_prev) = (FkData::new(), FkData::new());
-        let mut moved = 0.0f64;
-        for (k, (p, orig)) in a.poses.iter().zip(&clip.poses).enumerate() {
-            // Legs, pelvis and the root path are the recorded ones.
-            assert_eq!(p.root_in_world_m, orig.root_in_world_m);
-            for j in [0, 1, 2, 4, 5, 7, 8, 10, 11, 20, 21, 22, 23] {
-                assert_eq!(
-                    p.parent_from_joint[j], orig.parent_from_joint[j],
-                    "joint {j}"
-                );
-            }
-            // Every offset within its range: at most the norm of the range's extremes.
-            for r in &OFFSET_RANGES {
-                let max = Vector3::from_fn(|a, _| r.degrees[a][0].abs().max(r.degrees[a][1].abs()));
-                let offset = orig.parent_from_joint[r.joint.index()].inverse()
-                    * p.parent_from_joint[r.joint.index()];
-                assert!(
-                    offset.angle().to_degrees() <= max.norm() + 1e-9,
-                    "{}",
-                    r.joint.name()
-                );
-            }
-            // The elbows stay between straight and 145°, their forearms in front of the arm's
-            // line (the hinge of the recorded bend).
-            for (elbow, rest) in [
-                (JointId::LEFT_ELBOW, Vector3::x()),
-                (JointId::RIGHT_ELBOW, -Vector3::x()),
-            ] {
-                let forearm = p.parent_from_joint[elbow.index()] * rest;
-                let flexion = rest.angle(&forearm).to_degrees();
-                assert!(flexion <= ELBOW_MAX_FLEXION_DEG + 1e-6, "{flexion}");
-                let recorded = if k < 600 { 90.0 } else { 140.0 };
-                assert!((flexion - recorded) >= ELBOW_FLEXION_DEG[0] - 1e-6);
-                assert!(forearm.z > -1e-9 && forearm.y.abs() < 0.1, "{forearm}");
-            }
-            // Smooth: no wrist moves more than 2 cm between frames (0.5 Hz at most, 1.2 m/s),
-            // but where the recorded bend itself jumps (frame 600).
-            forward_kinematics(&body.skeleton, p, &mut fk);
-            if k > 0 && k != 600 {
-                for j in [JointId::LEFT_WRIST, JointId::RIGHT_WRIST, JointId::HEAD] {
-                    let step = (fk.position(j) - fk_prev.position(j)).norm();
-                    assert!(step < 0.02, "{} moved {step} m at frame {k}", j.name());
-                    moved += step;
+        for arm_scale in [1.0, 2.0] {
+            let a = perturb(&clip, 7, arm_scale);
+            assert_eq!(a.poses.len(), clip.poses.len());
+            // Deterministic per seed, different across seeds.
+            let again = perturb(&clip, 7, arm_scale);
+            let other = perturb(&clip, 8, arm_scale);
+            let spine = JointId::SPINE2.index();
+            assert_eq!(
+                a.poses[300].parent_from_joint[spine],
+                again.poses[300].parent_from_joint[spine]
+            );
+            assert!(
+                a.poses[300].parent_from_joint[spine]
+                    .angle_to(&other.poses[300].parent_from_joint[spine])
+                    > 1e-3
+            );
+            let (mut fk, mut fk_prev) = (FkData::new(), FkData::new());
+            let mut moved = 0.0f64;
+            let mut arm_offset_max = 0.0f64;
+            for (k, (p, orig)) in a.poses.iter().zip(&clip.poses).enumerate() {
+                // Legs, pelvis and the root path are the recorded ones.
+                assert_eq!(p.root_in_world_m, orig.root_in_world_m);
+                for j in [0, 1, 2, 4, 5, 7, 8, 10, 11, 20, 21, 22, 23] {
+                    assert_eq!(
+                        p.parent_from_joint[j], orig.parent_from_joint[j],
+                        "joint {j}"
+                    );
                 }
+                // Every offset within its range: at most the norm of the range's extremes.
+                for r in &OFFSET_RANGES {
+                    let is_shoulder =
+                        [JointId::LEFT_SHOULDER, JointId::RIGHT_SHOULDER].contains(&r.joint);
+                    let scale = if is_shoulder { arm_scale } else { 1.0 };
+                    let max = Vector3::from_fn(|a, _| {
+                        scale * r.degrees[a][0].abs().max(r.degrees[a][1].abs())
+                    });
+                    let offset = orig.parent_from_joint[r.joint.index()].inverse()
+                        * p.parent_from_joint[r.joint.index()];
+                    if is_shoulder {
+                        arm_offset_max = arm_offset_max.max(offset.angle().to_degrees());
+                    }
+                    assert!(
+                        offset.angle().to_degrees() <= max.norm() + 1e-9,
+                        "{}",
+                        r.joint.name()
+                    );
+                }
+                // The elbows stay between straight and 145°, their forearms in front of the arm's
+                // line (the hinge of the recorded bend).
+                for (elbow, rest) in [
+                    (JointId::LEFT_ELBOW, Vector3::x()),
+                    (JointId::RIGHT_ELBOW, -Vector3::x()),
+                ] {
+                    let forearm = p.parent_from_joint[elbow.index()] * rest;
+                    let flexion = rest.angle(&forearm).to_degrees();
+                    assert!(flexion <= ELBOW_MAX_FLEXION_DEG + 1e-6, "{flexion}");
+                    let recorded = if k < 600 { 90.0 } else { 140.0 };
+                    assert!((flexion - recorded) >= arm_scale * ELBOW_FLEXION_DEG[0] - 1e-6);
+                    assert!(forearm.z > -1e-9 && forearm.y.abs() < 0.1, "{forearm}");
+                }
+                // Smooth: no wrist moves more than 2 cm between frames at scale 1 (0.5 Hz at most,
+                // 1.2 m/s; the arms' ranges, and so their speeds, grow with the scale), but where
+                // the recorded bend itself jumps (frame 600).
+                forward_kinematics(&body.skeleton, p, &mut fk);
+                if k > 0 && k != 600 {
+                    for j in [JointId::LEFT_WRIST, JointId::RIGHT_WRIST, JointId::HEAD] {
+                        let step = (fk.position(j) - fk_prev.position(j)).norm();
+                        assert!(
+                            step < 0.02 * arm_scale,
+                            "{} moved {step} m at frame {k}",
+                            j.name()
+                        );
+                        moved += step;
+                    }
+                }
+                std::mem::swap(&mut fk, &mut fk_prev);
             }
-            std::mem::swap(&mut fk, &mut fk_prev);
+            assert!(
+                moved > 1.0,
+                "the offsets must move the upper body: {moved} m in all"
+            );
+            // The scale widens the arms' postures: 2 takes a shoulder past what 1 can reach
+            // (57°, the norm of its largest offsets).
+            assert!(
+                arm_offset_max > 30.0 * arm_scale,
+                "scale {arm_scale}: shoulders turned at most {arm_offset_max}°"
+            );
         }
-        assert!(
-            moved > 1.0,
-            "the offsets must move the upper body: {moved} m in all"
-        );
     }
 
     #[test]

@@ -88,6 +88,9 @@ pub struct BuildOptions {
     /// Training clips also enter with smooth random offsets on the spine, neck, head and arms
     /// ([`augment::perturb`]; seeded by the clip and the seed).
     pub perturb: bool,
+    /// [`augment::perturb`]'s `arm_scale`: how far the perturbed copies' arms are moved (1: the
+    /// listed ranges).
+    pub perturb_arm_scale: f64,
     /// One training clip in [`STANDING_IDLE_EVERY`] (by a hash of the clip and the seed) also
     /// enters as [`augment::STANDING_IDLE_S`] of standing idle with weight shifts in its
     /// first standing posture ([`augment::standing_idle`]), the upper body moved by
@@ -124,6 +127,7 @@ impl BuildOptions {
             speeds: Vec::new(),
             recombine: false,
             perturb: false,
+            perturb_arm_scale: 1.0,
             standing_idle: false,
             vary_stature: None,
             mapping: None,
@@ -628,14 +632,18 @@ impl ClipWork {
             }
             if options.perturb {
                 let seed = fnv1a64(format!("{key}#perturbed").as_bytes()) ^ options.seed;
-                motions.push(("perturbed".to_owned(), augment::perturb(&clip, seed)));
+                motions.push((
+                    "perturbed".to_owned(),
+                    augment::perturb(&clip, seed, options.perturb_arm_scale),
+                ));
             }
             let idle_seed = fnv1a64(format!("{key}#standing idle").as_bytes()) ^ options.seed;
             if options.standing_idle
                 && idle_seed.is_multiple_of(STANDING_IDLE_EVERY)
                 && let Some(idle) = augment::standing_idle(&clip, body, idle_seed)
             {
-                let moving = augment::perturb(&idle, idle_seed.rotate_left(17));
+                let moving =
+                    augment::perturb(&idle, idle_seed.rotate_left(17), options.perturb_arm_scale);
                 motions.push(("standing idle".to_owned(), moving));
             }
         }
