@@ -45,6 +45,10 @@ pub struct EvalArgs {
     /// (anatomical-rotations), or the networks' free 3-DoF joints (the papers').
     #[arg(long, default_value = "anatomical", value_parser = imuflow_kinematics::infer::LIMB_JOINTS)]
     limb_joints: String,
+    /// Also run the networks on the left–right mirrored stream and average the two estimates
+    /// (the kinematics stage's `mirror_ensemble`).
+    #[arg(long)]
+    mirror_ensemble: bool,
     /// Evaluate at most this many sequences per method.
     #[arg(long, default_value_t = usize::MAX)]
     limit: usize,
@@ -74,6 +78,7 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
             .context("--sensor-bone-tolerance-deg must be a finite angle ≥ 0")?,
         limb_joints: imuflow_kinematics::infer::LimbJoints::parse(&args.limb_joints)
             .context("--limb-joints must be anatomical, anatomical-rotations or free")?,
+        mirror_ensemble: args.mirror_ensemble,
         limit: args.limit,
         progress: !args.no_progress,
     };

@@ -361,6 +361,17 @@ fn ablation_files_expand_into_variants_and_bad_ones_are_named() {
                 "nophys-positions",
             ][..],
         ),
+        (
+            "mirror-ensemble",
+            &[
+                "pip",
+                "pip-mirrored",
+                "gp",
+                "gp-mirrored",
+                "nophys",
+                "nophys-mirrored",
+            ][..],
+        ),
     ] {
         let path = format!("{root}/configs/ab/{file}.toml");
         let out = sb.run(&["compare", &path, "--print-graph"]);
@@ -387,6 +398,20 @@ fn ablation_files_expand_into_variants_and_bad_ones_are_named() {
     );
     assert!(nets.contains("[stages.calib]"), "{nets}");
     assert!(nets.contains("[stages.pip-nets-kin]") && nets.contains("models/pip.safetensors"));
+    // The mirroring ablation turns the ensemble on in its mirrored variants' kinematics only.
+    let mirrored = text(
+        &sb.run(&[
+            "compare",
+            &format!("{root}/configs/ab/mirror-ensemble.toml"),
+            "--print-graph",
+        ])
+        .stdout,
+    );
+    assert_eq!(
+        mirrored.matches("mirror_ensemble = true").count(),
+        3,
+        "{mirrored}"
+    );
 
     let bad = sb.graph(
         "bad.toml",

@@ -5,10 +5,35 @@
 //! Following the reference `ParametricModel` (§0): joint i's local transform is `(R_local[i], bone[i])` and
 //! `root_in_world_m` is the world position of the root joint itself.
 
-use nalgebra::{Rotation3, Vector3};
+use nalgebra::{Matrix3, Rotation3, Vector3};
 
 use crate::body_model::BodyModel;
 use crate::skeleton::{Imu, JointId, NUM_IMUS, NUM_JOINTS, Skeleton};
+
+/// `S·R·S` with S the reflection x → −x: the rotation `r` seen in a mirror across the x = 0
+/// plane (a rotation again: S is its own inverse and det S² = 1). Global rotations of a pose
+/// mirror joint by joint this way, and so do local ones, since `S·(A·B)·S = (S·A·S)·(S·B·S)`.
+pub fn mirror_rotation(r: &Rotation3<f64>) -> Rotation3<f64> {
+    let m = r.matrix();
+    // Conjugating by diag(−1, 1, 1) negates the entries that mix x with y or z.
+    Rotation3::from_matrix_unchecked(Matrix3::new(
+        m[(0, 0)],
+        -m[(0, 1)],
+        -m[(0, 2)],
+        -m[(1, 0)],
+        m[(1, 1)],
+        m[(1, 2)],
+        -m[(2, 0)],
+        m[(2, 1)],
+        m[(2, 2)],
+    ))
+}
+
+/// `S·v` with S the reflection x → −x: a position, velocity or acceleration seen in the mirror
+/// (an angular velocity, a pseudovector, mirrors as `−S·ω`).
+pub fn mirror_vector(v: &Vector3<f64>) -> Vector3<f64> {
+    Vector3::new(-v.x, v.y, v.z)
+}
 
 /// One frame of body pose.
 #[derive(Clone, Debug, PartialEq)]
@@ -27,6 +52,19 @@ impl Pose {
             parent_from_joint: [Rotation3::identity(); NUM_JOINTS],
             root_in_world_m,
         }
+    }
+
+    /// The pose reflected across the body's sagittal plane (x → −x in the model frame, x the
+    /// body's left): each joint takes its mirror joint's rotation conjugated by the reflection,
+    /// [`mirror_rotation`], and the root moves to (−x, y, z). On a left–right symmetric body
+    /// model the joint positions are the reflected positions of the mirror joints.
+    pub fn mirrored(&self) -> Pose {
+        let mut mirrored = Pose::t_pose(mirror_vector(&self.root_in_world_m));
+        for j in JointId::all() {
+            mirrored.parent_from_joint[j.index()] =
+                mirror_rotation(&self.parent_from_joint[j.mirror().index()]);
+        }
+        mirrored
     }
 
     /// A pose from its wire form (`KinematicsFrame`/`MotionFrame`: per joint the local rotation as an

@@ -26,7 +26,9 @@ pub mod skeleton;
 pub mod urdf;
 
 pub use body_model::{BodyModel, BodyParams, GRAVITY_IN_MODEL_MPS2};
-pub use kinematics::{FkData, Pose, WirePoseError, forward_kinematics};
+pub use kinematics::{
+    FkData, Pose, WirePoseError, forward_kinematics, mirror_rotation, mirror_vector,
+};
 pub use skeleton::{Imu, JointId, NUM_IMUS, NUM_JOINTS, Skeleton};
 
 #[cfg(test)]

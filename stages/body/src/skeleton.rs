@@ -119,6 +119,18 @@ impl JointId {
         JointId::all().filter(move |j| j.parent() == Some(self))
     }
 
+    /// The joint on the other side of the body (itself on the midline): the left–right mirror
+    /// image across the sagittal plane (x → −x in the model frame, x being the body's left).
+    pub const fn mirror(self) -> JointId {
+        // SMPL pairs: hips 1/2, knees 4/5, ankles 7/8, feet 10/11, collars 13/14, shoulders
+        // 16/17, elbows 18/19, wrists 20/21, hands 22/23.
+        match self.0 {
+            1 | 4 | 7 | 10 | 13 | 16 | 18 | 20 | 22 => JointId(self.0 + 1),
+            2 | 5 | 8 | 11 | 14 | 17 | 19 | 21 | 23 => JointId(self.0 - 1),
+            _ => self,
+        }
+    }
+
     /// All 24 joints in SMPL order; every joint comes after its parent.
     pub fn all() -> impl DoubleEndedIterator<Item = JointId> + ExactSizeIterator {
         (0..NUM_JOINTS as u8).map(JointId)
@@ -202,6 +214,18 @@ impl Imu {
         self as usize
     }
 
+    /// The IMU on the other side of the body (itself on the midline; see [`JointId::mirror`]).
+    pub const fn mirror(self) -> Imu {
+        match self {
+            Imu::LeftForearm => Imu::RightForearm,
+            Imu::RightForearm => Imu::LeftForearm,
+            Imu::LeftLowerLeg => Imu::RightLowerLeg,
+            Imu::RightLowerLeg => Imu::LeftLowerLeg,
+            Imu::Head => Imu::Head,
+            Imu::Pelvis => Imu::Pelvis,
+        }
+    }
+
     /// The joint whose global rotation is this IMU's bone orientation (reference §1: joints 18, 19, 4, 5, 15, 0).
     pub const fn joint(self) -> JointId {
         IMU_JOINTS[self as usize]
@@ -266,6 +290,26 @@ impl Skeleton {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_mirror_maps_pair_left_and_right() {
+        assert_eq!(JointId::LEFT_ELBOW.mirror(), JointId::RIGHT_ELBOW);
+        assert_eq!(JointId::RIGHT_HAND.mirror(), JointId::LEFT_HAND);
+        assert_eq!(JointId::HEAD.mirror(), JointId::HEAD);
+        for j in JointId::all() {
+            assert_eq!(j.mirror().mirror(), j);
+            let (name, other) = (j.name(), j.mirror().name());
+            assert_eq!(
+                other,
+                name.replace("left", "@")
+                    .replace("right", "left")
+                    .replace('@', "right")
+            );
+        }
+        for imu in Imu::ALL {
+            assert_eq!(imu.mirror().joint(), imu.joint().mirror(), "{}", imu.name());
+        }
+    }
 
     #[test]
     fn parents_match_the_smpl_array_and_precede_children() {

@@ -22,6 +22,7 @@ use crate::features::{
 };
 use crate::lean::LeanRnn;
 use crate::method::Method;
+use crate::mirror;
 use crate::net::{LstmState, Rnn};
 use crate::weights::Weights;
 
@@ -246,6 +247,9 @@ pub struct Streamer {
     started: bool,
     /// GlobalPose: the previous frame's root-relative joint positions (for the joint velocities).
     previous_joint_position: Option<[Vector3<f64>; NUM_JOINTS]>,
+    /// With test-time mirroring ([`crate::mirror`]): the same nets with their own states, stepped
+    /// on the mirrored stream.
+    mirrored: Option<Box<Streamer>>,
 }
 
 fn tensor(values: &[f32]) -> candle_core::Result<Tensor> {
@@ -320,7 +324,37 @@ impl Streamer {
             start,
             started: false,
             previous_joint_position: None,
+            mirrored: None,
         })
+    }
+
+    /// Also step the nets on the stream reflected left–right and average the two estimates
+    /// ([`crate::mirror`]; default off). Starts a new session.
+    pub fn set_mirror_ensemble(&mut self, on: bool) {
+        self.started = false;
+        self.mirrored = on.then(|| {
+            Box::new(Streamer {
+                method: self.method,
+                sensor_bones: self.sensor_bones,
+                limb_joints: self.limb_joints,
+                backend: self.backend,
+                nets: self.nets.clone(),
+                lean: self.lean.clone(),
+                states: Vec::new(),
+                nets_time: std::time::Duration::ZERO,
+                body: self.body.clone(),
+                fk: FkData::new(),
+                start: self.start.mirrored(),
+                started: false,
+                previous_joint_position: None,
+                mirrored: None,
+            })
+        });
+    }
+
+    /// Whether the nets also run on the mirrored stream.
+    pub fn mirror_ensemble(&self) -> bool {
+        self.mirrored.is_some()
     }
 
     pub fn method(&self) -> Method {
@@ -330,12 +364,18 @@ impl Streamer {
     /// Where the instrumented bones' orientations come from (default: measured).
     pub fn set_sensor_bones(&mut self, sensor_bones: SensorBones) {
         self.sensor_bones = sensor_bones;
+        if let Some(twin) = &mut self.mirrored {
+            twin.set_sensor_bones(sensor_bones);
+        }
     }
 
     /// What the knees and elbows may do, imposed after the sensor bones are set (default:
     /// anatomical, flexed toward the networks' joint positions; `Free` is the papers' behaviour).
     pub fn set_limb_joints(&mut self, limb_joints: LimbJoints) {
         self.limb_joints = limb_joints;
+        if let Some(twin) = &mut self.mirrored {
+            twin.set_limb_joints(limb_joints);
+        }
     }
 
     /// Step the nets with `backend` from the next session on (starts one: the two keep separate
@@ -343,6 +383,9 @@ impl Streamer {
     pub fn set_backend(&mut self, backend: Backend) {
         self.backend = backend;
         self.started = false;
+        if let Some(twin) = &mut self.mirrored {
+            twin.set_backend(backend);
+        }
     }
 
     pub fn backend(&self) -> Backend {
@@ -353,11 +396,18 @@ impl Streamer {
     /// forward kinematics and pose assembly).
     pub fn nets_time(&self) -> std::time::Duration {
         self.nets_time
+            + self
+                .mirrored
+                .as_ref()
+                .map_or(Default::default(), |t| t.nets_time())
     }
 
     /// Forget the state: the next frame starts a new session from the start pose.
     pub fn reset(&mut self) {
         self.started = false;
+        if let Some(twin) = &mut self.mirrored {
+            twin.reset();
+        }
     }
 
     /// Whether the networks are running: stepped since the last [`Streamer::reset`] or
@@ -368,6 +418,9 @@ impl Streamer {
 
     /// Start the next session (after [`Streamer::reset`]) from `pose`.
     pub fn set_start(&mut self, pose: Pose) {
+        if let Some(twin) = &mut self.mirrored {
+            twin.set_start(pose.mirrored());
+        }
         self.start = pose;
         self.started = false;
     }
@@ -433,7 +486,11 @@ impl Streamer {
         if self.backend != Backend::Lean {
             return;
         }
-        for net in &self.lean {
+        for net in self
+            .lean
+            .iter()
+            .chain(self.mirrored.iter().flat_map(|t| &t.lean))
+        {
             if !net.warm(stop) {
                 return;
             }
@@ -442,6 +499,24 @@ impl Streamer {
 
     /// One frame.
     pub fn step(&mut self, imu: &ImuInput) -> anyhow::Result<Estimate> {
+        let own = self.step_own(imu)?;
+        let Some(twin) = &mut self.mirrored else {
+            return Ok(own);
+        };
+        let seen = mirror::mirrored_estimate(&twin.step(&mirror::mirrored_input(imu))?);
+        let mut estimate = mirror::average(&own, &seen);
+        self.limb_joints
+            .impose(&mut estimate.pose, &estimate.joint_position, &self.body);
+        if self.method == Method::GlobalPose {
+            // GlobalPose's joint positions are its output pose's (forward kinematics).
+            let positions = self.positions_in_root_frame(&estimate.pose);
+            estimate.joint_position = world_positions(&positions, &estimate.pose[0]);
+        }
+        Ok(estimate)
+    }
+
+    /// One frame of this stream's own nets.
+    fn step_own(&mut self, imu: &ImuInput) -> anyhow::Result<Estimate> {
         let root = sensor_rotation(&imu.orientation[ROOT_IMU]);
         if !self.started {
             self.initialize(&root)?;

@@ -16,6 +16,7 @@ pub mod import;
 pub mod infer;
 pub mod lean;
 pub mod method;
+pub mod mirror;
 pub mod net;
 pub mod stage;
 pub mod train;

@@ -172,7 +172,9 @@ impl LstmState {
     }
 }
 
-// Fields are crate-visible so that `lean::LeanRnn` can copy the weights out once.
+// Fields are crate-visible so that `lean::LeanRnn` can copy the weights out once. Cloning shares
+// the tensors (candle's storage is reference-counted).
+#[derive(Clone)]
 pub(crate) struct LstmLayer {
     pub(crate) w_ih: Tensor,
     pub(crate) w_hh: Tensor,
@@ -180,6 +182,7 @@ pub(crate) struct LstmLayer {
     pub(crate) b_hh: Tensor,
 }
 
+#[derive(Clone)]
 pub(crate) struct Linear {
     pub(crate) weight: Tensor,
     pub(crate) bias: Tensor,
@@ -193,6 +196,7 @@ impl Linear {
 }
 
 /// One network: optional input layer, LSTM stack, output layer, optional learned initialization.
+#[derive(Clone)]
 pub struct Rnn {
     pub spec: RnnSpec,
     pub(crate) linear1: Option<Linear>,

@@ -93,6 +93,13 @@ pub const SPEC: StageSpec = StageSpec {
             doc: "anatomical: knees turn about one axis, elbows flex and twist, and what the networks' pose asks beyond that moves to the hips and shoulders (the lower legs and forearms keep their orientation), each flexion set so the upper bone points at the networks' predicted knee or elbow; anatomical-rotations: the same joints, the flexion from the networks' rotations alone; free: the networks' 3-DoF joints, as in the papers",
         },
         ParamSpec {
+            name: "mirror_ensemble",
+            ty: ParamType::Bool,
+            required: false,
+            default: "false",
+            doc: "also run the networks on the stream mirrored left-right and average the two estimates (test-time mirroring; twice the networks' time per frame)",
+        },
+        ParamSpec {
             name: "warm_weights",
             ty: ParamType::Bool,
             required: false,
@@ -152,6 +159,7 @@ pub fn run() -> anyhow::Result<()> {
     let mut streamer = Streamer::new(weights, start.pose())?;
     streamer.set_sensor_bones(sensor_bones);
     streamer.set_limb_joints(limb_joints);
+    streamer.set_mirror_ensemble(params.bool("mirror_ensemble", false));
     let input = ctx.input::<BodyImuFrame>("imu")?;
     let mut output = ctx.output::<KinematicsFrame>("kinematics")?;
     if !ctx.ready()? {

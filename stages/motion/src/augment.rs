@@ -19,51 +19,16 @@
 
 use crate::retarget::{MotionClip, ResampleError, resample};
 use imuflow_body::{BodyModel, FkData, JointId, Pose, forward_kinematics};
-use nalgebra::{Matrix3, Rotation3, Vector3};
+use nalgebra::{Rotation3, Vector3};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
-/// The joint on the other side of the body (itself on the midline), SMPL order.
-pub fn mirror_joint(j: JointId) -> JointId {
-    let i = j.index();
-    // SMPL pairs: hips 1/2, knees 4/5, ankles 7/8, feet 10/11, collars 13/14, shoulders 16/17,
-    // elbows 18/19, wrists 20/21, hands 22/23.
-    let other = match i {
-        1 | 4 | 7 | 10 | 13 | 16 | 18 | 20 | 22 => i + 1,
-        2 | 5 | 8 | 11 | 14 | 17 | 19 | 21 | 23 => i - 1,
-        _ => i,
-    };
-    JointId::from_index(other).unwrap_or(j)
-}
-
-/// The reflection x → −x of the model frame (x is the body's left).
-fn reflection() -> Matrix3<f64> {
-    Matrix3::from_diagonal(&nalgebra::Vector3::new(-1.0, 1.0, 1.0))
-}
-
-/// `clip` reflected across the body's sagittal plane (x → −x in the model frame): each joint takes
-/// its mirror joint's rotation conjugated by the reflection, `S·R·S` (a rotation again: S is its
-/// own inverse and det S² = 1), and the root moves to (−x, y, z). On a left–right symmetric body
-/// model the joint positions are the reflected positions of the mirror joints.
+/// `clip` reflected across the body's sagittal plane, pose by pose ([`Pose::mirrored`]): a
+/// left-handed wave becomes a right-handed one.
 pub fn mirror(clip: &MotionClip) -> MotionClip {
-    let s = reflection();
-    let poses = clip
-        .poses
-        .iter()
-        .map(|pose| {
-            let mut m = pose.clone();
-            for j in JointId::all() {
-                let r = pose.parent_from_joint[mirror_joint(j).index()];
-                m.parent_from_joint[j.index()] =
-                    Rotation3::from_matrix_unchecked(s * r.matrix() * s);
-            }
-            m.root_in_world_m.x = -pose.root_in_world_m.x;
-            m
-        })
-        .collect();
     MotionClip {
         frame_time_s: clip.frame_time_s,
-        poses,
+        poses: clip.poses.iter().map(Pose::mirrored).collect(),
     }
 }
 
@@ -497,7 +462,7 @@ mod tests {
         forward_kinematics(&body.skeleton, &clip.poses[0], &mut fk);
         forward_kinematics(&body.skeleton, &mirrored.poses[0], &mut fk_m);
         for j in JointId::all() {
-            let p = fk.position(mirror_joint(j));
+            let p = fk.position(j.mirror());
             let want = Vector3::new(-p.x, p.y, p.z);
             let got = fk_m.position(j);
             assert!((got - want).norm() < 1e-9, "{}: {got} vs {want}", j.name());
@@ -769,20 +734,6 @@ mod tests {
                 .collect(),
         };
         assert!(standing_idle(&walking, &body, 1).is_none());
-    }
-
-    #[test]
-    fn the_mirror_map_pairs_left_and_right() {
-        assert_eq!(mirror_joint(JointId::LEFT_ELBOW), JointId::RIGHT_ELBOW);
-        assert_eq!(mirror_joint(JointId::RIGHT_HAND), JointId::LEFT_HAND);
-        assert_eq!(mirror_joint(JointId::HEAD), JointId::HEAD);
-        for j in JointId::all() {
-            assert_eq!(mirror_joint(mirror_joint(j)), j);
-            assert!(
-                j.name().contains("left") == mirror_joint(j).name().contains("right")
-                    || mirror_joint(j) == j
-            );
-        }
     }
 
     #[test]

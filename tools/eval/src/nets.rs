@@ -45,6 +45,9 @@ pub struct NetsEval {
     pub sensor_bones: SensorBones,
     /// What the knees and elbows may do (the kinematics stage's `limb_joints`).
     pub limb_joints: LimbJoints,
+    /// Also step the networks on the mirrored stream and average (the kinematics stage's
+    /// `mirror_ensemble`).
+    pub mirror_ensemble: bool,
     /// At most this many sequences per method.
     pub limit: usize,
     /// Show a progress bar per method.
@@ -59,6 +62,7 @@ pub struct NetsReport {
     pub copies: Copies,
     pub sensor_bones: SensorBones,
     pub limb_joints: LimbJoints,
+    pub mirror_ensemble: bool,
     pub rows: Vec<(Method, Scores)>,
 }
 
@@ -75,6 +79,7 @@ pub fn run(options: &NetsEval) -> anyhow::Result<NetsReport> {
         copies: options.copies,
         sensor_bones: options.sensor_bones,
         limb_joints: options.limb_joints,
+        mirror_ensemble: options.mirror_ensemble,
         rows,
     })
 }
@@ -83,7 +88,7 @@ impl fmt::Display for NetsReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "{} split of {} ({} copies; sensor bones {}; {} knees and elbows; reduced protocol, reference §6)",
+            "{} split of {} ({} copies; sensor bones {}; {} knees and elbows{}; reduced protocol, reference §6)",
             self.split,
             self.data.display(),
             self.copies.name(),
@@ -92,7 +97,12 @@ impl fmt::Display for NetsReport {
                     format!("within {:.1}° of their sensors", tolerance_rad.to_degrees()),
                 SensorBones::Network => "from the networks".to_owned(),
             },
-            self.limb_joints.name()
+            self.limb_joints.name(),
+            if self.mirror_ensemble {
+                "; averaged with the mirrored stream"
+            } else {
+                ""
+            }
         )?;
         f.write_str(&table(&self.rows))
     }
@@ -123,6 +133,7 @@ pub fn evaluate(method: Method, weights: &Path, options: &NetsEval) -> anyhow::R
         copies,
         sensor_bones,
         limb_joints,
+        mirror_ensemble,
         limit,
         progress,
         ..
@@ -134,6 +145,7 @@ pub fn evaluate(method: Method, weights: &Path, options: &NetsEval) -> anyhow::R
     let mut streamer = Streamer::new(loaded, Pose::t_pose(Vector3::zeros()))?;
     streamer.set_sensor_bones(sensor_bones);
     streamer.set_limb_joints(*limb_joints);
+    streamer.set_mirror_ensemble(*mirror_ensemble);
     let body = BodyModel::new(&BodyParams::builtin()?, 1.75, 70.0)?;
     let bar = sequence_bar(method.name(), progress);
     let mut totals = Scores::default();
