@@ -781,7 +781,7 @@ pub fn pose_from_reduced_r6d(r6d: &[f32], root: &Rotation3<f64>) -> [Rotation3<f
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// python/examples/pip_numpy.py starts PIP's rnn1 from these positions written out (numpy
@@ -816,7 +816,7 @@ mod tests {
     }
 
     /// A weight file of models/ (path relative to the repository root).
-    fn committed_weights(method: Method, path: &str) -> Weights {
+    pub(crate) fn committed_weights(method: Method, path: &str) -> Weights {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../..")
             .join(path);

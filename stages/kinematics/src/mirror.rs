@@ -113,8 +113,8 @@ pub fn average(a: &Estimate, b: &Estimate) -> Estimate {
 mod tests {
     use super::*;
     use crate::infer::Streamer;
+    use crate::infer::tests::committed_weights;
     use crate::method::Method;
-    use crate::weights::Weights;
     use imuflow_body::{BodyModel, BodyParams, Pose};
     use imuflow_motion::augment::mirror;
     use imuflow_motion::imu_synthesis::{SynthesisOptions, synthesize_imus};
@@ -218,12 +218,9 @@ mod tests {
     /// the same two streams in swapped roles). It differs from the networks alone, keeps the
     /// instrumented bones on their sensors, and keeps the knees hinges.
     fn the_ensemble_mirrors_with_its_input(method: Method, path: &str) {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../..")
-            .join(path);
         let streamer = |ensemble: bool| {
             let mut s = Streamer::new(
-                Weights::load(&path, method).unwrap(),
+                committed_weights(method, path),
                 Pose::t_pose(Vector3::zeros()),
             )
             .unwrap();
