@@ -141,6 +141,11 @@ enum DatasetCommand {
         /// slower and 60 % faster).
         #[arg(long, value_delimiter = ',', value_name = "FACTORS")]
         speeds: Vec<f64>,
+        /// The other motion augmentations (speeds, recombined, perturbed, standing idle) enter
+        /// mirrored for a seeded half of the training clips, so that both sides are seen as often
+        /// (without it the recorded side enters once per augmentation, the mirrored one once)
+        #[arg(long)]
+        mirror_augmentations: bool,
         /// Training clips also enter with the upper body (spine, head, arms) of another training
         /// clip: new combinations of recorded poses (a punch while walking)
         #[arg(long)]
@@ -530,6 +535,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
         limit,
         mirror,
         speeds,
+        mirror_augmentations,
         recombine,
         perturb,
         perturb_arm_scale,
@@ -553,6 +559,7 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
         return ExitCode::FAILURE;
     }
     options.speeds = speeds;
+    options.mirror_augmentations = mirror_augmentations;
     options.recombine = recombine;
     options.perturb = perturb;
     if !(perturb_arm_scale.is_finite() && (0.0..=3.0).contains(&perturb_arm_scale)) {

@@ -79,6 +79,11 @@ pub struct BuildOptions {
     pub limit: Option<usize>,
     /// Training clips also enter mirrored left–right ([`augment::mirror`]).
     pub mirror: bool,
+    /// Each further motion augmentation (speeds, recombined, perturbed, standing idle) of a
+    /// training clip enters mirrored for a seeded half of the clips, so that the recorded
+    /// handedness does not outnumber the mirrored one (with `mirror` alone the recorded side
+    /// enters once per augmentation and the mirrored side once).
+    pub mirror_augmentations: bool,
     /// Training clips also enter at each of these speeds ([`augment::time_warp`]; 1 is
     /// the clip itself).
     pub speeds: Vec<f64>,
@@ -124,6 +129,7 @@ impl BuildOptions {
             seed: 0,
             limit: None,
             mirror: false,
+            mirror_augmentations: false,
             speeds: Vec::new(),
             recombine: false,
             perturb: false,
@@ -646,6 +652,18 @@ impl ClipWork {
                     augment::perturb(&idle, idle_seed.rotate_left(17), options.perturb_arm_scale);
                 motions.push(("standing idle".to_owned(), moving));
             }
+        }
+        if options.mirror_augmentations {
+            motions = motions
+                .into_iter()
+                .map(|(name, motion)| {
+                    let coin = fnv1a64(format!("{key}#{name}#side").as_bytes()) ^ options.seed;
+                    match name != "mirrored" && coin % 2 == 1 {
+                        true => (format!("{name}, mirrored"), augment::mirror(&motion)),
+                        false => (name, motion),
+                    }
+                })
+                .collect();
         }
         motions.insert(0, (String::new(), clip));
         let mut out = Vec::new();

@@ -489,6 +489,92 @@ fn motion_augmentations_add_training_sequences_only() {
     );
 }
 
+/// Every training sequence of a build, in shard order: (clip, motion, root positions per frame).
+fn training_root_paths(out: &Path) -> Vec<(String, String, Vec<[f32; 3]>)> {
+    let mut sequences = Vec::new();
+    for shard in shard_files(out) {
+        let bytes = std::fs::read(&shard).unwrap();
+        let meta = shard_metadata(&bytes);
+        if meta.split != "train" {
+            continue;
+        }
+        let st = SafeTensors::deserialize(&bytes).unwrap();
+        let root: Vec<f32> = st
+            .tensor("root_position")
+            .unwrap()
+            .data()
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+            .collect();
+        let mut start = 0;
+        for s in &meta.sequences {
+            let path = (start..start + s.frames)
+                .map(|k| [root[3 * k], root[3 * k + 1], root[3 * k + 2]])
+                .collect();
+            sequences.push((s.clip.clone(), s.motion.clone(), path));
+            start += s.frames;
+        }
+    }
+    sequences
+}
+
+#[test]
+fn mirrored_augmentations_balance_the_sides_without_adding_sequences() {
+    let input = input_dir(&GOOD);
+    let (plain_out, balanced_out) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let mut o = options(input.path(), plain_out.path());
+    o.mirror = true;
+    o.speeds = vec![0.5, 0.8, 1.25, 2.0];
+    o.perturb = true;
+    let plain = build(&o).unwrap();
+    o.out_dir = balanced_out.path().to_path_buf();
+    o.mirror_augmentations = true;
+    let balanced = build(&o).unwrap();
+    for (a, b) in plain.splits.iter().zip(&balanced.splits) {
+        // The bytes differ by the longer motion names in the metadata.
+        let counts = |s: &imuflow_dataset::SplitSummary| (s.clips, s.sequences, s.frames, s.shards);
+        assert_eq!(counts(a), counts(b), "the same sequences and frames");
+    }
+
+    let (before, after) = (
+        training_root_paths(plain_out.path()),
+        training_root_paths(balanced_out.path()),
+    );
+    assert_eq!(before.len(), after.len());
+    let (mut turned, mut kept) = (0, 0);
+    for ((clip_a, motion_a, path_a), (clip_b, motion_b, path_b)) in before.iter().zip(&after) {
+        assert_eq!(clip_a, clip_b);
+        assert_eq!(path_a.len(), path_b.len(), "{clip_a} {motion_a}");
+        // The recorded motion and its mirror image stay as they were; another augmentation
+        // either stays or enters as its mirror image (the root's x negated: S = diag(-1, 1, 1)).
+        let mirrored = if motion_b == motion_a {
+            false
+        } else {
+            assert!(
+                !["", "mirrored"].contains(&motion_a.as_str()),
+                "{clip_a}: {motion_a} became {motion_b}"
+            );
+            assert_eq!(*motion_b, format!("{motion_a}, mirrored"));
+            true
+        };
+        for (a, b) in path_a.iter().zip(path_b) {
+            let x = if mirrored { -a[0] } else { a[0] };
+            assert!(
+                (x - b[0]).abs() < 1e-5 && (a[1] - b[1]).abs() < 1e-5 && (a[2] - b[2]).abs() < 1e-5,
+                "{clip_a} {motion_b}: {a:?} vs {b:?}"
+            );
+        }
+        if !["", "mirrored"].contains(&motion_a.as_str()) {
+            match mirrored {
+                true => turned += 1,
+                false => kept += 1,
+            }
+        }
+    }
+    // Five augmentations of each training clip, one seeded coin each: both sides must occur.
+    assert!(turned > 0 && kept > 0, "{turned} turned, {kept} kept");
+}
+
 #[test]
 fn recombined_upper_bodies_come_from_other_training_clips_only() {
     let input = input_dir(&GOOD);
