@@ -91,6 +91,16 @@ fn shard_metadata(bytes: &[u8]) -> ShardMetadata {
     serde_json::from_str(&metadata.metadata().as_ref().unwrap()[METADATA_KEY]).unwrap()
 }
 
+/// A shard tensor's values (the builder writes every float tensor as little-endian f32).
+fn f32_tensor(st: &SafeTensors, name: &str) -> Vec<f32> {
+    st.tensor(name)
+        .unwrap()
+        .data()
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+        .collect()
+}
+
 fn shard_files(out: &Path) -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(out)
         .unwrap()
@@ -207,14 +217,7 @@ fn builds_loadable_deterministic_shards_and_skips_bad_clips() {
             assert_eq!((pair[0].copy, pair[1].copy), (0, 1));
         }
         // An ideal copy and its augmented copy share the motion, not the IMU signals.
-        let floats = |name: &str| -> Vec<f32> {
-            st.tensor(name)
-                .unwrap()
-                .data()
-                .chunks_exact(4)
-                .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
-                .collect()
-        };
+        let floats = |name: &str| f32_tensor(&st, name);
         let (pose, ori) = (floats("pose_local"), floats("imu_orientation"));
         let (root, joints) = (floats("root_position"), floats("joint_position"));
         let (p, o) = (frames * 24 * 9, frames * 6 * 9);
@@ -415,12 +418,7 @@ fn amass_npz_clips_build_like_the_same_motion_in_bvh() {
         let file = shard_files(dir).into_iter().next().unwrap();
         let bytes = std::fs::read(file).unwrap();
         let t = SafeTensors::deserialize(&bytes).unwrap();
-        ["pose_local", "root_position"].map(|name| {
-            let data = t.tensor(name).unwrap().data().to_vec();
-            data.chunks(4)
-                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                .collect::<Vec<f32>>()
-        })
+        ["pose_local", "root_position"].map(|name| f32_tensor(&t, name))
     };
     let (npz, bvh) = (read(out.path()), read(reference_out.path()));
     for (name, (a, b)) in ["pose_local", "root_position"]
@@ -499,13 +497,7 @@ fn training_root_paths(out: &Path) -> Vec<(String, String, Vec<[f32; 3]>)> {
             continue;
         }
         let st = SafeTensors::deserialize(&bytes).unwrap();
-        let root: Vec<f32> = st
-            .tensor("root_position")
-            .unwrap()
-            .data()
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
-            .collect();
+        let root = f32_tensor(&st, "root_position");
         let mut start = 0;
         for s in &meta.sequences {
             let path = (start..start + s.frames)
@@ -671,13 +663,7 @@ fn varied_statures_resize_augmented_training_copies_only() {
         let bytes = std::fs::read(&shard).unwrap();
         let st = SafeTensors::deserialize(&bytes).unwrap();
         let meta = shard_metadata(&bytes);
-        let joints: Vec<f32> = st
-            .tensor("joint_position")
-            .unwrap()
-            .data()
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
-            .collect();
+        let joints = f32_tensor(&st, "joint_position");
         let mut first = 0;
         let mut ideal_height = 0.0;
         for seq in &meta.sequences {
