@@ -250,6 +250,9 @@ pub struct Streamer {
     /// With test-time mirroring ([`crate::mirror`]): the same nets with their own states, stepped
     /// on the mirrored stream.
     mirrored: Option<Box<Streamer>>,
+    /// With a weight ensemble: a second set of weights of the same method, with its own states,
+    /// stepped on the same stream (and, with test-time mirroring, on its mirror too).
+    partner: Option<Box<Streamer>>,
 }
 
 fn tensor(values: &[f32]) -> candle_core::Result<Tensor> {
@@ -325,6 +328,7 @@ impl Streamer {
             started: false,
             previous_joint_position: None,
             mirrored: None,
+            partner: None,
         })
     }
 
@@ -348,8 +352,42 @@ impl Streamer {
                 started: false,
                 previous_joint_position: None,
                 mirrored: None,
+                partner: None,
             })
         });
+        if let Some(partner) = &mut self.partner {
+            partner.set_mirror_ensemble(on);
+        }
+    }
+
+    /// Also step a second set of weights of the same method on the same stream and average the
+    /// two estimates the way test-time mirroring does (a weight ensemble; default none). The
+    /// partner takes this streamer's settings, mirroring included. Starts a new session.
+    pub fn set_partner(&mut self, weights: Option<Weights>) -> anyhow::Result<()> {
+        self.started = false;
+        self.partner = None;
+        let Some(weights) = weights else {
+            return Ok(());
+        };
+        if weights.metadata.method != self.method {
+            anyhow::bail!(
+                "the ensemble's second weights are {}'s, the first {}'s",
+                weights.metadata.method.name(),
+                self.method.name()
+            );
+        }
+        let mut partner = Streamer::new(weights, self.start.clone())?;
+        partner.set_sensor_bones(self.sensor_bones);
+        partner.set_limb_joints(self.limb_joints);
+        partner.set_backend(self.backend);
+        partner.set_mirror_ensemble(self.mirrored.is_some());
+        self.partner = Some(Box::new(partner));
+        Ok(())
+    }
+
+    /// The streamers stepped beside this one: its mirror twin and its weight partner.
+    fn companions(&mut self) -> impl Iterator<Item = &mut Box<Streamer>> {
+        self.mirrored.iter_mut().chain(self.partner.iter_mut())
     }
 
     /// Whether the nets also run on the mirrored stream.
@@ -364,7 +402,7 @@ impl Streamer {
     /// Where the instrumented bones' orientations come from (default: measured).
     pub fn set_sensor_bones(&mut self, sensor_bones: SensorBones) {
         self.sensor_bones = sensor_bones;
-        if let Some(twin) = &mut self.mirrored {
+        for twin in self.companions() {
             twin.set_sensor_bones(sensor_bones);
         }
     }
@@ -373,7 +411,7 @@ impl Streamer {
     /// anatomical, flexed toward the networks' joint positions; `Free` is the papers' behaviour).
     pub fn set_limb_joints(&mut self, limb_joints: LimbJoints) {
         self.limb_joints = limb_joints;
-        if let Some(twin) = &mut self.mirrored {
+        for twin in self.companions() {
             twin.set_limb_joints(limb_joints);
         }
     }
@@ -383,7 +421,7 @@ impl Streamer {
     pub fn set_backend(&mut self, backend: Backend) {
         self.backend = backend;
         self.started = false;
-        if let Some(twin) = &mut self.mirrored {
+        for twin in self.companions() {
             twin.set_backend(backend);
         }
     }
@@ -398,14 +436,16 @@ impl Streamer {
         self.nets_time
             + self
                 .mirrored
-                .as_ref()
-                .map_or(Default::default(), |t| t.nets_time())
+                .iter()
+                .chain(&self.partner)
+                .map(|t| t.nets_time())
+                .sum::<std::time::Duration>()
     }
 
     /// Forget the state: the next frame starts a new session from the start pose.
     pub fn reset(&mut self) {
         self.started = false;
-        if let Some(twin) = &mut self.mirrored {
+        for twin in self.companions() {
             twin.reset();
         }
     }
@@ -420,6 +460,9 @@ impl Streamer {
     pub fn set_start(&mut self, pose: Pose) {
         if let Some(twin) = &mut self.mirrored {
             twin.set_start(pose.mirrored());
+        }
+        if let Some(partner) = &mut self.partner {
+            partner.set_start(pose.clone());
         }
         self.start = pose;
         self.started = false;
@@ -490,6 +533,11 @@ impl Streamer {
             .lean
             .iter()
             .chain(self.mirrored.iter().flat_map(|t| &t.lean))
+            .chain(
+                self.partner
+                    .iter()
+                    .flat_map(|p| p.lean.iter().chain(p.mirrored.iter().flat_map(|t| &t.lean))),
+            )
         {
             if !net.warm(stop) {
                 return;
@@ -499,12 +547,17 @@ impl Streamer {
 
     /// One frame.
     pub fn step(&mut self, imu: &ImuInput) -> anyhow::Result<Estimate> {
-        let own = self.step_own(imu)?;
-        let Some(twin) = &mut self.mirrored else {
-            return Ok(own);
-        };
-        let seen = mirror::mirrored_estimate(&twin.step(&mirror::mirrored_input(imu))?);
-        let mut estimate = mirror::average(&own, &seen);
+        let mut estimate = self.step_own(imu)?;
+        if self.mirrored.is_none() && self.partner.is_none() {
+            return Ok(estimate);
+        }
+        if let Some(twin) = &mut self.mirrored {
+            let seen = mirror::mirrored_estimate(&twin.step(&mirror::mirrored_input(imu))?);
+            estimate = mirror::average(&estimate, &seen);
+        }
+        if let Some(partner) = &mut self.partner {
+            estimate = mirror::average(&estimate, &partner.step(imu)?);
+        }
         self.limb_joints
             .impose(&mut estimate.pose, &estimate.joint_position, &self.body);
         if self.method == Method::GlobalPose {
@@ -783,6 +836,7 @@ pub fn pose_from_reduced_r6d(r6d: &[f32], root: &Rotation3<f64>) -> [Rotation3<f
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+    use imuflow_body::Imu;
 
     /// python/examples/pip_numpy.py starts PIP's rnn1 from these positions written out (numpy
     /// has no body model): they must be this body's T-pose leaf joints, relative to the root.
@@ -1158,5 +1212,107 @@ pub(crate) mod tests {
             let d = (global[j.index()].matrix() - fk.world_from(j).matrix()).norm();
             assert!(d < 1e-12, "{}: {d}", j.name());
         }
+    }
+
+    /// The committed weights with every net's output bias shifted: a second, different set of
+    /// weights of the same method.
+    fn shifted_weights(method: Method, path: &str) -> Weights {
+        let mut weights = committed_weights(method, path);
+        for net in &mut weights.nets {
+            net.linear2.bias = net.linear2.bias.affine(1.0, 0.02).unwrap();
+        }
+        weights
+    }
+
+    /// A weight ensemble averages two weight sets symmetrically: A with partner B gives what B
+    /// with partner A gives (the average does not depend on the order), which is neither alone;
+    /// the instrumented bones stay on their sensors and the knees stay hinges; a partner with
+    /// the same weights changes nothing; a partner of another method is refused.
+    fn a_weight_ensemble_is_symmetric(method: Method, path: &str) {
+        let streamer = |weights: Weights, partner: Option<Weights>| {
+            let mut s = Streamer::new(weights, Pose::t_pose(Vector3::zeros())).unwrap();
+            s.set_partner(partner).unwrap();
+            s
+        };
+        let (a, b) = (
+            || committed_weights(method, path),
+            || shifted_weights(method, path),
+        );
+        let mut ab = streamer(a(), Some(b()));
+        let mut ba = streamer(b(), Some(a()));
+        let (mut alone_a, mut alone_b) = (streamer(a(), None), streamer(b(), None));
+        let mut twice_a = streamer(a(), Some(a()));
+        let flat = |e: &Estimate| -> Vec<f64> {
+            let mut v: Vec<f64> = global_rotations(&e.pose)
+                .iter()
+                .flat_map(|r| r.matrix().iter().copied().collect::<Vec<_>>())
+                .collect();
+            v.extend(e.joint_position.iter().flat_map(|p| p.iter().copied()));
+            v.extend(e.foot_contact.iter().chain(&e.stationary).copied());
+            v.extend(e.root_velocity.iter().chain(e.gravity_in_root.iter()));
+            v
+        };
+        let largest = |a: &[f64], b: &[f64]| {
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f64::max)
+        };
+        let (mut asymmetry, mut from_a, mut from_b, mut same_twice) =
+            (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for f in 0..240 {
+            let input = crate::bench::swaying_sensors(f);
+            let e = ab.step(&input).unwrap();
+            asymmetry = asymmetry.max(largest(&flat(&e), &flat(&ba.step(&input).unwrap())));
+            let own = alone_a.step(&input).unwrap();
+            from_a = from_a.max(largest(&flat(&e), &flat(&own)));
+            from_b = from_b.max(largest(&flat(&e), &flat(&alone_b.step(&input).unwrap())));
+            same_twice =
+                same_twice.max(largest(&flat(&own), &flat(&twice_a.step(&input).unwrap())));
+            let global = global_rotations(&e.pose);
+            for sensor in Imu::ALL {
+                let m = input.orientation[sensor.index()].map(f64::from);
+                let d =
+                    (global[sensor.joint().index()].matrix() - Matrix3::from_row_slice(&m)).norm();
+                assert!(
+                    d < 1e-5,
+                    "{method:?} frame {f}: {} off its sensor by {d}",
+                    sensor.name()
+                );
+            }
+            for knee in [JointId::LEFT_KNEE, JointId::RIGHT_KNEE] {
+                let v = e.pose[knee.index()].scaled_axis();
+                assert!(v.y.abs() < 1e-9 && v.z.abs() < 1e-9, "{knee}: {v:?}");
+            }
+        }
+        assert!(
+            asymmetry < 1e-9,
+            "{method:?}: A+B and B+A differ by {asymmetry}"
+        );
+        assert!(
+            from_a > 1e-3 && from_b > 1e-3,
+            "{method:?}: {from_a}, {from_b}"
+        );
+        assert!(
+            same_twice < 1e-6,
+            "{method:?}: A+A differs from A by {same_twice}"
+        );
+        let other = match method {
+            Method::Pip => committed_weights(Method::GlobalPose, "models/globalpose.safetensors"),
+            Method::GlobalPose => committed_weights(Method::Pip, "models/pip.safetensors"),
+        };
+        let mut refused = streamer(a(), None);
+        let message = refused.set_partner(Some(other)).unwrap_err().to_string();
+        assert!(message.contains("second weights are"), "{message}");
+    }
+
+    #[test]
+    fn a_weight_ensemble_is_symmetric_pip() {
+        a_weight_ensemble_is_symmetric(Method::Pip, "models/pip.safetensors");
+    }
+
+    #[test]
+    fn a_weight_ensemble_is_symmetric_globalpose() {
+        a_weight_ensemble_is_symmetric(Method::GlobalPose, "models/globalpose.safetensors");
     }
 }

@@ -105,7 +105,8 @@ pub fn average(a: &Estimate, b: &Estimate) -> Estimate {
         foot_contact: std::array::from_fn(|k| 0.5 * (a.foot_contact[k] + b.foot_contact[k])),
         stationary: std::array::from_fn(|k| 0.5 * (a.stationary[k] + b.stationary[k])),
         root_velocity: mean(&a.root_velocity, &b.root_velocity),
-        gravity_in_root: global[0].transpose() * (a.gravity_in_root.norm() * -Vector3::y()),
+        gravity_in_root: global[0].transpose()
+            * (0.5 * (a.gravity_in_root.norm() + b.gravity_in_root.norm()) * -Vector3::y()),
     }
 }
 

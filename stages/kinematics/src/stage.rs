@@ -16,7 +16,7 @@
 //! - Restarted mid-stream (its `restart` policy), the subject is no longer in the start pose: the
 //!   nets start from the pose the sensors show instead ([`pose_from_sensors`]).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use imuflow_graph::frames::{BodyImuFrame, KinematicsFrame, NUM_IMUS, flags};
@@ -100,6 +100,13 @@ pub const SPEC: StageSpec = StageSpec {
             doc: "also run the networks on the stream mirrored left-right and average the two estimates (test-time mirroring; twice the networks' time per frame)",
         },
         ParamSpec {
+            name: "ensemble_weights",
+            ty: ParamType::Path,
+            required: false,
+            default: "",
+            doc: "a second weight file of the same net: both run on every frame and their estimates are averaged (a weight ensemble; twice the networks' time per frame, four times with mirror_ensemble)",
+        },
+        ParamSpec {
             name: "warm_weights",
             ty: ParamType::Bool,
             required: false,
@@ -160,6 +167,13 @@ pub fn run() -> anyhow::Result<()> {
     streamer.set_sensor_bones(sensor_bones);
     streamer.set_limb_joints(limb_joints);
     streamer.set_mirror_ensemble(params.bool("mirror_ensemble", false));
+    if let Some(path) = params.str("ensemble_weights").filter(|p| !p.is_empty()) {
+        let partner = Weights::load(Path::new(path), method)
+            .with_context(|| format!("stage '{stage}': loading ensemble_weights '{path}'"))?;
+        streamer
+            .set_partner(Some(partner))
+            .with_context(|| format!("stage '{stage}': ensemble_weights '{path}'"))?;
+    }
     let input = ctx.input::<BodyImuFrame>("imu")?;
     let mut output = ctx.output::<KinematicsFrame>("kinematics")?;
     if !ctx.ready()? {
