@@ -97,6 +97,52 @@ fn valid_graphs_and_shipped_configs_pass() {
 }
 
 #[test]
+fn nice_takes_a_level_or_idle_and_names_anything_else() {
+    let sb = Sandbox::new("check-nice");
+    let graph = sb.graph(
+        "g.toml",
+        "name = \"g\"\n[stages.src]\nkind = \"test-source\"\n[stages.rec]\nkind = \"recorder\"\ninputs = { imu = \"src.imu\" }\nparams = { path = \"x.mcap\" }\n",
+    );
+    let g = graph.to_str().expect("utf8");
+    // `graph show` prints the wiring with each stage's scheduling; `graph check` the problems.
+    let run = |command: &str, nice: &str| {
+        sb.run(&[
+            "graph",
+            command,
+            g,
+            "--set",
+            &format!("stages.rec.nice={nice}"),
+        ])
+    };
+    for (nice, shown) in [
+        (
+            "\"idle\"",
+            "nice = \"idle\": live, runs only on cores no other stage wants",
+        ),
+        ("12", "nice = 12: yields contended cores"),
+    ] {
+        let out = run("show", nice);
+        assert!(out.status.success(), "{nice}: {}", text(&out.stderr));
+        assert!(
+            text(&out.stdout).contains(shown),
+            "{nice}: {}",
+            text(&out.stdout)
+        );
+    }
+    for nice in ["\"fast\"", "20"] {
+        let out = run("check", nice);
+        let stderr = text(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{nice}: {stderr}");
+        assert!(
+            stderr.contains(
+                "stage 'rec': nice: must be an integer from 0 (the default) to 19, or \"idle\""
+            ),
+            "{nice}: {stderr}"
+        );
+    }
+}
+
+#[test]
 fn set_overrides_are_validated_like_written_values() {
     let sb = Sandbox::new("check-set");
     let graph = sb.graph(

@@ -715,7 +715,7 @@ fn write_stage(
     if let Some(stall) = node.stall_timeout_s {
         let _ = writeln!(text, "stall_timeout_s = {}", float(stall));
     }
-    if node.nice > 0 {
+    if !node.nice.is_default() {
         let _ = writeln!(text, "nice = {}", node.nice);
     }
     if on_failure.unwrap_or(node.on_failure) == OnFailure::StopBranch {

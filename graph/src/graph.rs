@@ -109,11 +109,48 @@ pub struct StageNode {
     /// Started again when it fails ([`RestartPolicy`]); `None`: never.
     #[serde(default)]
     pub restart: Option<RestartPolicy>,
-    /// The process's scheduling niceness (0-19, `nice` in the graph file): the kernel gives a
-    /// stage with a higher value less of a contended core, so the stages on the path from the
-    /// sensors to the output keep their latency while the viewer and the validation wait.
+    /// How the kernel schedules the stage's process (`nice` in the graph file).
     #[serde(default)]
-    pub nice: u8,
+    pub nice: Nice,
+}
+
+/// How the kernel schedules a stage's process (`nice = 10` or `nice = "idle"` in the graph file):
+/// a stage off the path from the sensors to the output (viewer, validation) yields the cores to
+/// the ones on it, so they keep their latency.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Nice {
+    /// Unix niceness, 0 (the default: the launcher's own) to 19: the kernel gives a stage with a
+    /// higher value less of a contended core.
+    Level(u8),
+    /// Live runs: Linux's `SCHED_IDLE`, the stage runs only on a core no other stage wants and
+    /// gives it up the moment one wakes (a niced stage may keep the core for part of its time
+    /// slice). Offline runs: niceness 0, since there the judge is the slowest stage and starving
+    /// it slows the whole run (measured: half the frames per second).
+    Idle,
+}
+
+impl Default for Nice {
+    fn default() -> Self {
+        Nice::Level(0)
+    }
+}
+
+impl Nice {
+    /// Whether the stage runs as the launcher would start any process.
+    pub fn is_default(self) -> bool {
+        self == Nice::Level(0)
+    }
+}
+
+impl std::fmt::Display for Nice {
+    /// As the graph file writes it.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Nice::Level(n) => write!(f, "{n}"),
+            Nice::Idle => write!(f, "\"idle\""),
+        }
+    }
 }
 
 /// The watchdog's default for offline graphs (live: [`DEFAULT_LIVE_STALL_TIMEOUT_S`]). Generous:
@@ -384,8 +421,17 @@ impl Graph {
                 };
                 let _ = writeln!(out, "  out {name:<12} -> {to}  {frame}");
             }
-            if node.nice > 0 {
-                let _ = writeln!(out, "  nice = {}: yields contended cores", node.nice);
+            match node.nice {
+                Nice::Idle => {
+                    let _ = writeln!(
+                        out,
+                        "  nice = \"idle\": live, runs only on cores no other stage wants"
+                    );
+                }
+                n if !n.is_default() => {
+                    let _ = writeln!(out, "  nice = {n}: yields contended cores");
+                }
+                _ => {}
             }
             if node.on_failure == OnFailure::StopBranch {
                 let branch = self.branch(&node.id);
@@ -441,7 +487,7 @@ mod tests {
             readers: BTreeMap::new(),
             params: toml::Table::new(),
             on_failure,
-            nice: 0,
+            nice: Nice::default(),
             stall_timeout_s: None,
             restart: None,
         }

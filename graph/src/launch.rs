@@ -19,7 +19,7 @@ use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use crate::graph::{Graph, Runner};
+use crate::graph::{Graph, Mode, Nice, Runner};
 use crate::spec::Role;
 use crate::stage::{
     ControlMessage, ENV_RESTART, ENV_RUN_DIR, ENV_RUN_ID, ENV_STAGE_ID, GRAPH_JSON,
@@ -339,6 +339,7 @@ fn run_in(
     let (tx, rx) = mpsc::channel();
     let spawner = Spawner {
         options,
+        mode: graph.mode,
         run_id,
         run_dir,
         shm_prefix,
@@ -409,6 +410,8 @@ fn spawn_all(graph: &Graph, spawner: &Spawner, stages: &mut Vec<Running>) -> Res
 /// What starting a stage process needs: the run's identity and where its events go.
 struct Spawner<'a> {
     options: &'a LaunchOptions,
+    /// Live or offline: how `nice = "idle"` schedules a stage.
+    mode: Mode,
     run_id: &'a str,
     run_dir: &'a Path,
     shm_prefix: &'a str,
@@ -458,7 +461,7 @@ impl Spawner<'_> {
         // Own process group: the terminal's Ctrl-C goes to the launcher alone, which stops the
         // graph in order instead of every stage dying at once.
         std::os::unix::process::CommandExt::process_group(&mut command, 0);
-        set_nice(&mut command, node.nice);
+        set_nice(&mut command, node.nice, self.mode);
         let program = format!("{:?}", command.get_program());
         let mut child = command.spawn().map_err(|source| RunError::Spawn {
             stage: node.id.clone(),
@@ -1155,24 +1158,37 @@ pub fn shared_memory_files(prefix: &str) -> Vec<PathBuf> {
     found
 }
 
-/// Starts the command's process with niceness `nice` (0: inherit). Set in the child between fork
-/// and exec, so every thread the stage starts inherits it (Linux keeps niceness per thread:
-/// setting it on the pid from outside after the start would miss threads already running).
-fn set_nice(command: &mut Command, nice: u8) {
-    if nice == 0 {
+/// Starts the command's process with niceness `nice` (0: inherit), or live under `SCHED_IDLE`
+/// ([`Nice::Idle`]). Set in the child between fork and exec, so every thread the stage starts
+/// inherits it (Linux keeps niceness and policy per thread: setting them on the pid from outside
+/// after the start would miss threads already running).
+fn set_nice(command: &mut Command, nice: Nice, mode: Mode) {
+    let (level, idle) = match nice {
+        Nice::Level(n) => (libc::c_int::from(n), false),
+        // Offline the judge is the slowest stage: an idle-class judge gets a core only when the
+        // rest of the pipeline waits on it, which halved the offline frames per second
+        // (measured, 2026-11-27, the pip and globalpose graphs).
+        Nice::Idle => (0, mode == Mode::Live),
+    };
+    if level == 0 && !idle {
         return;
     }
-    let nice = libc::c_int::from(nice);
-    // SAFETY: the closure runs in the forked child before exec and calls only setpriority(2),
-    // which is async-signal-safe, allocates nothing and touches no lock. Raising one's own
-    // niceness needs no privilege; a failure is reported and the stage is not started.
+    // SAFETY: the closure runs in the forked child before exec and calls only setpriority(2)
+    // and sched_setscheduler(2), which are async-signal-safe, allocate nothing and touch no
+    // lock. Raising one's own niceness or moving to SCHED_IDLE needs no privilege; a failure is
+    // reported and the stage is not started.
     unsafe {
         std::os::unix::process::CommandExt::pre_exec(command, move || {
-            if libc::setpriority(libc::PRIO_PROCESS, 0, nice) == 0 {
-                Ok(())
-            } else {
-                Err(std::io::Error::last_os_error())
+            if level > 0 && libc::setpriority(libc::PRIO_PROCESS, 0, level) != 0 {
+                return Err(std::io::Error::last_os_error());
             }
+            if idle {
+                let param = libc::sched_param { sched_priority: 0 };
+                if libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+            }
+            Ok(())
         });
     }
 }
@@ -1181,21 +1197,28 @@ fn set_nice(command: &mut Command, nice: u8) {
 mod tests {
     use super::*;
 
-    /// The niceness a command's process runs at, read from its own /proc/self/stat.
-    fn niceness_of(nice: u8) -> i64 {
+    /// The niceness and scheduling policy a command's process runs at, read from its own
+    /// /proc/self/stat.
+    fn scheduling_of(nice: Nice, mode: Mode) -> (i64, i64) {
         let mut command = Command::new("cat");
         command.arg("/proc/self/stat");
-        set_nice(&mut command, nice);
+        set_nice(&mut command, nice, mode);
         let out = command.output().expect("cat runs");
         let stat = String::from_utf8(out.stdout).expect("utf8");
-        // Fields after the command name's closing parenthesis start at field 3; nice is 19.
-        let after = stat.rsplit_once(')').expect("a stat line").1;
-        after
+        // Fields after the command name's closing parenthesis start at field 3; nice is 19,
+        // policy 41 (proc(5)).
+        let fields: Vec<i64> = stat
+            .rsplit_once(')')
+            .expect("a stat line")
+            .1
             .split_whitespace()
-            .nth(16)
-            .expect("nice field")
-            .parse()
-            .expect("a number")
+            .map(|f| f.parse().unwrap_or(-1))
+            .collect();
+        (fields[16], fields[38])
+    }
+
+    fn niceness_of(nice: u8) -> i64 {
+        scheduling_of(Nice::Level(nice), Mode::Live).0
     }
 
     #[test]
@@ -1206,5 +1229,20 @@ mod tests {
         // 0 leaves the launcher's own niceness (a test run may itself be niced).
         let own = unsafe { libc::getpriority(libc::PRIO_PROCESS, 0) };
         assert_eq!(inherited, i64::from(own));
+    }
+
+    #[test]
+    fn an_idle_stage_runs_under_sched_idle_live_and_as_any_stage_offline() {
+        let own_policy = unsafe { libc::sched_getscheduler(0) };
+        let own_nice = unsafe { libc::getpriority(libc::PRIO_PROCESS, 0) };
+        assert_eq!(
+            scheduling_of(Nice::Idle, Mode::Live).1,
+            i64::from(libc::SCHED_IDLE)
+        );
+        assert_eq!(
+            scheduling_of(Nice::Idle, Mode::Offline),
+            (i64::from(own_nice), i64::from(own_policy))
+        );
+        assert_eq!(scheduling_of(Nice::Level(5), Mode::Offline).0, 5);
     }
 }

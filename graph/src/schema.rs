@@ -59,8 +59,9 @@ pub struct StageEntry {
     /// Restart policy: `{ max = 3, within_s = 60, backoff_ms = 200 }` (none by default).
     #[serde(default)]
     pub restart: Option<toml::Value>,
-    /// Scheduling niceness of the stage's process, 0 (default) to 19: a stage off the
-    /// latency-critical path (viewer, validation) yields the cores to the ones on it.
+    /// Scheduling niceness of the stage's process, 0 (default) to 19, or "idle" (live runs only
+    /// on cores no other stage wants): a stage off the latency-critical path (viewer,
+    /// validation) yields the cores to the ones on it.
     #[serde(default)]
     pub nice: Option<toml::Value>,
 }

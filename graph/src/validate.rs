@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use crate::frames::FrameType;
 use crate::graph::{
-    Graph, InputEdge, Mode, OnFailure, Problem, Reader, RestartPolicy, Runner, StageNode,
+    Graph, InputEdge, Mode, Nice, OnFailure, Problem, Reader, RestartPolicy, Runner, StageNode,
 };
 use crate::schema::{GraphFile, StageEntry};
 use crate::spec::{InputsSpec, Registry, Role, StageSpec};
@@ -126,7 +126,7 @@ struct Declared<'a> {
     on_failure: OnFailure,
     stall_timeout_s: Option<f64>,
     restart: Option<RestartPolicy>,
-    nice: u8,
+    nice: Nice,
 }
 
 pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Graph, Vec<Problem>> {
@@ -539,18 +539,19 @@ fn declare<'a>(
         .as_ref()
         .and_then(|v| restart_policy(id, role, v, problems));
     let nice = match &entry.nice {
-        None => 0,
+        None => Nice::default(),
+        Some(v) if v.as_str() == Some("idle") => Nice::Idle,
         Some(v) => match v.as_integer().and_then(|n| u8::try_from(n).ok()) {
-            Some(n) if n <= MAX_NICE => n,
+            Some(n) if n <= MAX_NICE => Nice::Level(n),
             _ => {
                 problems.stage(
                     id,
                     Some("nice"),
                     format!(
-                        "must be an integer from 0 (the default) to {MAX_NICE} (got {v}): how much of a contended core the stage yields to the others; raising a priority (below 0) needs privileges imuflow does not ask for"
+                        "must be an integer from 0 (the default) to {MAX_NICE}, or \"idle\" (got {v}): how much of a contended core the stage yields to the others; raising a priority (below 0) needs privileges imuflow does not ask for"
                     ),
                 );
-                0
+                Nice::default()
             }
         },
     };
