@@ -877,6 +877,46 @@ pub(crate) mod tests {
         Weights::load(&path, method).unwrap()
     }
 
+    /// Every field of an estimate as one list of numbers, to compare two estimates.
+    pub(crate) fn flat(e: &Estimate) -> Vec<f64> {
+        let mut v: Vec<f64> = e
+            .pose
+            .iter()
+            .flat_map(|r| r.matrix().iter().copied())
+            .collect();
+        v.extend(e.joint_position.iter().flat_map(|p| p.iter().copied()));
+        v.extend(e.joint_velocity.iter().flat_map(|p| p.iter().copied()));
+        v.extend(e.foot_contact.iter().chain(&e.stationary).copied());
+        v.extend(e.root_velocity.iter().chain(e.gravity_in_root.iter()));
+        v
+    }
+
+    /// The largest entry-wise difference of two [`flat`] estimates.
+    pub(crate) fn largest_gap(a: &[f64], b: &[f64]) -> f64 {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max)
+    }
+
+    /// Asserts what every ensemble keeps of the stage's defaults: each instrumented bone on its
+    /// sensor in `input`, each knee a hinge (`what` names the case in a failure).
+    pub(crate) fn assert_on_sensors_with_hinged_knees(e: &Estimate, input: &ImuInput, what: &str) {
+        let global = global_rotations(&e.pose);
+        for sensor in Imu::ALL {
+            let m = input.orientation[sensor.index()].map(f64::from);
+            let d = (global[sensor.joint().index()].matrix() - Matrix3::from_row_slice(&m)).norm();
+            assert!(d < 1e-5, "{what}: {} off its sensor by {d}", sensor.name());
+        }
+        for knee in [JointId::LEFT_KNEE, JointId::RIGHT_KNEE] {
+            let v = e.pose[knee.index()].scaled_axis();
+            assert!(
+                v.y.abs() < 1e-9 && v.z.abs() < 1e-9,
+                "{what}: {knee}: {v:?}"
+            );
+        }
+    }
+
     /// The whole streaming inference with the committed weights: the lean nets give the candle
     /// nets' estimates, every field of every frame within 1e-5. GlobalPose's joint velocities are
     /// the exception: they are FPS × the frame-to-frame change of the (compared) positions, so a
@@ -1242,48 +1282,23 @@ pub(crate) mod tests {
         let mut ba = streamer(b(), Some(a()));
         let (mut alone_a, mut alone_b) = (streamer(a(), None), streamer(b(), None));
         let mut twice_a = streamer(a(), Some(a()));
-        let flat = |e: &Estimate| -> Vec<f64> {
-            let mut v: Vec<f64> = global_rotations(&e.pose)
-                .iter()
-                .flat_map(|r| r.matrix().iter().copied().collect::<Vec<_>>())
-                .collect();
-            v.extend(e.joint_position.iter().flat_map(|p| p.iter().copied()));
-            v.extend(e.foot_contact.iter().chain(&e.stationary).copied());
-            v.extend(e.root_velocity.iter().chain(e.gravity_in_root.iter()));
-            v
-        };
-        let largest = |a: &[f64], b: &[f64]| {
-            a.iter()
-                .zip(b)
-                .map(|(x, y)| (x - y).abs())
-                .fold(0.0, f64::max)
-        };
         let (mut asymmetry, mut from_a, mut from_b, mut same_twice) =
             (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         for f in 0..240 {
             let input = crate::bench::swaying_sensors(f);
             let e = ab.step(&input).unwrap();
-            asymmetry = asymmetry.max(largest(&flat(&e), &flat(&ba.step(&input).unwrap())));
+            asymmetry = asymmetry.max(largest_gap(&flat(&e), &flat(&ba.step(&input).unwrap())));
             let own = alone_a.step(&input).unwrap();
-            from_a = from_a.max(largest(&flat(&e), &flat(&own)));
-            from_b = from_b.max(largest(&flat(&e), &flat(&alone_b.step(&input).unwrap())));
-            same_twice =
-                same_twice.max(largest(&flat(&own), &flat(&twice_a.step(&input).unwrap())));
-            let global = global_rotations(&e.pose);
-            for sensor in Imu::ALL {
-                let m = input.orientation[sensor.index()].map(f64::from);
-                let d =
-                    (global[sensor.joint().index()].matrix() - Matrix3::from_row_slice(&m)).norm();
-                assert!(
-                    d < 1e-5,
-                    "{method:?} frame {f}: {} off its sensor by {d}",
-                    sensor.name()
-                );
-            }
-            for knee in [JointId::LEFT_KNEE, JointId::RIGHT_KNEE] {
-                let v = e.pose[knee.index()].scaled_axis();
-                assert!(v.y.abs() < 1e-9 && v.z.abs() < 1e-9, "{knee}: {v:?}");
-            }
+            from_a = from_a.max(largest_gap(&flat(&e), &flat(&own)));
+            from_b = from_b.max(largest_gap(
+                &flat(&e),
+                &flat(&alone_b.step(&input).unwrap()),
+            ));
+            same_twice = same_twice.max(largest_gap(
+                &flat(&own),
+                &flat(&twice_a.step(&input).unwrap()),
+            ));
+            assert_on_sensors_with_hinged_knees(&e, &input, &format!("{method:?} frame {f}"));
         }
         assert!(
             asymmetry < 1e-9,
