@@ -142,6 +142,52 @@ pub fn flex_toward_positions(
     }
 }
 
+/// How far past straight a knee or elbow may be turned (hyperextension), rad. Clinical
+/// range-of-motion norms allow a few degrees of hyperextension at both joints and count more than
+/// about 10° as a hypermobile joint; this limit is that common value, not fitted to the data.
+pub const MAX_HYPEREXTENSION_RAD: f64 = 10.0 * std::f64::consts::PI / 180.0;
+
+/// Turns back every knee and elbow that is bent backwards more than [`MAX_HYPEREXTENSION_RAD`]
+/// to that limit, keeping the lower legs' and forearms' global orientations (their sensors) and
+/// each elbow's twist: only the upper leg or upper arm moves. `pose` must be anatomical (after
+/// [`project_limb_joints`]).
+///
+/// Why: the networks, on motion they never saw, sometimes bend a knee or elbow the wrong way, and
+/// the flexion step ([`flex_toward_positions`]) follows their predicted joints there too. A knee
+/// flexes about its x axis (positive: the lower leg swings back); a left elbow flexes by a
+/// negative `Ry` angle (its forearm, along +x, swings forward to +z), a right elbow (along −x) by
+/// a positive one. On the validation split it is better by a hair (SIP pip −0.005°, globalpose
+/// −0.002°: those motions rarely bend a limb backwards); on the held-out motions pip's SIP fell
+/// from 19.4 to 18.4° (stages/kinematics/README.md, "Limb joints").
+pub fn limit_hyperextension(pose: &mut [Rotation3<f64>; NUM_JOINTS]) {
+    let mut global = [Rotation3::identity(); NUM_JOINTS];
+    local_to_global_rotations(pose, &mut global);
+    for knee in KNEES {
+        let flexion = pose[knee.index()].scaled_axis().x;
+        if flexion < -MAX_HYPEREXTENSION_RAD {
+            let limited = Rotation3::from_axis_angle(&Vector3::x_axis(), -MAX_HYPEREXTENSION_RAD);
+            set_joint_keeping_child(pose, &global, knee, limited);
+        }
+    }
+    for elbow in ELBOWS {
+        let local = pose[elbow.index()];
+        let m = local.matrix();
+        let angle = (-m[(2, 0)]).atan2(m[(0, 0)]);
+        // The flexion as a positive angle, whichever side.
+        let side = if elbow == JointId::LEFT_ELBOW {
+            -1.0
+        } else {
+            1.0
+        };
+        if side * angle < -MAX_HYPEREXTENSION_RAD {
+            let limited =
+                Rotation3::from_axis_angle(&Vector3::y_axis(), -side * MAX_HYPEREXTENSION_RAD)
+                    * elbow_twist(&local);
+            set_joint_keeping_child(pose, &global, elbow, limited);
+        }
+    }
+}
+
 /// The angle that turns the planar vector `from` onto the direction of `to` (counter-clockwise
 /// from the first axis to the second); `None` when either is too short to have a direction.
 fn angle_in_plane(from: (f64, f64), to: (f64, f64)) -> Option<f64> {
@@ -277,6 +323,93 @@ mod tests {
             Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), angle) * pose[j];
         pose[p] = pose[p] * pose[j] * turned.transpose();
         pose[j] = turned;
+    }
+
+    /// Each limb's flexion as a positive angle (knee: about x; elbow: the `Ry` angle of
+    /// `Ry·Rx`, sign by side), and the elbow's twist.
+    fn flexions(pose: &[Rotation3<f64>; NUM_JOINTS]) -> ([f64; 4], [f64; 2]) {
+        let knee = |k: JointId| pose[k.index()].scaled_axis().x;
+        let elbow = |e: JointId, side: f64| {
+            let m = pose[e.index()].matrix();
+            side * (-m[(2, 0)]).atan2(m[(0, 0)])
+        };
+        let twist = |e: JointId| {
+            let m = pose[e.index()].matrix();
+            (-m[(1, 2)]).atan2(m[(1, 1)])
+        };
+        (
+            [
+                knee(JointId::LEFT_KNEE),
+                knee(JointId::RIGHT_KNEE),
+                elbow(JointId::LEFT_ELBOW, -1.0),
+                elbow(JointId::RIGHT_ELBOW, 1.0),
+            ],
+            ELBOWS.map(twist),
+        )
+    }
+
+    #[test]
+    fn limbs_bent_backwards_past_the_limit_are_turned_back_to_it_and_nothing_else() {
+        // The sign convention, checked on the body itself: a flexed knee puts the ankle behind
+        // the hip-knee line (−z), a flexed elbow the wrist in front of the shoulder-elbow line (+z).
+        let skeleton = skeleton();
+        let mut bent = [Rotation3::identity(); NUM_JOINTS];
+        bent[JointId::LEFT_KNEE.index()] = Rotation3::from_axis_angle(&Vector3::x_axis(), 1.0);
+        bent[JointId::LEFT_ELBOW.index()] = Rotation3::from_axis_angle(&Vector3::y_axis(), -1.0);
+        bent[JointId::RIGHT_ELBOW.index()] = Rotation3::from_axis_angle(&Vector3::y_axis(), 1.0);
+        let p = positions(&bent, &skeleton);
+        let at = |j: JointId| p[j.index()];
+        assert!(at(JointId::LEFT_ANKLE).z < at(JointId::LEFT_KNEE).z - 0.1);
+        assert!(at(JointId::LEFT_WRIST).z > at(JointId::LEFT_ELBOW).z + 0.1);
+        assert!(at(JointId::RIGHT_WRIST).z > at(JointId::RIGHT_ELBOW).z + 0.1);
+        for (found, want) in flexions(&bent).0.iter().zip([1.0, 0.0, 1.0, 1.0]) {
+            assert!((found - want).abs() < 1e-12, "{found} against {want}");
+        }
+
+        let (mut within, mut beyond) = (0, 0);
+        for seed in 1..60 {
+            let mut pose = anatomical_pose(300 + seed);
+            let (before_flexion, before_twist) = flexions(&pose);
+            let before = global(&pose);
+            limit_hyperextension(&mut pose);
+            let (after_flexion, after_twist) = flexions(&pose);
+            let after = global(&pose);
+            for (b, a) in before_flexion.iter().zip(after_flexion) {
+                if *b >= -MAX_HYPEREXTENSION_RAD {
+                    within += 1;
+                    assert!((a - b).abs() < 1e-9, "seed {seed}: {b} moved to {a}");
+                } else {
+                    beyond += 1;
+                    assert!(
+                        (a + MAX_HYPEREXTENSION_RAD).abs() < 1e-9,
+                        "seed {seed}: {b} -> {a}"
+                    );
+                }
+            }
+            for (b, a) in before_twist.iter().zip(after_twist) {
+                assert!((a - b).abs() < 1e-9, "seed {seed}: twist {b} -> {a}");
+            }
+            // Only the upper legs and arms turn; the lower bones (the sensors') and all else stay.
+            let uppers: Vec<JointId> = KNEES
+                .iter()
+                .chain(&ELBOWS)
+                .map(|j| j.parent().unwrap())
+                .collect();
+            for j in JointId::all().filter(|j| !uppers.contains(j)) {
+                let d = angle_between(&before[j.index()], &after[j.index()]);
+                assert!(d < 1e-9, "seed {seed}: {} moved {d} rad", j.name());
+            }
+            // Limited twice is limited once.
+            let once = pose;
+            limit_hyperextension(&mut pose);
+            for j in JointId::all() {
+                assert!(angle_between(&once[j.index()], &pose[j.index()]) < 1e-12);
+            }
+        }
+        assert!(
+            within > 20 && beyond > 20,
+            "{within} within, {beyond} beyond the limit"
+        );
     }
 
     #[test]

@@ -8,7 +8,7 @@
 
 use candle_core::{Device, Tensor};
 use imuflow_body::kinematics::{FkData, forward_kinematics, imu_positions_in_world};
-use imuflow_body::limb_joints::{flex_toward_positions, project_limb_joints};
+use imuflow_body::limb_joints::{flex_toward_positions, limit_hyperextension, project_limb_joints};
 use imuflow_body::rotation::{from_to, rotation_from_r6d};
 use imuflow_body::skeleton::{
     CONTACT_JOINTS, FULL_JOINTS, IMU_JOINTS, LEAF_JOINTS, REDUCED_JOINTS,
@@ -161,12 +161,13 @@ pub const LIMB_JOINTS: [&str; 3] = LimbJoints::NAMES;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum LimbJoints {
     /// Knees as hinges and elbows as flexion-and-twist joints ([`project_limb_joints`]), their
-    /// flexion from the networks' joint positions ([`flex_toward_positions`]). The default.
+    /// flexion from the networks' joint positions ([`flex_toward_positions`]), neither bent more
+    /// than 10° backwards ([`limit_hyperextension`]). The default.
     #[default]
     Anatomical,
     /// The same joints, their flexion from the networks' rotations only (the angle between the
-    /// networks' upper bone and the measured lower bone): the default before 2026-11-26's sixth
-    /// session.
+    /// networks' upper bone and the measured lower bone), with the same limit: the default
+    /// before 2026-11-26's sixth session.
     AnatomicalRotations,
     /// The networks' free 3-DoF joints, as in the papers.
     Free,
@@ -212,6 +213,7 @@ impl LimbJoints {
         if self == LimbJoints::Anatomical {
             flex_toward_positions(pose, positions, &body.skeleton);
         }
+        limit_hyperextension(pose);
     }
 }
 

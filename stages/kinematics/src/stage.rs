@@ -90,7 +90,7 @@ pub const SPEC: StageSpec = StageSpec {
             ty: ParamType::Choice(&LIMB_JOINTS),
             required: false,
             default: "anatomical",
-            doc: "anatomical: knees turn about one axis, elbows flex and twist, and what the networks' pose asks beyond that moves to the hips and shoulders (the lower legs and forearms keep their orientation), each flexion set so the upper bone points at the networks' predicted knee or elbow; anatomical-rotations: the same joints, the flexion from the networks' rotations alone; free: the networks' 3-DoF joints, as in the papers",
+            doc: "anatomical: knees turn about one axis, elbows flex and twist, neither more than 10° past straight, and what the networks' pose asks beyond that moves to the hips and shoulders (the lower legs and forearms keep their orientation), each flexion set so the upper bone points at the networks' predicted knee or elbow; anatomical-rotations: the same joints, the flexion from the networks' rotations alone; free: the networks' 3-DoF joints, as in the papers",
         },
         ParamSpec {
             name: "mirror_ensemble",
