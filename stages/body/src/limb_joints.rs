@@ -48,11 +48,14 @@ pub fn hinge_knee(local: &Rotation3<f64>) -> Rotation3<f64> {
 /// abduction `b` is dropped. (The exact nearest two-axis rotation has no closed form; for the few
 /// degrees of `b` the networks leave this is the same to second order in `b`.)
 pub fn hinge_elbow(local: &Rotation3<f64>) -> Rotation3<f64> {
+    Rotation3::from_axis_angle(&Vector3::y_axis(), elbow_flexion(local)) * elbow_twist(local)
+}
+
+/// The flexion `a` of an elbow's local rotation written as `Ry(a)·Rz(b)·Rx(c)` (its first
+/// column is `(cos a cos b, sin b, −sin a cos b)`).
+fn elbow_flexion(local: &Rotation3<f64>) -> f64 {
     let m = local.matrix();
-    // Ry(a)·Rz(b)·Rx(c): first column (cos a cos b, sin b, −sin a cos b), second row
-    // (sin b, cos b cos c, −cos b sin c).
-    let flexion = (-m[(2, 0)]).atan2(m[(0, 0)]);
-    Rotation3::from_axis_angle(&Vector3::y_axis(), flexion) * elbow_twist(local)
+    (-m[(2, 0)]).atan2(m[(0, 0)])
 }
 
 /// The twist `Rx(c)` of an elbow's local rotation written as `Ry(a)·Rz(b)·Rx(c)` (its second
@@ -171,15 +174,13 @@ pub fn limit_hyperextension(pose: &mut [Rotation3<f64>; NUM_JOINTS]) {
     }
     for elbow in ELBOWS {
         let local = pose[elbow.index()];
-        let m = local.matrix();
-        let angle = (-m[(2, 0)]).atan2(m[(0, 0)]);
         // The flexion as a positive angle, whichever side.
         let side = if elbow == JointId::LEFT_ELBOW {
             -1.0
         } else {
             1.0
         };
-        if side * angle < -MAX_HYPEREXTENSION_RAD {
+        if side * elbow_flexion(&local) < -MAX_HYPEREXTENSION_RAD {
             let limited =
                 Rotation3::from_axis_angle(&Vector3::y_axis(), -side * MAX_HYPEREXTENSION_RAD)
                     * elbow_twist(&local);

@@ -528,23 +528,20 @@ impl Streamer {
     /// Brings the lean nets' weights into cache ahead of the next [`Streamer::step`] (see
     /// [`LeanRnn::warm`]); stops as soon as `stop()` says so (the frame came).
     pub fn warm(&self, stop: &mut dyn FnMut() -> bool) {
-        if self.backend != Backend::Lean {
-            return;
+        if self.backend == Backend::Lean {
+            self.warm_nets(stop);
         }
-        for net in self
-            .lean
-            .iter()
-            .chain(self.mirrored.iter().flat_map(|t| &t.lean))
-            .chain(
-                self.partner
-                    .iter()
-                    .flat_map(|p| p.lean.iter().chain(p.mirrored.iter().flat_map(|t| &t.lean))),
-            )
-        {
-            if !net.warm(stop) {
-                return;
-            }
-        }
+    }
+
+    /// This streamer's lean nets, then its mirror twin's and its partner's (and theirs); false
+    /// once `stop()` said so.
+    fn warm_nets(&self, stop: &mut dyn FnMut() -> bool) -> bool {
+        self.lean.iter().all(|net| net.warm(stop))
+            && self
+                .mirrored
+                .iter()
+                .chain(&self.partner)
+                .all(|companion| companion.warm_nets(stop))
     }
 
     /// One frame.
