@@ -52,6 +52,11 @@ pub struct EvalArgs {
     /// Evaluate at most this many sequences per method.
     #[arg(long, default_value_t = usize::MAX)]
     limit: usize,
+    /// Also print, per knee and elbow, the upper bone's direction error, the flexion's error and
+    /// bias, and how often the estimate bends it backwards where the truth bends it: which of the
+    /// networks' guesses the SIP error (upper legs and arms) is made of.
+    #[arg(long)]
+    limbs: bool,
     /// Don't show progress bars.
     #[arg(long)]
     no_progress: bool,
@@ -80,6 +85,7 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
             .context("--limb-joints must be anatomical, anatomical-rotations or free")?,
         mirror_ensemble: args.mirror_ensemble,
         limit: args.limit,
+        limbs: args.limbs,
         progress: !args.no_progress,
     };
     print!("{}", nets::run(&options)?);

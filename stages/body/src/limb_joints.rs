@@ -166,26 +166,49 @@ pub fn limit_hyperextension(pose: &mut [Rotation3<f64>; NUM_JOINTS]) {
     let mut global = [Rotation3::identity(); NUM_JOINTS];
     local_to_global_rotations(pose, &mut global);
     for knee in KNEES {
-        let flexion = pose[knee.index()].scaled_axis().x;
-        if flexion < -MAX_HYPEREXTENSION_RAD {
+        if knee_flexion(&pose[knee.index()]) < -MAX_HYPEREXTENSION_RAD {
             let limited = Rotation3::from_axis_angle(&Vector3::x_axis(), -MAX_HYPEREXTENSION_RAD);
             set_joint_keeping_child(pose, &global, knee, limited);
         }
     }
     for elbow in ELBOWS {
         let local = pose[elbow.index()];
-        // The flexion as a positive angle, whichever side.
-        let side = if elbow == JointId::LEFT_ELBOW {
-            -1.0
-        } else {
-            1.0
-        };
-        if side * elbow_flexion(&local) < -MAX_HYPEREXTENSION_RAD {
-            let limited =
-                Rotation3::from_axis_angle(&Vector3::y_axis(), -side * MAX_HYPEREXTENSION_RAD)
-                    * elbow_twist(&local);
+        if flexion(elbow, &local) < Some(-MAX_HYPEREXTENSION_RAD) {
+            let limited = Rotation3::from_axis_angle(
+                &Vector3::y_axis(),
+                -elbow_side(elbow) * MAX_HYPEREXTENSION_RAD,
+            ) * elbow_twist(&local);
             set_joint_keeping_child(pose, &global, elbow, limited);
         }
+    }
+}
+
+/// A knee's or elbow's flexion (rad) in its local rotation `local`: positive the way the joint
+/// bends (the lower leg back, the forearm forward), negative bent backwards; of the nearest
+/// anatomical rotation (a knee's hinge angle, an elbow's `Ry` angle signed by its side), so a free
+/// 3-DoF rotation has one too. `None` for any other joint.
+pub fn flexion(joint: JointId, local: &Rotation3<f64>) -> Option<f64> {
+    if KNEES.contains(&joint) {
+        Some(knee_flexion(local))
+    } else if ELBOWS.contains(&joint) {
+        Some(elbow_side(joint) * elbow_flexion(local))
+    } else {
+        None
+    }
+}
+
+/// A knee's hinge angle about x (positive: the lower leg swings back).
+fn knee_flexion(local: &Rotation3<f64>) -> f64 {
+    hinge_knee(local).scaled_axis().x
+}
+
+/// The sign that makes an elbow's `Ry` angle its flexion: a left elbow (forearm along +x) flexes
+/// by a negative `Ry` angle, a right one (along −x) by a positive one.
+fn elbow_side(elbow: JointId) -> f64 {
+    if elbow == JointId::LEFT_ELBOW {
+        -1.0
+    } else {
+        1.0
     }
 }
 
@@ -411,6 +434,57 @@ mod tests {
             within > 20 && beyond > 20,
             "{within} within, {beyond} beyond the limit"
         );
+    }
+
+    #[test]
+    fn flexion_is_positive_the_way_each_limb_bends_and_none_elsewhere() {
+        let about =
+            |axis: &nalgebra::Unit<Vector3<f64>>, a: f64| Rotation3::from_axis_angle(axis, a);
+        let (x, y, z) = (Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis());
+        // The bends of the sign-convention test above (checked there on the body's positions).
+        let cases = [
+            (JointId::LEFT_KNEE, about(&x, 1.0), 1.0),
+            (JointId::RIGHT_KNEE, about(&x, -0.2), -0.2),
+            (JointId::LEFT_ELBOW, about(&y, -1.0), 1.0),
+            (JointId::RIGHT_ELBOW, about(&y, 1.0), 1.0),
+            (JointId::RIGHT_ELBOW, about(&y, -0.3), -0.3),
+            // Free rotations: the angle of the nearest anatomical one. A knee also turned about
+            // z (a swing perpendicular to its hinge) keeps its hinge angle; an elbow written
+            // Ry(a)·Rz(b)·Rx(c) has flexion a, whatever its abduction b and twist c.
+            (JointId::LEFT_KNEE, about(&z, 0.2) * about(&x, 0.7), 0.7),
+            (
+                JointId::LEFT_ELBOW,
+                about(&y, -0.8) * about(&z, 0.1) * about(&x, 0.5),
+                0.8,
+            ),
+        ];
+        for (joint, local, want) in cases {
+            let found = flexion(joint, &local).unwrap();
+            assert!(
+                (found - want).abs() < 1e-12,
+                "{}: {found} against {want}",
+                joint.name()
+            );
+        }
+        for seed in 1..20 {
+            let pose = anatomical_pose(500 + seed);
+            let want = flexions(&pose).0;
+            for (limb, want) in KNEES.iter().chain(&ELBOWS).zip(want) {
+                let found = flexion(*limb, &pose[limb.index()]).unwrap();
+                assert!(
+                    (found - want).abs() < 1e-12,
+                    "seed {seed}: {found} against {want}"
+                );
+            }
+        }
+        for joint in [
+            JointId::PELVIS,
+            JointId::LEFT_HIP,
+            JointId::RIGHT_SHOULDER,
+            JointId::LEFT_WRIST,
+        ] {
+            assert_eq!(flexion(joint, &about(&x, 0.5)), None, "{}", joint.name());
+        }
     }
 
     #[test]

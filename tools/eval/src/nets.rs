@@ -24,6 +24,7 @@ use imuflow_kinematics::infer::{LimbJoints, SensorBones, Streamer};
 use imuflow_kinematics::weights::Weights;
 use nalgebra::{Rotation3, Vector3};
 
+use crate::limbs::{self, LimbErrors};
 use crate::metrics::{
     IGNORED_JOINTS, apply_ignored_joints, global_angle_error_deg, jitter_km_per_s3,
     joint_position_error_m, sensor_bone_error_deg, sip_error_deg,
@@ -50,6 +51,8 @@ pub struct NetsEval {
     pub mirror_ensemble: bool,
     /// At most this many sequences per method.
     pub limit: usize,
+    /// Also print the per-limb table ([`crate::limbs`]).
+    pub limbs: bool,
     /// Show a progress bar per method.
     pub progress: bool,
 }
@@ -63,6 +66,8 @@ pub struct NetsReport {
     pub sensor_bones: SensorBones,
     pub limb_joints: LimbJoints,
     pub mirror_ensemble: bool,
+    /// Print the per-limb table after the scores.
+    pub limbs: bool,
     pub rows: Vec<(Method, Scores)>,
 }
 
@@ -80,6 +85,7 @@ pub fn run(options: &NetsEval) -> anyhow::Result<NetsReport> {
         sensor_bones: options.sensor_bones,
         limb_joints: options.limb_joints,
         mirror_ensemble: options.mirror_ensemble,
+        limbs: options.limbs,
         rows,
     })
 }
@@ -104,7 +110,19 @@ impl fmt::Display for NetsReport {
                 ""
             }
         )?;
-        f.write_str(&table(&self.rows))
+        f.write_str(&table(&self.rows))?;
+        if self.limbs {
+            writeln!(
+                f,
+                "\nknees and elbows: the upper bone's direction error, the flexion's mean error and \
+                 bias (estimate − truth), and where the truth bends the limb past 20° the share \
+                 of frames the estimate bends it backwards"
+            )?;
+            f.write_str(&limbs::table(
+                self.rows.iter().map(|(m, s)| (m.name(), &s.limbs)),
+            ))?;
+        }
+        Ok(())
     }
 }
 
@@ -122,6 +140,8 @@ pub struct Scores {
     /// ([`sensor_bone_error_deg`]; on the pose as output, before the protocol's ignored joints).
     pub sensor_bone_deg: f64,
     pub us_per_frame: f64,
+    /// The knees' and elbows' errors ([`crate::limbs`]), on the protocol's poses.
+    pub limbs: LimbErrors,
 }
 
 /// Evaluate `weights` of `method` as `options` say (its data, split, copies, sensor bones, limit,
@@ -173,6 +193,7 @@ pub fn evaluate(method: Method, weights: &Path, options: &NetsEval) -> anyhow::R
             totals.sip_deg += sip_error_deg(&fk_pred, &fk_true);
             totals.angle_deg += global_angle_error_deg(&fk_pred, &fk_true);
             totals.joint_cm += 100.0 * joint_position_error_m(&fk_pred, &fk_true);
+            totals.limbs.add(&pred, &fk_pred, &truth, &fk_true);
             predicted_positions.push(positions(&fk_pred));
             true_positions.push(positions(&fk_true));
             totals.frames += 1;
