@@ -6,7 +6,7 @@
 mod common;
 
 use common::{Sandbox, assert_clean, example_exe, mcap_messages, text};
-use imuflow_graph::frames::{MotionFrame, flags, frame_from_bytes};
+use imuflow_graph::frames::{FrameHeader, MotionFrame, flags, frame_from_bytes};
 
 /// A live graph at 60 Hz (4 s): source → counter (user stage, `args`, restart policy `restart`) →
 /// recorder of both.
@@ -37,17 +37,22 @@ params = {{ path = "{{dir}}/all.mcap" }}
     )
 }
 
-fn counts(sb: &Sandbox) -> Vec<(u64, u32)> {
+/// The headers of the counter's recorded frames.
+fn headers(sb: &Sandbox) -> Vec<FrameHeader> {
     mcap_messages(&sb.path("all.mcap"))
         .into_iter()
         .filter(|m| m.0 == "counter.count")
         .map(|m| {
-            let h = frame_from_bytes::<MotionFrame>(&m.2)
+            frame_from_bytes::<MotionFrame>(&m.2)
                 .expect("a MotionFrame")
-                .header;
-            (h.seq, h.flags)
+                .header
         })
         .collect()
+}
+
+/// (seq, flags) of the counter's recorded frames.
+fn counts(sb: &Sandbox) -> Vec<(u64, u32)> {
+    headers(sb).iter().map(|h| (h.seq, h.flags)).collect()
 }
 
 #[test]
@@ -96,6 +101,11 @@ fn a_crashed_live_stage_restarts_and_rejoins_the_running_graph() {
         "the restart's first frames: {:?}",
         &after[..5]
     );
+    // Every frame names the process that published it, so a reader that lost the one RESTARTED
+    // frame still sees the restart: 0 from the first process, 1 from the restarted one.
+    for h in headers(&sb) {
+        assert_eq!(h.restarts, u32::from(h.seq > 60), "frame {}", h.seq);
+    }
     assert_clean(&sb);
 }
 

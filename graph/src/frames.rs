@@ -68,8 +68,11 @@ pub struct FrameHeader {
     pub publish_ns: u64,
     /// Bit set of [`flags`].
     pub flags: u32,
-    /// Reserved, zero.
-    pub reserved: u32,
+    /// How many times the launcher had restarted the stage that published this frame (0: the
+    /// stage's first process). `RESTARTED` marks one frame, the new process's first; a live reader
+    /// that lost that frame (a lagging sink keeps only the newest) still sees the count change.
+    /// Sources are never restarted. Recordings made before this field was named have 0 here.
+    pub restarts: u32,
 }
 
 impl FrameHeader {
@@ -297,8 +300,8 @@ macro_rules! frame {
                             "publish time, ns since the Unix epoch"),
                         field::<u32>("header.flags", std::mem::offset_of!($name, header.flags),
                             "bit set: 1 END_OF_STREAM, 2 INVALID, 4 CALIBRATING, 8 FEEDBACK_INITIAL, 16 RESTARTED, 32 PRELUDE"),
-                        field::<u32>("header.reserved", std::mem::offset_of!($name, header.reserved),
-                            "reserved, zero"),
+                        field::<u32>("header.restarts", std::mem::offset_of!($name, header.restarts),
+                            "times the publishing stage had been restarted (0: its first process)"),
                     ];
                     $( fields.push(field::<$ty>(stringify!($field), std::mem::offset_of!($name, $field), $doc.trim())); )*
                     FrameLayout {

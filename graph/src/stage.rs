@@ -412,6 +412,7 @@ impl StageContext {
             crate::transport::OutputShared {
                 stop: self.stop.clone(),
                 waited_ns: self.publish_wait_ns.clone(),
+                restarts: self.restarts,
             },
         )?)
     }

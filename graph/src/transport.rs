@@ -272,14 +272,18 @@ pub struct Output<T: Frame> {
     /// Nanoseconds spent in `send` (offline: waiting for a full reader, back-pressure), shared
     /// with the stage's context so its processing time leaves them out.
     waited_ns: Arc<AtomicU64>,
+    /// Every frame's `header.restarts`.
+    restarts: u32,
 }
 
-/// What an output shares with its stage: the stop flag it gives up waiting on, and the counter of
-/// time spent waiting for full readers.
+/// What an output shares with its stage: the stop flag it gives up waiting on, the counter of
+/// time spent waiting for full readers, and how many times the stage was restarted before.
 #[derive(Clone, Debug, Default)]
 pub struct OutputShared {
     pub stop: Arc<AtomicBool>,
     pub waited_ns: Arc<AtomicU64>,
+    /// Written into every frame's header ([`FrameHeader::restarts`]).
+    pub restarts: u32,
 }
 
 impl<T: Frame> Output<T> {
@@ -293,7 +297,11 @@ impl<T: Frame> Output<T> {
         reader_stages: &[String],
         shared: OutputShared,
     ) -> Result<Self, TransportError> {
-        let OutputShared { stop, waited_ns } = shared;
+        let OutputShared {
+            stop,
+            waited_ns,
+            restarts,
+        } = shared;
         let name = output_service_name(run_id, stage, port);
         let service = open_pubsub::<T>(node, &name, mode, reader_stages.len())?;
         let strategy = match mode {
@@ -346,6 +354,7 @@ impl<T: Frame> Output<T> {
             _services: (service, wake_services),
             sent: 0,
             waited_ns,
+            restarts,
         })
     }
 
@@ -371,7 +380,7 @@ impl<T: Frame> Output<T> {
         *frame.header_mut() = FrameHeader {
             publish_ns: now_ns(),
             flags: header.flags | flags_from_fill,
-            reserved: 0,
+            restarts: self.restarts,
             ..header
         };
         let sending = std::time::Instant::now();

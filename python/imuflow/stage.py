@@ -361,7 +361,7 @@ class Output:
         view["header.seq"] = seq
         view["header.capture_ns"] = capture_ns
         view["header.flags"] = flags | int(view["header.flags"])
-        view["header.reserved"] = 0
+        view["header.restarts"] = self._stage.restarts
         view["header.publish_ns"] = time.time_ns()
         started = time.perf_counter()
         sample.assume_init().send()
