@@ -369,6 +369,20 @@ fn add_motion_rows(table: &mut Table, k: usize, s: &MotionScores, with_truth: bo
             k,
             s.joint_position_error_cm,
         );
+        table.set(
+            "knee flexion error",
+            "deg",
+            true,
+            k,
+            s.knee_flexion_error_deg,
+        );
+        table.set(
+            "elbow flexion error",
+            "deg",
+            true,
+            k,
+            s.elbow_flexion_error_deg,
+        );
     }
     table.set("jitter", "km/s³", true, k, s.jitter_km_s3);
     table.set("root jitter", "km/s³", true, k, s.root_jitter_km_s3);

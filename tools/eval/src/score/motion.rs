@@ -8,6 +8,7 @@ use nalgebra::Vector3;
 use serde::Serialize;
 
 use super::pairing::{FrameWeighted, Usable, contiguous_runs, pairs, usable};
+use crate::limbs::LimbErrors;
 use crate::metrics::{
     GLOBALPOSE_IGNORED_JOINTS, apply_ignored_joints, cumulative_translation_error_m,
     foot_skating_mps, global_angle_error_deg, ground_penetration_m, jitter_km_per_s3,
@@ -61,6 +62,13 @@ pub struct MotionScores {
     pub angle_error_deg: Option<f64>,
     /// Joint position error, cm: mean over all 24 joints, root-aligned (protocol G).
     pub joint_position_error_cm: Option<f64>,
+    /// Knee flexion error, degrees: mean |estimate's flexion − truth's| over both knees
+    /// ([`crate::limbs`]): with the lower legs on their sensors, the one angle an anatomical knee
+    /// leaves its upper leg, which SIP scores.
+    pub knee_flexion_error_deg: Option<f64>,
+    /// Elbow flexion error, degrees: the same over both elbows (an upper arm's other freedom is
+    /// the elbow's twist).
+    pub elbow_flexion_error_deg: Option<f64>,
     /// Jitter of the estimate's world joint positions, km/s³ (PIP's absolute jitter, reference §6;
     /// runs of ≥ 4 frames).
     pub jitter_km_s3: Option<f64>,
@@ -211,9 +219,12 @@ fn pose_errors(paired: &[(&Usable, &Usable)], body: &BodyModel, scores: &mut Mot
     let (mut fk_est, mut fk_true) = (FkData::new(), FkData::new());
     let (mut sip, mut angle, mut joint) = (0.0, 0.0, 0.0);
     let mut per_joint = PerJoint::default();
+    let mut limbs = LimbErrors::default();
     for (e, t) in paired {
-        forward_kinematics(&body.skeleton, &protocol_g(&e.pose), &mut fk_est);
-        forward_kinematics(&body.skeleton, &protocol_g(&t.pose), &mut fk_true);
+        let (estimate, truth) = (protocol_g(&e.pose), protocol_g(&t.pose));
+        forward_kinematics(&body.skeleton, &estimate, &mut fk_est);
+        forward_kinematics(&body.skeleton, &truth, &mut fk_true);
+        limbs.add(&estimate, &fk_est, &truth, &fk_true);
         let frame_angle = global_angle_error_deg(&fk_est, &fk_true);
         let frame_joint_cm = 100.0 * joint_position_error_m(&fk_est, &fk_true);
         sip += sip_error_deg(&fk_est, &fk_true);
@@ -236,6 +247,11 @@ fn pose_errors(paired: &[(&Usable, &Usable)], body: &BodyModel, scores: &mut Mot
     scores.sip_error_deg = Some(sip / n);
     scores.angle_error_deg = Some(angle / n);
     scores.joint_position_error_cm = Some(joint / n);
+    let [left_knee, right_knee, left_elbow, right_elbow] = limbs.means();
+    scores.knee_flexion_error_deg =
+        Some((left_knee.flexion_error_deg + right_knee.flexion_error_deg) / 2.0);
+    scores.elbow_flexion_error_deg =
+        Some((left_elbow.flexion_error_deg + right_elbow.flexion_error_deg) / 2.0);
     for j in 0..NUM_JOINTS {
         per_joint.joint_position_error_cm[j] /= n;
         per_joint.angle_error_deg[j] /= n;

@@ -64,6 +64,7 @@ fn a_root_shift_is_no_pose_error_but_a_root_distance() {
     assert_relative_eq!(s.joint_position_error_cm.unwrap(), 0.0, epsilon = 1e-9);
     assert_relative_eq!(s.angle_error_deg.unwrap(), 0.0, epsilon = 1e-9);
     assert_relative_eq!(s.sip_error_deg.unwrap(), 0.0, epsilon = 1e-9);
+    assert_relative_eq!(s.knee_flexion_error_deg.unwrap(), 0.0, epsilon = 1e-9);
     // A constant offset travels exactly like the truth: no translation error at any window.
     assert_relative_eq!(s.translation_error_2m_m.unwrap(), 0.0, epsilon = 1e-5);
     assert_relative_eq!(s.translation_error_7m_m.unwrap(), 0.0, epsilon = 1e-5);
@@ -89,6 +90,10 @@ fn an_elbow_turned_ninety_degrees_gives_the_counted_errors() {
     assert_relative_eq!(s.angle_error_deg.unwrap(), 270.0 / 24.0, epsilon = 1e-4);
     // The elbow is not a SIP joint.
     assert_relative_eq!(s.sip_error_deg.unwrap(), 0.0, epsilon = 1e-9);
+    // A left elbow turned +90° about y is bent 90° backwards (its forearm, along +x, swings to
+    // −z): against the T-pose's straight arms, 90° on one elbow of two; the knees agree.
+    assert_relative_eq!(s.elbow_flexion_error_deg.unwrap(), 45.0, epsilon = 1e-4);
+    assert_relative_eq!(s.knee_flexion_error_deg.unwrap(), 0.0, epsilon = 1e-9);
     let per_joint = s.per_joint.as_ref().unwrap();
     for j in JointId::all() {
         let expected =
@@ -138,6 +143,7 @@ fn without_truth_only_the_estimates_own_motion_is_scored() {
     let s = score_without_truth(&truth, &body, RATE_HZ);
     assert_eq!(s.frames, 600);
     assert!(s.sip_error_deg.is_none() && s.joint_position_error_cm.is_none());
+    assert!(s.knee_flexion_error_deg.is_none() && s.elbow_flexion_error_deg.is_none());
     assert!(s.translation_error_2m_m.is_none() && s.standing_grf_fraction.is_none());
     assert!(s.per_frame.seq.is_empty() && s.per_joint.is_none());
     // Constant velocity: no jerk (up to the wire's f32 rounding of 12 m of travel).
