@@ -26,9 +26,10 @@ pub struct EvalArgs {
         default_value = "models/globalpose.safetensors"
     )]
     globalpose: String,
-    /// Which clips: `test` (the test split: contents the networks trained on, other clips) or
-    /// `holdout` (motion contents never trained on: bow, dance, guide, kick, punch, slash).
-    #[arg(long, default_value = "test", value_parser = ["test", "holdout"])]
+    /// Which clips: `test` (the test split: contents the networks trained on, other clips),
+    /// `validation` (the same kind of clips, the split model choices are made on) or `holdout`
+    /// (motion contents never trained on: bow, dance, guide, kick, punch, slash).
+    #[arg(long, default_value = "test", value_parser = ["test", "validation", "holdout"])]
     split: String,
     /// Which copies of each test clip: ideal, augmented (sensor noise and mounting errors) or all.
     #[arg(long, default_value = "augmented", value_parser = Copies::NAMES)]
@@ -73,10 +74,10 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
         .filter(|(_, weights)| *weights != "none")
         .map(|(method, weights)| (method, PathBuf::from(weights)))
         .collect(),
-        split: if args.split == "holdout" {
-            imuflow_dataset::Split::Holdout
-        } else {
-            imuflow_dataset::Split::Test
+        split: match args.split.as_str() {
+            "holdout" => imuflow_dataset::Split::Holdout,
+            "validation" => imuflow_dataset::Split::Validation,
+            _ => imuflow_dataset::Split::Test,
         },
         copies: Copies::parse(&args.copies).unwrap_or(Copies::Augmented),
         sensor_bones: SensorBones::parse(&args.sensor_bones, args.sensor_bone_tolerance_deg)

@@ -1,4 +1,4 @@
-//! `imuflow eval`: the nets over the dataset's **test** split (or its held-out contents), scored with the papers' pose metrics.
+//! `imuflow eval`: the nets over the dataset's **test** split (or its validation split, or its held-out contents), scored with the papers' pose metrics.
 //!
 //! Each test sequence is streamed frame by frame through the same [`Streamer`] the kinematics stage
 //! runs (calibrated IMU data in, as the calibration stage delivers it), seeded with the sequence's

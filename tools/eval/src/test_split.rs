@@ -59,7 +59,7 @@ pub fn sequence_bar(label: &str, show: bool) -> ProgressBar {
 }
 
 /// Calls `f(shard, a, b)` for every sequence (frames `a..b` of its shard) of `split` (the test
-/// split, or the held-out contents) in `data` with the chosen copies and at least `min_frames` frames, at most `limit` of them, advancing
+/// split, the validation split model choices are made on, or the held-out contents) in `data` with the chosen copies and at least `min_frames` frames, at most `limit` of them, advancing
 /// `bar`. Returns how many were visited; an error names the shard and the sequence.
 pub fn for_each_test_sequence(
     data: &Path,
@@ -72,8 +72,8 @@ pub fn for_each_test_sequence(
 ) -> anyhow::Result<usize> {
     let mut visited = 0;
     anyhow::ensure!(
-        matches!(split, Split::Test | Split::Holdout),
-        "evaluation reads the test or holdout split, not {split} (the networks trained on it)"
+        split != Split::Train,
+        "evaluation reads the test, validation or holdout split, not {split} (the networks trained on it)"
     );
     let files = shard_files(data, split.name())?;
     anyhow::ensure!(
@@ -129,4 +129,35 @@ fn sequence_flags(shard: &Shard) -> Vec<bool> {
                 .collect()
         })
         .unwrap_or_default()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn visit(split: Split) -> anyhow::Result<usize> {
+        let bar = ProgressBar::hidden();
+        for_each_test_sequence(
+            Path::new("/nonexistent/imuflow-dataset"),
+            split,
+            Copies::All,
+            1,
+            usize::MAX,
+            &bar,
+            |_, _, _| Ok(()),
+        )
+    }
+
+    #[test]
+    fn the_training_split_is_refused_and_the_others_are_looked_for() {
+        let refused = visit(Split::Train).unwrap_err().to_string();
+        assert!(refused.contains("not train"), "{refused}");
+        for split in [Split::Validation, Split::Test, Split::Holdout] {
+            let missing = format!("{:#}", visit(split).unwrap_err());
+            assert!(
+                missing.contains("/nonexistent/imuflow-dataset") && !missing.contains("not "),
+                "{split}: {missing}"
+            );
+        }
+    }
 }
