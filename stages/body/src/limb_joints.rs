@@ -173,7 +173,7 @@ pub fn limit_hyperextension(pose: &mut [Rotation3<f64>; NUM_JOINTS]) {
     }
     for elbow in ELBOWS {
         let local = pose[elbow.index()];
-        if flexion(elbow, &local) < Some(-MAX_HYPEREXTENSION_RAD) {
+        if elbow_side(elbow) * elbow_flexion(&local) < -MAX_HYPEREXTENSION_RAD {
             let limited = Rotation3::from_axis_angle(
                 &Vector3::y_axis(),
                 -elbow_side(elbow) * MAX_HYPEREXTENSION_RAD,

@@ -878,20 +878,33 @@ pub(crate) mod tests {
 
     /// Every field of an estimate as one list of numbers, to compare two estimates.
     pub(crate) fn flat(e: &Estimate) -> Vec<f64> {
+        let (mut v, velocities) = flat_apart_from_joint_velocities(e);
+        v.extend(velocities);
+        v
+    }
+
+    /// [`flat`] in two lists: every field but the joint velocities, and the joint velocities
+    /// (which some comparisons hold to their own tolerance).
+    pub(crate) fn flat_apart_from_joint_velocities(e: &Estimate) -> (Vec<f64>, Vec<f64>) {
         let mut v: Vec<f64> = e
             .pose
             .iter()
             .flat_map(|r| r.matrix().iter().copied())
             .collect();
         v.extend(e.joint_position.iter().flat_map(|p| p.iter().copied()));
-        v.extend(e.joint_velocity.iter().flat_map(|p| p.iter().copied()));
         v.extend(e.foot_contact.iter().chain(&e.stationary).copied());
         v.extend(e.root_velocity.iter().chain(e.gravity_in_root.iter()));
-        v
+        let velocities = e
+            .joint_velocity
+            .iter()
+            .flat_map(|p| p.iter().copied())
+            .collect();
+        (v, velocities)
     }
 
     /// The largest entry-wise difference of two [`flat`] estimates.
     pub(crate) fn largest_gap(a: &[f64], b: &[f64]) -> f64 {
+        assert_eq!(a.len(), b.len());
         a.iter()
             .zip(b)
             .map(|(x, y)| (x - y).abs())
@@ -928,44 +941,23 @@ pub(crate) mod tests {
         candle.set_backend(Backend::Candle);
         let mut lean = Streamer::new(load(), Pose::t_pose(Vector3::zeros())).unwrap();
         assert_eq!(lean.backend(), Backend::Lean);
-        // (everything but the joint velocities, the joint velocities)
-        let flat = |e: &Estimate| -> (Vec<f64>, Vec<f64>) {
-            let mut v: Vec<f64> = e
-                .pose
-                .iter()
-                .flat_map(|r| r.matrix().iter().copied())
-                .collect();
-            v.extend(e.joint_position.iter().flat_map(|p| p.iter().copied()));
-            v.extend(e.foot_contact);
-            v.extend(e.stationary);
-            v.extend(e.root_velocity.iter().chain(e.gravity_in_root.iter()));
-            let vel = e
-                .joint_velocity
-                .iter()
-                .flat_map(|p| p.iter().copied())
-                .collect();
-            (v, vel)
-        };
         let velocity_tolerance = match method {
             Method::Pip => 1e-5,
             Method::GlobalPose => 1e-5 * f64::from(FPS),
-        };
-        let largest = |a: &[f64], b: &[f64]| {
-            assert_eq!(a.len(), b.len());
-            a.iter()
-                .zip(b)
-                .map(|(x, y)| (x - y).abs())
-                .fold(0.0, f64::max)
         };
         let (mut worst, mut worst_velocity, mut moved) = (0.0f64, 0.0f64, 0.0f64);
         let mut first = None;
         for f in 0..240 {
             let input = crate::bench::swaying_sensors(f);
-            let (want, want_velocity) = flat(&candle.step(&input).unwrap());
-            let (got, got_velocity) = flat(&lean.step(&input).unwrap());
-            worst = worst.max(largest(&got, &want));
-            worst_velocity = worst_velocity.max(largest(&got_velocity, &want_velocity));
-            moved = moved.max(largest(&want, first.get_or_insert_with(|| want.clone())));
+            let (want, want_velocity) =
+                flat_apart_from_joint_velocities(&candle.step(&input).unwrap());
+            let (got, got_velocity) = flat_apart_from_joint_velocities(&lean.step(&input).unwrap());
+            worst = worst.max(largest_gap(&got, &want));
+            worst_velocity = worst_velocity.max(largest_gap(&got_velocity, &want_velocity));
+            moved = moved.max(largest_gap(
+                &want,
+                first.get_or_insert_with(|| want.clone()),
+            ));
         }
         assert!(
             worst <= 1e-5,
