@@ -522,6 +522,7 @@ fn bench_validation(input: &Path) -> anyhow::Result<()> {
     use imuflow_body::Pose;
     use imuflow_imu_source::replay::{Recorded, Recording};
     use imuflow_optimizer::bench::summary;
+    use imuflow_validation::sim::Joints;
     use imuflow_validation::{FallRule, Mode, SimConfig, SimModel, Validator};
 
     let recording = Recording::load(input, None, None)?;
@@ -554,25 +555,37 @@ fn bench_validation(input: &Path) -> anyhow::Result<()> {
         defaults.substeps
     );
     println!(
-        "{:<9} {:>10} {:>10} {:>10} {:>10}  scores",
-        "mode", "mean µs", "p50 µs", "p99 µs", "max µs"
+        "{:<20} {:>10} {:>10} {:>10} {:>10}  scores",
+        "mode, joints", "mean µs", "p50 µs", "p99 µs", "max µs"
     );
-    for mode in [Mode::Torques, Mode::Residual] {
-        let config = SimConfig {
-            mode,
-            ..defaults.clone()
-        };
-        let mut validator = Validator::new(model.clone(), config, FallRule::default());
-        for pose in &poses {
-            validator.frame(Some(pose), 1.0 / 60.0);
+    // The default joining first, then the other one for comparison.
+    let joinings = [defaults.joints].into_iter().chain(
+        [Joints::Impulse, Joints::Multibody]
+            .into_iter()
+            .filter(|j| *j != defaults.joints),
+    );
+    for joints in joinings {
+        for mode in [Mode::Torques, Mode::Residual] {
+            let config = SimConfig {
+                mode,
+                ..SimConfig::for_joints(joints)
+            };
+            let mut validator = Validator::new(model.clone(), config, FallRule::default());
+            for pose in &poses {
+                validator.frame(Some(pose), 1.0 / 60.0);
+            }
+            // The first frame builds the world; time the steady state.
+            let [mean, p50, p99, max] = summary(&validator.stats.step_us[1..]);
+            let name = format!(
+                "{}, {}",
+                Mode::NAMES[mode as usize],
+                Joints::NAMES[joints as usize]
+            );
+            println!(
+                "{name:<20} {mean:>10.1} {p50:>10.1} {p99:>10.1} {max:>10.1}  {}",
+                validator.stats.summary_line(mode == Mode::Residual)
+            );
         }
-        // The first frame builds the world; time the steady state.
-        let [mean, p50, p99, max] = summary(&validator.stats.step_us[1..]);
-        println!(
-            "{:<9} {mean:>10.1} {p50:>10.1} {p99:>10.1} {max:>10.1}  {}",
-            Mode::NAMES[mode as usize],
-            validator.stats.summary_line(mode == Mode::Residual)
-        );
     }
     // The controller-free support score alone (part of every frame above).
     let mut judge = imuflow_validation::SupportJudge::new(&model);
@@ -584,7 +597,7 @@ fn bench_validation(input: &Path) -> anyhow::Result<()> {
     }
     let [mean, p50, p99, max] = summary(&support_us[1..]);
     println!(
-        "{:<9} {mean:>10.1} {p50:>10.1} {p99:>10.1} {max:>10.1}  (included above)",
+        "{:<20} {mean:>10.1} {p50:>10.1} {p99:>10.1} {max:>10.1}  (included above)",
         "support"
     );
     if cfg!(debug_assertions) {

@@ -9,7 +9,7 @@
 //! CLIP is a recording with a truth channel (`models/sample/walk.mcap`) or a Bandai Namco BVH.
 //! With @LIST, torques mode only, the totals over the clips. Variables override the defaults:
 //! `SIM_KP`, `SIM_KD`, `SIM_BKP`, `SIM_BKD`, `SIM_PKP`, `SIM_PKV`, `SIM_RKP`, `SIM_RKD`,
-//! `SIM_CLEAR`, `SIM_FRICTION`, `SIM_MAXTAU`, `SIM_SUBSTEPS`, `SIM_ITERS`, `SIM_FOOT_PITCH` (the SimConfig
+//! `SIM_CLEAR`, `SIM_FRICTION`, `SIM_MAXTAU`, `SIM_SUBSTEPS`, `SIM_ITERS`, `SIM_SWEEPS`, `SIM_JOINTS`, `SIM_FOOT_PITCH` (the SimConfig
 //! fields and the stage parameters of the same meaning); `SIM_MODES=torques,residual` picks the
 //! modes of a single clip; `SIM_TRACE=1` prints every frame (root offset from the estimate, pelvis
 //! and trunk tilt, the feet's loads and the estimate's ball heights; the pelvis's heading
@@ -29,6 +29,7 @@ use imuflow_body::skeleton::JointId;
 use imuflow_imu_source::replay::{Recorded, Recording};
 use imuflow_imu_source::synth::{Motion, Options};
 use imuflow_validation::model::DEFAULT_FOOT_PITCH_DEG;
+use imuflow_validation::sim::Joints;
 use imuflow_validation::{FallRule, Mode, SimConfig, SimModel, Validator};
 use nalgebra::Vector3;
 
@@ -149,7 +150,11 @@ struct Run {
 }
 
 fn config(mode: Mode) -> SimConfig {
-    let d = SimConfig::default();
+    let joints = std::env::var("SIM_JOINTS")
+        .ok()
+        .map(|name| Joints::parse(&name).expect("SIM_JOINTS: multibody or impulse"))
+        .unwrap_or(SimConfig::default().joints);
+    let d = SimConfig::for_joints(joints);
     SimConfig {
         mode,
         kp: env_f64("SIM_KP", d.kp),
@@ -165,6 +170,8 @@ fn config(mode: Mode) -> SimConfig {
         friction: env_f64("SIM_FRICTION", d.friction),
         substeps: env_f64("SIM_SUBSTEPS", d.substeps as f64) as usize,
         solver_iterations: env_f64("SIM_ITERS", d.solver_iterations as f64) as usize,
+        solver_sweeps: env_f64("SIM_SWEEPS", d.solver_sweeps as f64) as usize,
+        joints,
     }
 }
 

@@ -1,13 +1,15 @@
-//! The rapier3d simulation: one multibody (reduced coordinates) with spherical joints, built from
-//! a [`SimModel`], standing on a half-space floor at y = 0, driven by joint motors that track an
-//! estimated pose.
+//! The rapier3d simulation: the body's links joined by spherical joints, built from a
+//! [`SimModel`], standing on a half-space floor at y = 0, driven by joint motors that track an
+//! estimated pose. The links are either rigid bodies held together by impulse joints (the default)
+//! or one multibody in reduced coordinates ([`Joints`]); everything else is the same for both.
 //!
 //! Conventions that make the tracking exact to state: every link's frame is its joint's frame
 //! (`local_frame2` = identity), and the joint anchor in the parent is the skeleton's bone offset
 //! with no rotation (`local_frame1` = translation only). rapier then composes
 //! `child_in_parent = offset · joint_rot`, so a spherical joint's `joint_rot` *is* the skeleton's
-//! local rotation `parent_from_joint`, and its three generalized velocities are the child's angular
-//! velocity relative to the parent, expressed in the parent's frame.
+//! local rotation `parent_from_joint`, and its three generalized velocities (a multibody's) or its
+//! motors' velocities (an impulse joint's) are the child's angular velocity relative to the
+//! parent, expressed in the parent's frame.
 
 use imuflow_body::kinematics::{FkData, Pose, forward_kinematics};
 use imuflow_body::rotation::axis_angle_from_rotation;
@@ -37,8 +39,6 @@ const MIN_SWING_KNEE_BEND_RAD: f64 = 0.1;
 const MAX_CLEARANCE_BEND_RAD: f64 = 0.5;
 /// The feet's balls, [left, right].
 const FEET: [JointId; 2] = [JointId::LEFT_FOOT, JointId::RIGHT_FOOT];
-/// Gauss-Seidel sweeps per solver iteration (see `Simulation::new`).
-const PGS_SWEEPS: usize = 4;
 
 /// How the root is driven.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -56,6 +56,29 @@ impl Mode {
         match name {
             "torques" => Some(Mode::Torques),
             "residual" => Some(Mode::Residual),
+            _ => None,
+        }
+    }
+}
+
+/// How the links are joined.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Joints {
+    /// One rapier multibody in reduced coordinates: the joints cannot come apart, at the cost of
+    /// a dense mass matrix recomputed every physics step.
+    Multibody,
+    /// A rigid body per link held together by rapier impulse joints (maximal coordinates): each
+    /// joint is a constraint the solver meets only approximately, at a cost linear in the links.
+    Impulse,
+}
+
+impl Joints {
+    pub const NAMES: [&'static str; 2] = ["multibody", "impulse"];
+
+    pub fn parse(name: &str) -> Option<Joints> {
+        match name {
+            "multibody" => Some(Joints::Multibody),
+            "impulse" => Some(Joints::Impulse),
             _ => None,
         }
     }
@@ -92,10 +115,34 @@ pub struct SimConfig {
     pub substeps: usize,
     /// rapier solver iterations (its internal substeps) per physics step.
     pub solver_iterations: usize,
+    /// Gauss-Seidel sweeps per solver iteration (rapier's `num_internal_pgs_iterations`).
+    pub solver_sweeps: usize,
+    /// How the links are joined.
+    pub joints: Joints,
 }
 
 impl Default for SimConfig {
     fn default() -> SimConfig {
+        SimConfig::for_joints(Joints::Impulse)
+    }
+}
+
+impl SimConfig {
+    /// The defaults, with the solver settings that suit `joints` (measured on the test split's
+    /// walks and runs; stages/validation/README.md, "Joints"):
+    /// - multibody: one solver iteration of four sweeps per physics step. Every iteration
+    ///   recomputes the multibody's dense mass matrix (most of the time), and with one sweep the
+    ///   stiff motors, coupled through that matrix, let a held T-pose fold at the knees within
+    ///   1.5 s; with four it stands to 5 mm.
+    /// - impulse: four iterations of twelve sweeps. Each joint is its own constraint, met
+    ///   only as far as the sweeps carry a correction along the chain: with one iteration of four
+    ///   sweeps the chain sagged (pose error on the sample's walk 10.7 against 5.0 cm) and fell four
+    ///   times as often. Sweeps are cheap here, there is no mass matrix to rebuild.
+    pub fn for_joints(joints: Joints) -> SimConfig {
+        let (solver_iterations, solver_sweeps) = match joints {
+            Joints::Multibody => (1, 4),
+            Joints::Impulse => (4, 12),
+        };
         SimConfig {
             mode: Mode::Torques,
             kp: 900.0,
@@ -110,7 +157,9 @@ impl Default for SimConfig {
             clearance_gain: 4.0,
             friction: 0.8,
             substeps: 4,
-            solver_iterations: 1,
+            solver_iterations,
+            solver_sweeps,
+            joints,
         }
     }
 }
@@ -203,10 +252,12 @@ pub struct Simulation {
     model: SimModel,
     config: SimConfig,
     world: PhysicsWorld,
-    multibody: MultibodyIndex,
-    /// Per model link: its rigid body and its link id in the multibody.
+    /// Per model link: its rigid body.
     link_body: Vec<RigidBodyHandle>,
-    link_id: Vec<usize>,
+    /// Per model link: the link its joint hangs from (the root: itself).
+    parent_link: Vec<usize>,
+    /// What holds the links together.
+    articulation: Articulation,
     /// Which joint each body collider's contact force is reported on.
     collider_joint: Vec<(ColliderHandle, JointId)>,
     ground: ColliderHandle,
@@ -217,6 +268,19 @@ pub struct Simulation {
     /// This frame's foot-placement reference (see `placement_reference`).
     placement: Option<Placement>,
     target_fk: FkData,
+}
+
+/// The rapier objects that join the links (see [`Joints`]).
+enum Articulation {
+    /// The multibody, and each model link's id in it.
+    Multibody {
+        index: MultibodyIndex,
+        link_id: Vec<usize>,
+    },
+    /// Per model link: the impulse joint to its parent link (the root: none).
+    Impulse {
+        joint: Vec<Option<ImpulseJointHandle>>,
+    },
 }
 
 /// What the foot placement compares the simulated body with, from the estimate of this frame.
@@ -259,10 +323,8 @@ impl Simulation {
         let mut world = PhysicsWorld::new();
         world.gravity = Vec3::new(0.0, -GRAVITY_MPS2 as f32, 0.0);
         world.integration_parameters.dt = (1.0 / 60.0 / config.substeps.max(1) as f64) as f32;
-        // Four Gauss-Seidel sweeps per solver iteration (rapier's default is one): the stiff joint
-        // motors are coupled through the whole multibody's mass matrix, and with one sweep the
-        // chain sagged (a T-pose folded at the knees within 1.5 s); with four it stands to 5 mm.
-        world.integration_parameters.num_internal_pgs_iterations = PGS_SWEEPS;
+        // More Gauss-Seidel sweeps than rapier's default of one (see `SimConfig::for_joints`).
+        world.integration_parameters.num_internal_pgs_iterations = config.solver_sweeps.max(1);
         world.integration_parameters.num_solver_iterations = config.solver_iterations.max(1);
 
         let ground_body = world.bodies.insert(RigidBodyBuilder::fixed());
@@ -282,6 +344,8 @@ impl Simulation {
             quat(&start.pose.parent_from_joint[0]),
         );
         let mut link_body = Vec::with_capacity(model.links.len());
+        let mut parent_link = Vec::with_capacity(model.links.len());
+        let mut impulse_joint = Vec::with_capacity(model.links.len());
         let mut collider_joint = Vec::new();
         let link_of = model.link_of_joint();
         for link in &model.links {
@@ -309,11 +373,16 @@ impl Simulation {
                     .insert_with_parent(collider, handle, &mut world.bodies);
                 collider_joint.push((c, contact_joint(*carried)));
             }
+            // rapier adds the additional mass properties at the next step; the centre of mass
+            // has to be right before it, for the velocities `set_state` gives and `state` reads.
+            world.bodies[handle].recompute_mass_properties_from_colliders(&world.colliders);
             if let Some(parent) = link.joint.parent() {
                 // The parent link may carry rigid joints between it and this one (a collar
                 // before a shoulder): the anchor is this joint's rest position in that link.
                 let carrier = crate::model::carrier(parent);
-                let parent_body = link_body[link_of[carrier.index()].expect("carriers are links")];
+                let parent_index = link_of[carrier.index()].expect("carriers are links");
+                let parent_body = link_body[parent_index];
+                parent_link.push(parent_index);
                 let offset = crate::model::offset_in_carrier(&model.body, link.joint);
                 let mut joint = SphericalJointBuilder::new()
                     .local_anchor1(vec3(&offset))
@@ -326,34 +395,59 @@ impl Simulation {
                         .set_motor_velocity(axis, 0.0, 0.0)
                         .set_motor_max_force(axis, max_torque);
                 }
-                world
-                    .multibody_joints
-                    .insert(parent_body, handle, joint, true)
-                    .expect("a tree of new bodies is a valid multibody");
+                match config.joints {
+                    Joints::Multibody => {
+                        world
+                            .multibody_joints
+                            .insert(parent_body, handle, joint, true)
+                            .expect("a tree of new bodies is a valid multibody");
+                        impulse_joint.push(None);
+                    }
+                    Joints::Impulse => impulse_joint.push(Some(world.impulse_joints.insert(
+                        parent_body,
+                        handle,
+                        joint,
+                        true,
+                    ))),
+                }
+            } else {
+                parent_link.push(0);
+                impulse_joint.push(None);
             }
             link_body.push(handle);
         }
-        let root_link = *world
-            .multibody_joints
-            .rigid_body_link(link_body[0])
-            .expect("the root is a multibody link");
-        let link_id = link_body
-            .iter()
-            .map(|h| {
-                world
+        let articulation = match config.joints {
+            Joints::Multibody => {
+                let root_link = *world
                     .multibody_joints
-                    .rigid_body_link(*h)
-                    .expect("every body is a link")
-                    .id
-            })
-            .collect();
+                    .rigid_body_link(link_body[0])
+                    .expect("the root is a multibody link");
+                let link_id = link_body
+                    .iter()
+                    .map(|h| {
+                        world
+                            .multibody_joints
+                            .rigid_body_link(*h)
+                            .expect("every body is a link")
+                            .id
+                    })
+                    .collect();
+                Articulation::Multibody {
+                    index: root_link.multibody,
+                    link_id,
+                }
+            }
+            Joints::Impulse => Articulation::Impulse {
+                joint: impulse_joint,
+            },
+        };
         let mut sim = Simulation {
             model: model.clone(),
             config: config.clone(),
             world,
-            multibody: root_link.multibody,
             link_body,
-            link_id,
+            parent_link,
+            articulation,
             collider_joint,
             ground,
             foot_load_n: [0.0; 2],
@@ -365,35 +459,36 @@ impl Simulation {
         sim
     }
 
-    fn multibody(&self) -> &Multibody {
-        self.world
-            .multibody_joints
-            .get_multibody(self.multibody)
-            .expect("the body's multibody exists")
-    }
-
-    fn multibody_mut(&mut self) -> &mut Multibody {
-        self.world
-            .multibody_joints
-            .get_multibody_mut(self.multibody)
-            .expect("the body's multibody exists")
-    }
-
     /// Puts the body in the target's pose (the root where the target has it, every joint rotated
     /// from identity to its target) with the target's velocities.
     fn set_state(&mut self, target: &Target) {
-        let model_links: Vec<JointId> = self.model.links.iter().map(|l| l.joint).collect();
-        let link_id = self.link_id.clone();
-        let mb = self.multibody_mut();
+        match &self.articulation {
+            Articulation::Multibody { index, link_id } => {
+                let (index, link_id) = (*index, link_id.clone());
+                self.set_multibody_state(index, &link_id, target);
+                // The multibody moves its links' bodies at its first step; until then they would
+                // read as standing still (the centre of mass's velocity, the joints').
+                self.set_body_states(target, false);
+            }
+            Articulation::Impulse { .. } => self.set_body_states(target, true),
+        }
+    }
+
+    fn set_multibody_state(&mut self, index: MultibodyIndex, link_id: &[usize], target: &Target) {
+        let world = &mut self.world;
+        let mb = world
+            .multibody_joints
+            .get_multibody_mut(index)
+            .expect("the body's multibody exists");
         let ndofs = mb.ndofs();
         let mut displacement = vec![0.0f32; ndofs];
         let mut velocity = vec![0.0f32; ndofs];
         // The free root: 3 linear then 3 angular world velocities.
         velocity[..3].copy_from_slice(&vec3(&target.root_velocity).to_array());
         velocity[3..6].copy_from_slice(&vec3(&target.angular_velocity[0]).to_array());
-        for (joint, id) in model_links.iter().zip(&link_id).skip(1) {
+        for (link, id) in self.model.links.iter().zip(link_id).skip(1) {
             let first = mb.link(*id).expect("link ids are valid").assembly_id();
-            let j = joint.index();
+            let j = link.joint.index();
             displacement[first..first + 3].copy_from_slice(
                 &vec3(&axis_angle_from_rotation(&target.pose.parent_from_joint[j])).to_array(),
             );
@@ -402,13 +497,143 @@ impl Simulation {
         }
         mb.apply_displacements(&displacement);
         mb.generalized_velocity_mut().copy_from_slice(&velocity);
-        let world = &mut self.world;
-        let mb = world
-            .multibody_joints
-            .get_multibody_mut(self.multibody)
-            .expect("the body's multibody exists");
         mb.forward_kinematics(&world.bodies, true);
         mb.update_rigid_bodies(&mut world.bodies, true);
+    }
+
+    /// Every link's rigid body moving (and with `place`, placed) as the multibody's forward
+    /// kinematics would have it (parents first: a link's origin is its joint, `offset_in_carrier`
+    /// from its parent's, turned by the target's local rotation).
+    fn set_body_states(&mut self, target: &Target, place: bool) {
+        let mut frames: Vec<(Vector3<f64>, Rotation3<f64>)> =
+            Vec::with_capacity(self.link_body.len());
+        // Per link: the linear velocity of its origin and its angular velocity, world.
+        let mut velocities: Vec<(Vector3<f64>, Vector3<f64>)> =
+            Vec::with_capacity(self.link_body.len());
+        for (l, link) in self.model.links.iter().enumerate() {
+            let j = link.joint.index();
+            let (origin, orientation, linear, angular) = if l == 0 {
+                (
+                    target.pose.root_in_world_m,
+                    target.pose.parent_from_joint[0],
+                    target.root_velocity,
+                    target.angular_velocity[0],
+                )
+            } else {
+                let (parent_origin, parent_orientation) = frames[self.parent_link[l]];
+                let (parent_linear, parent_angular) = velocities[self.parent_link[l]];
+                let offset = parent_orientation
+                    * crate::model::offset_in_carrier(&self.model.body, link.joint);
+                (
+                    parent_origin + offset,
+                    parent_orientation * target.pose.parent_from_joint[j],
+                    parent_linear + parent_angular.cross(&offset),
+                    parent_angular + parent_orientation * target.angular_velocity[j],
+                )
+            };
+            frames.push((origin, orientation));
+            velocities.push((linear, angular));
+            let rb = &mut self.world.bodies[self.link_body[l]];
+            if place {
+                rb.set_position(
+                    rapier3d::math::Pose::from_parts(vec3(&origin), quat(&orientation)),
+                    true,
+                );
+            }
+            // rapier's linear velocity is the centre of mass's.
+            let com = orientation * link.com_m;
+            rb.set_linvel(vec3(&(linear + angular.cross(&com))), true);
+            rb.set_angvel(vec3(&angular), true);
+        }
+    }
+
+    /// World pose of a link's frame (its joint centre and orientation).
+    fn link_frame(&self, l: usize) -> (Vector3<f64>, Rotation3<f64>) {
+        match &self.articulation {
+            Articulation::Multibody { index, link_id } => {
+                let to_world = self
+                    .world
+                    .multibody_joints
+                    .get_multibody(*index)
+                    .expect("the body's multibody exists")
+                    .link(link_id[l])
+                    .expect("link ids are valid")
+                    .local_to_world();
+                (vector(to_world.translation), rotation(to_world.rotation))
+            }
+            Articulation::Impulse { .. } => {
+                let rb = &self.world.bodies[self.link_body[l]];
+                (vector(rb.translation()), rotation(*rb.rotation()))
+            }
+        }
+    }
+
+    /// The largest distance between a joint's anchor on its parent link and its own link's
+    /// origin, m: how far the impulse joints have come apart (the multibody's cannot; 0 there up to
+    /// float rounding).
+    pub fn largest_joint_gap_m(&self) -> f64 {
+        (1..self.link_body.len())
+            .map(|l| {
+                let (parent_origin, parent_orientation) = self.link_frame(self.parent_link[l]);
+                let (origin, _) = self.link_frame(l);
+                let offset =
+                    crate::model::offset_in_carrier(&self.model.body, self.model.links[l].joint);
+                (parent_origin + parent_orientation * offset - origin).norm()
+            })
+            .fold(0.0, f64::max)
+    }
+
+    /// A link's rotation relative to its parent link: its joint's local rotation.
+    fn joint_rotation(&self, l: usize) -> Rotation3<f64> {
+        match &self.articulation {
+            Articulation::Multibody { index, link_id } => rotation(
+                self.world
+                    .multibody_joints
+                    .get_multibody(*index)
+                    .expect("the body's multibody exists")
+                    .link(link_id[l])
+                    .expect("link ids are valid")
+                    .joint
+                    .joint_rot(),
+            ),
+            Articulation::Impulse { .. } => {
+                let (_, parent) = self.link_frame(self.parent_link[l]);
+                let (_, child) = self.link_frame(l);
+                parent.inverse() * child
+            }
+        }
+    }
+
+    /// Sets a link's joint motors to the relative angular velocity `velocity` (parent's frame)
+    /// with damping `damping`.
+    fn set_joint_motors(&mut self, l: usize, velocity: &Vector3<f64>, damping: f64) {
+        let data = match &self.articulation {
+            Articulation::Multibody { index, link_id } => {
+                &mut self
+                    .world
+                    .multibody_joints
+                    .get_multibody_mut(*index)
+                    .expect("the body's multibody exists")
+                    .link_mut(link_id[l])
+                    .expect("link ids are valid")
+                    .joint
+                    .data
+            }
+            Articulation::Impulse { joint } => {
+                &mut self
+                    .world
+                    .impulse_joints
+                    .get_mut(
+                        joint[l].expect("every link but the root has a joint"),
+                        false,
+                    )
+                    .expect("the body's joints exist")
+                    .data
+            }
+        };
+        for (k, axis) in ANGULAR_AXES.into_iter().enumerate() {
+            data.set_motor_velocity(axis, velocity[k] as f32, damping as f32);
+        }
     }
 
     /// Advances one input frame of `dt` seconds (in `substeps` physics steps) towards `target`.
@@ -501,15 +726,13 @@ impl Simulation {
             .model
             .links
             .iter()
-            .zip(&self.link_id)
+            .enumerate()
             .skip(1)
-            .map(|(l, id)| (*id, l.joint, kd * l.driven_inertia_kgm2))
+            .map(|(l, link)| (l, link.joint, kd * link.driven_inertia_kgm2))
             .collect();
-        let mb = self.multibody_mut();
-        for (id, joint, damping) in gains {
-            let link = mb.link_mut(id).expect("link ids are valid");
+        for (l, joint, damping) in gains {
             let j = joint.index();
-            let current = rotation(link.joint.joint_rot());
+            let current = self.joint_rotation(l);
             let mut wanted = match (joint, swing) {
                 (JointId::LEFT_HIP, Some((0, hip))) | (JointId::RIGHT_HIP, Some((1, hip))) => hip,
                 _ => target.pose.parent_from_joint[j],
@@ -533,11 +756,7 @@ impl Simulation {
                 JointId::RIGHT_HIP => velocity += stance[1],
                 _ => {}
             }
-            for (k, axis) in ANGULAR_AXES.into_iter().enumerate() {
-                link.joint
-                    .data
-                    .set_motor_velocity(axis, velocity[k] as f32, damping as f32);
-            }
+            self.set_joint_motors(l, &velocity, damping);
         }
     }
 
@@ -659,13 +878,8 @@ impl Simulation {
 
     /// World position of a rigid joint (a foot's ball) of the simulated body, m.
     fn foot_position(&self, rigid: JointId) -> Vector3<f64> {
-        let to_world = self
-            .multibody()
-            .link(self.link_id[self.model.carrying_link(rigid)])
-            .expect("link ids are valid")
-            .local_to_world();
-        vector(to_world.translation)
-            + rotation(to_world.rotation) * crate::model::offset_in_carrier(&self.model.body, rigid)
+        let (origin, orientation) = self.link_frame(self.model.carrying_link(rigid));
+        origin + orientation * crate::model::offset_in_carrier(&self.model.body, rigid)
     }
 
     /// The change of each hip's velocity target that steers the pelvis (see `drive_joints`); zero
@@ -778,23 +992,21 @@ impl Simulation {
 
     /// The body's current state.
     pub fn state(&self) -> SimState {
-        let mb = self.multibody();
         let mut pose = Pose::t_pose(Vector3::zeros());
         let mut world_from_joint = [Rotation3::identity(); NUM_JOINTS];
         let mut joint_position_m = [Vector3::zeros(); NUM_JOINTS];
         let mut joint_velocity_mps = [Vector3::zeros(); NUM_JOINTS];
-        for (l, (link, id)) in self.model.links.iter().zip(&self.link_id).enumerate() {
-            let mb_link = mb.link(*id).expect("link ids are valid");
-            let to_world = mb_link.local_to_world();
+        for (l, link) in self.model.links.iter().enumerate() {
+            let (origin, orientation) = self.link_frame(l);
             let j = link.joint.index();
-            world_from_joint[j] = rotation(to_world.rotation);
-            joint_position_m[j] = vector(to_world.translation);
+            world_from_joint[j] = orientation;
+            joint_position_m[j] = origin;
             let rb = &self.world.bodies[self.link_body[l]];
-            joint_velocity_mps[j] = vector(rb.velocity_at_point(to_world.translation));
+            joint_velocity_mps[j] = vector(rb.velocity_at_point(vec3(&origin)));
             pose.parent_from_joint[j] = if l == 0 {
                 world_from_joint[j]
             } else {
-                rotation(mb_link.joint.joint_rot())
+                self.joint_rotation(l)
             };
         }
         pose.root_in_world_m = joint_position_m[0];
@@ -896,6 +1108,122 @@ mod tests {
             } else {
                 assert_eq!(folded.pose.parent_from_joint[j], Rotation3::identity());
             }
+        }
+    }
+
+    #[test]
+    fn both_joinings_start_in_the_targets_pose_moving_with_its_velocities() {
+        // Expected independently of rapier: the skeleton's forward kinematics of the (folded)
+        // target, and the joints' velocities as finite differences of it over the step the
+        // target's velocities came from.
+        let body = imuflow_body::body_model::BodyModel::new(
+            &imuflow_body::body_model::BodyParams::builtin().unwrap(),
+            1.75,
+            70.0,
+        )
+        .unwrap();
+        let model = SimModel::new(&body);
+        let h = 1e-4;
+        let fold = |p: &Pose| Target::from_poses(None, p, h).folded().pose;
+        let (before, now) = (bent(0.6 - h), bent(0.6));
+        let target = Target::from_poses(Some(&before), &now, h).folded();
+        let (mut fk_before, mut fk_now) = (FkData::new(), FkData::new());
+        forward_kinematics(&body.skeleton, &fold(&before), &mut fk_before);
+        forward_kinematics(&body.skeleton, &fold(&now), &mut fk_now);
+        for joints in [Joints::Impulse, Joints::Multibody] {
+            let sim = Simulation::new(&model, &SimConfig::for_joints(joints), &target);
+            let state = sim.state();
+            for joint in JointId::all() {
+                let j = joint.index();
+                let apart = (state.joint_position_m[j] - fk_now.joint_in_world_m[j]).norm();
+                assert!(
+                    apart < 1e-5,
+                    "{joints:?} {joint:?}: {apart} m from its place"
+                );
+                // (The matrices' difference: `angle_to` is NaN a rounding away from identity.)
+                let turned = (state.world_from_joint[j].matrix()
+                    - fk_now.world_from_joint[j].matrix())
+                .norm();
+                assert!(turned < 1e-5, "{joints:?} {joint:?}: turned by {turned}");
+                let differenced = (fk_now.joint_in_world_m[j] - fk_before.joint_in_world_m[j]) / h;
+                let off = (state.joint_velocity_mps[j] - differenced).norm();
+                assert!(off < 1e-3, "{joints:?} {joint:?}: velocity {off} m/s off");
+            }
+            for link in &model.links[1..] {
+                let j = link.joint.index();
+                let local = (state.pose.parent_from_joint[j].matrix()
+                    - target.pose.parent_from_joint[j].matrix())
+                .norm();
+                assert!(
+                    local < 1e-5,
+                    "{joints:?} {:?}: local rotation {local} off",
+                    link.joint
+                );
+            }
+            assert!(sim.largest_joint_gap_m() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn impulse_joints_hold_together_and_track_like_the_multibody() {
+        // The same slow bend tracked both ways, in the air (residual mode holds the root): the
+        // impulse joints may give a little, but not more than a few millimetres, and both bodies
+        // end up in the pose they were driven to.
+        let body = imuflow_body::body_model::BodyModel::new(
+            &imuflow_body::body_model::BodyParams::builtin().unwrap(),
+            1.75,
+            70.0,
+        )
+        .unwrap();
+        let model = SimModel::new(&body);
+        let dt = 1.0 / 60.0;
+        let lifted = |t: f64| {
+            let mut pose = bent(t);
+            pose.root_in_world_m.y += 1.0;
+            pose
+        };
+        let mut end = Vec::new();
+        for joints in [Joints::Impulse, Joints::Multibody] {
+            let config = SimConfig {
+                mode: Mode::Residual,
+                ..SimConfig::for_joints(joints)
+            };
+            let mut sim = Simulation::new(
+                &model,
+                &config,
+                &Target::from_poses(None, &lifted(0.0), dt).folded(),
+            );
+            let mut gap = 0.0f64;
+            for frame in 1..=120 {
+                let t = 0.5 * (frame as f64 / 60.0).min(1.0);
+                let previous = lifted(0.5 * ((frame - 1) as f64 / 60.0).min(1.0));
+                sim.step(
+                    &Target::from_poses(Some(&previous), &lifted(t), dt).folded(),
+                    dt,
+                );
+                gap = gap.max(sim.largest_joint_gap_m());
+            }
+            assert!(gap < 0.005, "{joints:?}: joints {gap} m apart");
+            let state = sim.state();
+            let wanted = Target::from_poses(None, &lifted(0.5), dt).folded().pose;
+            for link in &model.links[1..] {
+                let j = link.joint.index();
+                let off = (state.pose.parent_from_joint[j].matrix()
+                    - wanted.parent_from_joint[j].matrix())
+                .norm();
+                assert!(
+                    off < 0.05,
+                    "{joints:?} {:?}: {off} from its target",
+                    link.joint
+                );
+            }
+            end.push(state);
+        }
+        let (impulse, multibody) = (&end[0], &end[1]);
+        for joint in JointId::all() {
+            let j = joint.index();
+            let apart = (impulse.joint_position_m[j] - multibody.joint_position_m[j]).norm();
+            assert!(apart < 0.02, "{joint:?}: the two bodies {apart} m apart");
         }
     }
 

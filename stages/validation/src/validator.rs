@@ -86,6 +86,9 @@ pub struct Stats {
     pub skate_frames: u64,
     pub penetration_sum_m: f64,
     pub penetration_max_m: f64,
+    /// The largest gap a joint of the simulated body opened, m (see
+    /// [`Simulation::largest_joint_gap_m`]).
+    pub joint_gap_max_m: f64,
     pub step_us: Vec<f64>,
     /// Frames whose support was judged (see [`crate::support`]).
     pub support_judged: u64,
@@ -201,7 +204,8 @@ impl Stats {
             );
         }
         line + &format!(
-            ", {:.0} µs/frame (p99 {:.0})",
+            ", joint gap max {:.2} cm, {:.0} µs/frame (p99 {:.0})",
+            100.0 * self.joint_gap_max_m,
             self.step_mean_us(),
             self.step_p99_us()
         )
@@ -300,6 +304,7 @@ impl Validator {
             return Some(self.record(started, dt, target_outcome(state, support), false, false));
         };
         let forces = sim.step(&target.clone().folded(), dt);
+        self.stats.joint_gap_max_m = self.stats.joint_gap_max_m.max(sim.largest_joint_gap_m());
         let state = sim.state();
         let score = self.score(&state, &forces);
         let contact_mask = contact_mask(&forces);
