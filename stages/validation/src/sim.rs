@@ -1069,6 +1069,22 @@ fn collider(shape: &Shape) -> ColliderBuilder {
 mod tests {
     use super::*;
 
+    /// The default subject's body model.
+    fn body() -> imuflow_body::body_model::BodyModel {
+        imuflow_body::body_model::BodyModel::new(
+            &imuflow_body::body_model::BodyParams::builtin().unwrap(),
+            1.75,
+            70.0,
+        )
+        .unwrap()
+    }
+
+    /// How far apart two rotations are, as the norm of their matrices' difference (`angle_to` is
+    /// NaN a rounding away from identity).
+    fn apart(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
+        (a.matrix() - b.matrix()).norm()
+    }
+
     /// A pose with every joint bent: rotations about varied axes, growing with `t`.
     fn bent(t: f64) -> Pose {
         let mut pose = Pose::t_pose(Vector3::new(0.1 * t, 0.9, 0.3 * t));
@@ -1081,12 +1097,7 @@ mod tests {
 
     #[test]
     fn folding_the_rigid_joints_keeps_every_simulated_joint_turned_and_turning_as_before() {
-        let body = imuflow_body::body_model::BodyModel::new(
-            &imuflow_body::body_model::BodyParams::builtin().unwrap(),
-            1.75,
-            70.0,
-        )
-        .unwrap();
+        let body = body();
         let dt = 1e-4;
         let (before, now) = (bent(0.5), bent(0.5 + dt));
         let folded = Target::from_poses(Some(&before), &now, dt).folded();
@@ -1116,12 +1127,7 @@ mod tests {
         // Expected independently of rapier: the skeleton's forward kinematics of the (folded)
         // target, and the joints' velocities as finite differences of it over the step the
         // target's velocities came from.
-        let body = imuflow_body::body_model::BodyModel::new(
-            &imuflow_body::body_model::BodyParams::builtin().unwrap(),
-            1.75,
-            70.0,
-        )
-        .unwrap();
+        let body = body();
         let model = SimModel::new(&body);
         let h = 1e-4;
         let fold = |p: &Pose| Target::from_poses(None, p, h).folded().pose;
@@ -1135,15 +1141,12 @@ mod tests {
             let state = sim.state();
             for joint in JointId::all() {
                 let j = joint.index();
-                let apart = (state.joint_position_m[j] - fk_now.joint_in_world_m[j]).norm();
+                let misplaced = (state.joint_position_m[j] - fk_now.joint_in_world_m[j]).norm();
                 assert!(
-                    apart < 1e-5,
-                    "{joints:?} {joint:?}: {apart} m from its place"
+                    misplaced < 1e-5,
+                    "{joints:?} {joint:?}: {misplaced} m from its place"
                 );
-                // (The matrices' difference: `angle_to` is NaN a rounding away from identity.)
-                let turned = (state.world_from_joint[j].matrix()
-                    - fk_now.world_from_joint[j].matrix())
-                .norm();
+                let turned = apart(&state.world_from_joint[j], &fk_now.world_from_joint[j]);
                 assert!(turned < 1e-5, "{joints:?} {joint:?}: turned by {turned}");
                 let differenced = (fk_now.joint_in_world_m[j] - fk_before.joint_in_world_m[j]) / h;
                 let off = (state.joint_velocity_mps[j] - differenced).norm();
@@ -1151,9 +1154,10 @@ mod tests {
             }
             for link in &model.links[1..] {
                 let j = link.joint.index();
-                let local = (state.pose.parent_from_joint[j].matrix()
-                    - target.pose.parent_from_joint[j].matrix())
-                .norm();
+                let local = apart(
+                    &state.pose.parent_from_joint[j],
+                    &target.pose.parent_from_joint[j],
+                );
                 assert!(
                     local < 1e-5,
                     "{joints:?} {:?}: local rotation {local} off",
@@ -1169,12 +1173,7 @@ mod tests {
         // The same slow bend tracked both ways, in the air (residual mode holds the root): the
         // impulse joints may give a little, but not more than a few millimetres, and both bodies
         // end up in the pose they were driven to.
-        let body = imuflow_body::body_model::BodyModel::new(
-            &imuflow_body::body_model::BodyParams::builtin().unwrap(),
-            1.75,
-            70.0,
-        )
-        .unwrap();
+        let body = body();
         let model = SimModel::new(&body);
         let dt = 1.0 / 60.0;
         let lifted = |t: f64| {
@@ -1208,9 +1207,10 @@ mod tests {
             let wanted = Target::from_poses(None, &lifted(0.5), dt).folded().pose;
             for link in &model.links[1..] {
                 let j = link.joint.index();
-                let off = (state.pose.parent_from_joint[j].matrix()
-                    - wanted.parent_from_joint[j].matrix())
-                .norm();
+                let off = apart(
+                    &state.pose.parent_from_joint[j],
+                    &wanted.parent_from_joint[j],
+                );
                 assert!(
                     off < 0.05,
                     "{joints:?} {:?}: {off} from its target",
@@ -1222,8 +1222,11 @@ mod tests {
         let (impulse, multibody) = (&end[0], &end[1]);
         for joint in JointId::all() {
             let j = joint.index();
-            let apart = (impulse.joint_position_m[j] - multibody.joint_position_m[j]).norm();
-            assert!(apart < 0.02, "{joint:?}: the two bodies {apart} m apart");
+            let distance = (impulse.joint_position_m[j] - multibody.joint_position_m[j]).norm();
+            assert!(
+                distance < 0.02,
+                "{joint:?}: the two bodies {distance} m apart"
+            );
         }
     }
 
