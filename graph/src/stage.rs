@@ -550,10 +550,20 @@ impl StageContext {
                 return Ok(None);
             };
             let inputs = &self.inputs;
+            // Only a frame that can complete the step ends the wait: one for a forward input that
+            // holds none, or a feedback frame. A forward input that already holds this step's
+            // frame may have the next ones queued behind it (offline, a stage waiting for its
+            // feedback has its upstream running ahead); waking on those would spin this stage
+            // through its inputs until the feedback comes, a core's worth of polling (measured:
+            // PIP's contact stage at 43 % of a core for 18 µs of work a frame).
             self.waiter.wait_warming(
                 listener,
                 POLL,
-                || inputs.iter().any(|s| s.subscriber.has_frames()),
+                || {
+                    inputs
+                        .iter()
+                        .any(|s| (s.feedback || s.current.is_none()) && s.subscriber.has_frames())
+                },
                 warm,
             );
         }
