@@ -14,6 +14,11 @@ use clap::{Args, Parser, Subcommand};
 use imuflow_graph::launch::{self, LaunchOptions, RunError};
 use imuflow_graph::{Graph, GraphLoadError};
 
+/// Every stage runs in this binary. The rerun logger spent half its time in glibc's malloc under
+/// the SDK's many small allocations (`perf`, offline pip graph); mimalloc serves them faster.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 /// Full-body motion from six IMUs, as a dataflow of stages over shared memory.
 ///
 /// A graph file (configs/*.toml) names the stages and wires their ports; `imuflow run` starts one
