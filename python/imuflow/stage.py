@@ -594,8 +594,12 @@ class Stage:
                 return self._begin_step(seq, capture_ns, flags)
             if self._listener is None:
                 return None
+            # Only a frame that can complete the step ends the wait (graph/src/stage.rs,
+            # `next_step`): a forward input that already holds its frame may have the next ones
+            # queued while this stage waits for its feedback, and waking on those is a poll loop.
             self._waiter.wait(self._listener, self._poll,
-                              lambda: any(s.subscriber.has_samples() for s in self._inputs))
+                              lambda: any((s.feedback or s.view is None)
+                                          and s.subscriber.has_samples() for s in self._inputs))
 
     def finish(self):
         """Ends the stage: END_OF_STREAM on every output, the summary to the launcher, the
