@@ -464,41 +464,13 @@ impl Simulation {
     fn set_state(&mut self, target: &Target) {
         match &self.articulation {
             Articulation::Multibody { index, link_id } => {
-                let (index, link_id) = (*index, link_id.clone());
-                self.set_multibody_state(index, &link_id, target);
+                set_multibody_state(&mut self.world, *index, link_id, &self.model.links, target);
                 // The multibody moves its links' bodies at its first step; until then they would
                 // read as standing still (the centre of mass's velocity, the joints').
                 self.set_body_states(target, false);
             }
             Articulation::Impulse { .. } => self.set_body_states(target, true),
         }
-    }
-
-    fn set_multibody_state(&mut self, index: MultibodyIndex, link_id: &[usize], target: &Target) {
-        let world = &mut self.world;
-        let mb = world
-            .multibody_joints
-            .get_multibody_mut(index)
-            .expect("the body's multibody exists");
-        let ndofs = mb.ndofs();
-        let mut displacement = vec![0.0f32; ndofs];
-        let mut velocity = vec![0.0f32; ndofs];
-        // The free root: 3 linear then 3 angular world velocities.
-        velocity[..3].copy_from_slice(&vec3(&target.root_velocity).to_array());
-        velocity[3..6].copy_from_slice(&vec3(&target.angular_velocity[0]).to_array());
-        for (link, id) in self.model.links.iter().zip(link_id).skip(1) {
-            let first = mb.link(*id).expect("link ids are valid").assembly_id();
-            let j = link.joint.index();
-            displacement[first..first + 3].copy_from_slice(
-                &vec3(&axis_angle_from_rotation(&target.pose.parent_from_joint[j])).to_array(),
-            );
-            velocity[first..first + 3]
-                .copy_from_slice(&vec3(&target.angular_velocity[j]).to_array());
-        }
-        mb.apply_displacements(&displacement);
-        mb.generalized_velocity_mut().copy_from_slice(&velocity);
-        mb.forward_kinematics(&world.bodies, true);
-        mb.update_rigid_bodies(&mut world.bodies, true);
     }
 
     /// Every link's rigid body moving (and with `place`, placed) as the multibody's forward
@@ -1027,6 +999,39 @@ impl Simulation {
             world_from_joint,
         }
     }
+}
+
+/// [`Joints::Multibody`]: the multibody's coordinates and velocities set to the target's, its links'
+/// bodies moved there.
+fn set_multibody_state(
+    world: &mut PhysicsWorld,
+    index: MultibodyIndex,
+    link_id: &[usize],
+    links: &[crate::model::Link],
+    target: &Target,
+) {
+    let mb = world
+        .multibody_joints
+        .get_multibody_mut(index)
+        .expect("the body's multibody exists");
+    let ndofs = mb.ndofs();
+    let mut displacement = vec![0.0f32; ndofs];
+    let mut velocity = vec![0.0f32; ndofs];
+    // The free root: 3 linear then 3 angular world velocities.
+    velocity[..3].copy_from_slice(&vec3(&target.root_velocity).to_array());
+    velocity[3..6].copy_from_slice(&vec3(&target.angular_velocity[0]).to_array());
+    for (link, id) in links.iter().zip(link_id).skip(1) {
+        let first = mb.link(*id).expect("link ids are valid").assembly_id();
+        let j = link.joint.index();
+        displacement[first..first + 3].copy_from_slice(
+            &vec3(&axis_angle_from_rotation(&target.pose.parent_from_joint[j])).to_array(),
+        );
+        velocity[first..first + 3].copy_from_slice(&vec3(&target.angular_velocity[j]).to_array());
+    }
+    mb.apply_displacements(&displacement);
+    mb.generalized_velocity_mut().copy_from_slice(&velocity);
+    mb.forward_kinematics(&world.bodies, true);
+    mb.update_rigid_bodies(&mut world.bodies, true);
 }
 
 /// The joint a link's floor contact is reported on: feet and hands on the contact joints the

@@ -93,11 +93,10 @@ fn standing_still_carries_the_body_weight_on_the_feet_without_falling() {
 }
 
 fn stands_still(pose: &Pose, joints: Joints) {
-    let pose = pose.clone();
     let mut v = validator_joined(Mode::Torques, joints);
     let mut vertical = Vec::new();
     for _ in 0..180 {
-        let o = v.frame(Some(&pose), DT).unwrap();
+        let o = v.frame(Some(pose), DT).unwrap();
         let total: f64 = o.forces.contact_force_n.iter().map(|f| f.y).sum();
         vertical.push(total);
         // Only the feet touch the floor.
