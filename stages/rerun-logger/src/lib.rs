@@ -54,6 +54,9 @@ use imuflow_graph::stage::Params;
 use imuflow_graph::transport::{HeldFrame, frame_ref};
 use imuflow_graph::{Mode, StageContext};
 
+mod columns;
+use columns::{FrameTime, Log};
+
 /// Sensor names in IMU order (ARCHITECTURE.md).
 pub const SENSOR_NAMES: [&str; NUM_IMUS] = [
     "left_forearm",
@@ -69,6 +72,8 @@ pub const APPLICATION_ID: &str = "imuflow";
 const SENSOR_SPACING_M: f32 = 0.3;
 /// Length of the drawn axes, m.
 const AXIS_LENGTH_M: f32 = 0.1;
+/// `batch_frames`' default: two seconds at 60 Hz (see [`columns`]).
+const DEFAULT_BATCH_FRAMES: i64 = 120;
 /// How long the end of a run waits for the log to reach its file or viewer.
 const FLUSH_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10);
 /// Fields with at most this many scalars are logged as time series.
@@ -182,6 +187,16 @@ pub const SPEC: StageSpec = StageSpec {
             required: false,
             default: "",
             doc: "with grouped inputs: the groups in order, comma-separated (colours, views; the first is the reference without truth); default: by name",
+        },
+        ParamSpec {
+            name: "batch_frames",
+            ty: ParamType::Int {
+                min: 0,
+                max: 100_000,
+            },
+            required: false,
+            default: "120",
+            doc: "writing a file: log calls are gathered and written as columns every this many frames (much less CPU; 0: call by call through rerun's batcher, as a viewer connection always is)",
         },
         ParamSpec {
             name: "truth",
@@ -303,12 +318,23 @@ pub fn run() -> anyhow::Result<()> {
         .any(|(e, f)| e == "truth" && *f == FrameType::Motion);
     let mut drawer = SkeletonDrawer::new(body, groups, has_truth);
     drawer.truth_beside = truth_beside && has_truth;
+    drawer.follows_estimate = inputs
+        .iter()
+        .any(|(e, f)| e == FOLLOWED && *f == FrameType::Motion);
     let live = ctx.mode() == Mode::Live;
+    let batch_frames = params.int("batch_frames", DEFAULT_BATCH_FRAMES).max(0) as u64;
+    let mut log = match &target {
+        Target::File(_) if batch_frames > 0 => Log::in_columns(rec, batch_frames),
+        _ => Log::call_by_call(rec),
+    };
     let logged = if ctx.ready()? {
-        log_frames(&mut ctx, &rec, &inputs, live, &mut drawer)
+        log_frames(&mut ctx, &mut log, &inputs, live, &mut drawer)
     } else {
         Ok(())
     };
+    // What was gathered goes out even when logging stopped on an error.
+    let sent = log.send_gathered();
+    let rec = log.into_stream();
     // Bounded: a viewer that is not running (or went away) must not hang the graph.
     let flushed = rec.flush_with_timeout(FLUSH_TIMEOUT).map_err(|e| match &target {
         Target::Viewer(url) => anyhow::anyhow!(
@@ -325,6 +351,7 @@ pub fn run() -> anyhow::Result<()> {
         drop(rec);
     }
     logged?;
+    sent?;
     flushed?;
     ctx.finish(&mut [])?;
     Ok(())
@@ -332,7 +359,7 @@ pub fn run() -> anyhow::Result<()> {
 
 fn log_frames(
     ctx: &mut StageContext,
-    rec: &rerun::RecordingStream,
+    rec: &mut Log,
     inputs: &[(String, FrameType)],
     live: bool,
     drawer: &mut SkeletonDrawer,
@@ -348,7 +375,7 @@ fn log_frames(
             capture_ns: header.capture_ns,
             live,
         };
-        time.set(rec);
+        rec.set_time(time)?;
         plots.now = time;
         plots.flag_transition(rec, name, header.seq, header.has(flags::INVALID))?;
         match frame {
@@ -387,12 +414,7 @@ fn log_frames(
             }
             FrameType::Kinematics => {
                 if let Some(f) = frame_ref::<KinematicsFrame>(held) {
-                    // Root-relative: drawn where the estimate's root last was (else at the origin).
-                    let root = drawer.estimate_root.unwrap_or([0.0; 3]);
-                    let joints = f
-                        .joint_position_m
-                        .map(|p| [p[0] + root[0], p[1] + root[1], p[2] + root[2]]);
-                    drawer.log_joints(rec, name, &joints, None)?;
+                    drawer.log_kinematics(rec, name, time, &f.joint_position_m)?;
                 }
             }
             FrameType::Contact => {
@@ -417,12 +439,12 @@ fn log_frames(
         }
         log_small_fields(rec, &mut plots, name, frame.layout(), held)?;
     }
-    Ok(())
+    drawer.place_remaining_kinematics(rec)
 }
 
 #[allow(clippy::too_many_arguments)]
 fn log_sensors(
-    rec: &rerun::RecordingStream,
+    rec: &mut Log,
     plots: &mut Plots,
     input: &str,
     orientation_wxyz: &[[f32; 4]; NUM_IMUS],
@@ -460,7 +482,7 @@ fn log_sensors(
 /// Logs every field with few scalars (probabilities, velocities, counters) as a time series, once
 /// it has changed (see [`Plots`]).
 fn log_small_fields(
-    rec: &rerun::RecordingStream,
+    rec: &mut Log,
     plots: &mut Plots,
     input: &str,
     layout: &FrameLayout,
@@ -490,25 +512,6 @@ fn log_small_fields(
     Ok(())
 }
 
-/// When a frame was captured, on the recording's two timelines.
-#[derive(Clone, Copy, Debug, Default)]
-struct FrameTime {
-    seq: u64,
-    capture_ns: u64,
-    live: bool,
-}
-
-impl FrameTime {
-    fn set(&self, rec: &rerun::RecordingStream) {
-        rec.set_time_sequence("seq", self.seq as i64);
-        if self.live {
-            rec.set_timestamp_nanos_since_epoch("capture_time", self.capture_ns as i64);
-        } else {
-            rec.set_duration_secs("capture_time", self.capture_ns as f64 * 1e-9);
-        }
-    }
-}
-
 /// The time series of a run, logged only once they say something: a series whose values never
 /// change (a probability stuck at 0, an unused force, the truth's empty torques) would be a flat
 /// plot taking screen space. Each series' first values are held back until a different value
@@ -525,12 +528,7 @@ struct Plots {
 }
 
 impl Plots {
-    fn series(
-        &mut self,
-        rec: &rerun::RecordingStream,
-        path: String,
-        values: Vec<f64>,
-    ) -> anyhow::Result<()> {
+    fn series(&mut self, rec: &mut Log, path: String, values: Vec<f64>) -> anyhow::Result<()> {
         if self.logged.contains(&path) {
             rec.log(path, &rerun::Scalars::new(values))?;
             return Ok(());
@@ -542,9 +540,9 @@ impl Plots {
             Some((_, first)) if *first == values => {}
             Some(_) => {
                 let (then, first) = self.held.remove(&path).expect("held");
-                then.set(rec);
+                rec.set_time(then)?;
                 rec.log(path.clone(), &rerun::Scalars::new(first))?;
-                self.now.set(rec);
+                rec.set_time(self.now)?;
                 rec.log(path.clone(), &rerun::Scalars::new(values))?;
                 self.logged.insert(path);
             }
@@ -555,7 +553,7 @@ impl Plots {
     /// A text event where an input's INVALID flag turns on or off.
     fn flag_transition(
         &mut self,
-        rec: &rerun::RecordingStream,
+        rec: &mut Log,
         input: &str,
         seq: u64,
         invalid: bool,
@@ -601,8 +599,13 @@ struct SkeletonDrawer {
     reference: Option<Reference>,
     /// The source's publish time of each seq (the truth's frames), for the latency series.
     source_publish_ns: std::collections::BTreeMap<u64, u64>,
-    /// The last root position of the followed estimate ([`FOLLOWED`]).
-    estimate_root: Option<[f32; 3]>,
+    /// Whether the run has a followed estimate ([`FOLLOWED`]) to draw kinematics frames at.
+    follows_estimate: bool,
+    /// The followed estimate's root positions by seq (its valid frames).
+    estimate_roots: std::collections::BTreeMap<u64, [f32; 3]>,
+    /// Kinematics frames (root-relative joints) waiting for the estimate of their seq, by seq:
+    /// input, time, joints.
+    waiting_kinematics: std::collections::BTreeMap<u64, Vec<(String, FrameTime, RelativeJoints)>>,
     /// `truth = "beside"`: the truth is drawn with the followed estimate of its seq, moved beside it.
     truth_beside: bool,
 }
@@ -654,7 +657,9 @@ impl SkeletonDrawer {
             groups,
             reference,
             source_publish_ns: Default::default(),
-            estimate_root: None,
+            follows_estimate: false,
+            estimate_roots: Default::default(),
+            waiting_kinematics: Default::default(),
             truth_beside: false,
         }
     }
@@ -663,7 +668,7 @@ impl SkeletonDrawer {
     /// of the same seq (and, in a comparison, its latency from the source).
     fn track_error(
         &mut self,
-        rec: &rerun::RecordingStream,
+        rec: &mut Log,
         entity: &str,
         header: &imuflow_graph::frames::FrameHeader,
         posed: &Posed,
@@ -723,12 +728,7 @@ impl SkeletonDrawer {
     }
 
     /// Skeleton at its global position, ground-reaction force arrows, torque magnitudes.
-    fn log_motion(
-        &mut self,
-        rec: &rerun::RecordingStream,
-        input: &str,
-        f: &MotionFrame,
-    ) -> anyhow::Result<()> {
+    fn log_motion(&mut self, rec: &mut Log, input: &str, f: &MotionFrame) -> anyhow::Result<()> {
         let Ok(pose) = Pose::from_wire(&f.local_pose_wxyz, &f.root_position_m) else {
             return Ok(()); // not a pose (e.g. an all-zero invalid frame): draw nothing
         };
@@ -765,10 +765,14 @@ impl SkeletonDrawer {
                 FOLLOW_ENTITY,
                 &rerun::Transform3D::from_translation([root[0], 0.0, root[2]]),
             )?;
-            self.estimate_root = Some(root);
             if self.truth_beside {
                 self.log_truth_beside(rec, f.header.seq, root)?;
             }
+            self.estimate_roots.insert(f.header.seq, root);
+            while self.estimate_roots.len() > TRUTH_FRAMES_KEPT {
+                self.estimate_roots.pop_first();
+            }
+            self.place_waiting_kinematics(rec, f.header.seq, root)?;
         }
         let (origins, vectors): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..NUM_JOINTS)
             .filter(|&j| f.ground_reaction_force_n[j].iter().any(|v| *v != 0.0))
@@ -788,11 +792,70 @@ impl SkeletonDrawer {
         Ok(())
     }
 
+    /// A kinematics frame's root-relative joints, drawn at the root of the followed estimate
+    /// ([`FOLLOWED`]) of the first valid frame at or after its seq (usually its own), else at
+    /// the origin. Frames whose estimate has not come yet wait for it: where a frame is drawn
+    /// must not depend on which input the logger happened to read first (the recording would
+    /// differ between two runs of the same input).
+    fn log_kinematics(
+        &mut self,
+        rec: &mut Log,
+        input: &str,
+        time: FrameTime,
+        joints: &RelativeJoints,
+    ) -> anyhow::Result<()> {
+        if !self.follows_estimate {
+            return self.log_joints(rec, input, &at_root(joints, [0.0; 3]), None);
+        }
+        if let Some((_, root)) = self.estimate_roots.range(time.seq..).next() {
+            return self.log_joints(rec, input, &at_root(joints, *root), None);
+        }
+        self.waiting_kinematics.entry(time.seq).or_default().push((
+            input.to_owned(),
+            time,
+            *joints,
+        ));
+        while self.waiting_kinematics.len() > TRUTH_FRAMES_KEPT {
+            self.waiting_kinematics.pop_first();
+        }
+        Ok(())
+    }
+
+    /// Draws the kinematics frames up to `seq` that waited for an estimate, at `root` (the
+    /// estimate of `seq`), each at its own time.
+    fn place_waiting_kinematics(
+        &mut self,
+        rec: &mut Log,
+        seq: u64,
+        root: [f32; 3],
+    ) -> anyhow::Result<()> {
+        let now = rec.now();
+        let later = self.waiting_kinematics.split_off(&(seq + 1));
+        let due = std::mem::replace(&mut self.waiting_kinematics, later);
+        for (input, time, joints) in due.into_values().flatten() {
+            rec.set_time(time)?;
+            self.log_joints(rec, &input, &at_root(&joints, root), None)?;
+        }
+        rec.set_time(now)
+    }
+
+    /// At the end of the stream: the kinematics frames no estimate came for, at the last
+    /// estimate's root (or the origin).
+    fn place_remaining_kinematics(&mut self, rec: &mut Log) -> anyhow::Result<()> {
+        let root = self
+            .estimate_roots
+            .values()
+            .last()
+            .copied()
+            .unwrap_or([0.0; 3]);
+        self.place_waiting_kinematics(rec, u64::MAX - 1, root)
+    }
+
     /// The truth's pose of `seq`, its root moved horizontally to [`TRUTH_BESIDE_M`] along +x from the
     /// estimate's root (heights kept: both stand on the same floor).
     fn log_truth_beside(
         &self,
-        rec: &rerun::RecordingStream,
+        rec: &mut Log,
         seq: u64,
         estimate_root: [f32; 3],
     ) -> anyhow::Result<()> {
@@ -811,7 +874,7 @@ impl SkeletonDrawer {
     /// Joints as points (radius from `torque` when given) and bones as lines.
     fn log_joints(
         &self,
-        rec: &rerun::RecordingStream,
+        rec: &mut Log,
         input: &str,
         joints: &[[f32; 3]; NUM_JOINTS],
         torque: Option<&[f32]>,
@@ -836,6 +899,14 @@ impl SkeletonDrawer {
     }
 }
 
+/// A kinematics frame's joints, relative to its root (m).
+type RelativeJoints = [[f32; 3]; NUM_JOINTS];
+
+/// Root-relative `joints` placed at `root`.
+fn at_root(joints: &RelativeJoints, root: [f32; 3]) -> [[f32; 3]; NUM_JOINTS] {
+    joints.map(|p| [p[0] + root[0], p[1] + root[1], p[2] + root[2]])
+}
+
 /// `joints` moved horizontally so that their root stands [`TRUTH_BESIDE_M`] along +x from
 /// `estimate_root` (heights kept: both stand on the same floor).
 fn placed_beside(
@@ -852,7 +923,7 @@ fn placed_beside(
 }
 
 /// Contact points and their forces.
-fn log_contacts(rec: &rerun::RecordingStream, input: &str, f: &ContactFrame) -> anyhow::Result<()> {
+fn log_contacts(rec: &mut Log, input: &str, f: &ContactFrame) -> anyhow::Result<()> {
     let n = (f.num_points as usize).min(f.point_position_m.len());
     let points = &f.point_position_m[..n];
     if !points.iter().flatten().all(|v| v.is_finite()) {
@@ -878,7 +949,7 @@ fn log_contacts(rec: &rerun::RecordingStream, input: &str, f: &ContactFrame) -> 
 /// rotations of hips and shoulders, as `imuflow compare`), root-aligned mean joint distance (cm)
 /// and root distance (m) from the reference under `<plots>/<group>/`.
 fn log_difference(
-    rec: &rerun::RecordingStream,
+    rec: &mut Log,
     plots: &str,
     entity: &str,
     estimate: &Posed,
