@@ -63,6 +63,9 @@ pub enum BenchCommand {
         /// Override any graph key, as `imuflow run --set` (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         sets: Vec<String>,
+        /// Leave a stage out, as `imuflow run --without` (repeatable).
+        #[arg(long, value_name = "STAGE")]
+        without: Vec<String>,
         /// Length of the live run, s of input (0: skip it).
         #[arg(long, default_value_t = 20.0)]
         seconds: f64,
@@ -360,9 +363,10 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Graph {
             file,
             sets,
+            without,
             seconds,
             no_offline,
-        } => return bench_graph(&file, &sets, seconds, !no_offline),
+        } => return bench_graph(&file, &sets, &without, seconds, !no_offline),
     };
     if stages < 2 {
         bail!("--stages must be at least 2 (a source and a relay)");
@@ -607,11 +611,17 @@ fn bench_validation(input: &Path) -> anyhow::Result<()> {
 }
 
 /// `imuflow bench graph`: the graph live (paced sources, `seconds` of input), then offline.
-fn bench_graph(file: &Path, sets: &[String], seconds: f64, offline: bool) -> anyhow::Result<()> {
+fn bench_graph(
+    file: &Path,
+    sets: &[String],
+    without: &[String],
+    seconds: f64,
+    offline: bool,
+) -> anyhow::Result<()> {
     let registry = crate::registry::registry();
     let load = |extra: &[String]| -> anyhow::Result<Graph> {
         let all: Vec<String> = sets.iter().chain(extra).cloned().collect();
-        Graph::load(file, &all, &registry).map_err(|e| anyhow::anyhow!("{e}"))
+        crate::without::load(file, &all, without, &registry).map_err(|e| anyhow::anyhow!("{e}"))
     };
     let graph = load(&[])?;
     let scratch = tempfile::tempdir().context("temporary folder for the recordings")?;

@@ -5,6 +5,7 @@ mod compare;
 mod eval_cmd;
 mod kinematics_cmd;
 mod registry;
+mod without;
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -214,11 +215,15 @@ struct GraphArgs {
     /// Override any graph key, e.g. --set stages.kin.params.net=globalpose (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     sets: Vec<String>,
+    /// Leave a stage out, and every input that reads it, e.g. --without val for a run without
+    /// the rapier judge (repeatable).
+    #[arg(long, value_name = "STAGE")]
+    without: Vec<String>,
 }
 
 impl GraphArgs {
     fn load(&self) -> Result<Graph, GraphLoadError> {
-        Graph::load(&self.file, &self.sets, &registry::registry())
+        without::load(&self.file, &self.sets, &self.without, &registry::registry())
     }
 }
 

@@ -10,7 +10,8 @@
 //! - MotionFrame: the skeleton (bones as lines, joints as points whose radius grows with the joint's
 //!   torque) at its global position, ground-reaction forces as arrows from the joints, and the torque
 //!   magnitude per joint as a bar chart under `plots/<input>/torque_norm_nm`.
-//! - KinematicsFrame: the networks' joint positions relative to the root (points and bones).
+//! - KinematicsFrame: the networks' joint positions relative to the root (points and bones), drawn
+//!   at the root of the estimate (`motion`) of the same frame, or at the origin without one.
 //! - ContactFrame: contact points, and their forces as arrows.
 //! - ValidationFrame: a warning text entry under `<input>/events` at every frame where the
 //!   simulated body lost its balance (the scores are time series, as every small field). The
@@ -26,6 +27,9 @@
 //!   velocity) as a time series under `plots/<input>/<field>`, once it has changed (a constant
 //!   series is never logged: [`Plots`]); the INVALID flag as text events under `<input>/events`
 //!   where it turns on and off.
+//!
+//! Writing a file, the log calls are gathered and written as columns every `batch_frames` frames
+//! ([`columns`]); a live viewer gets them call by call.
 //!
 //! A single run's recording carries a blueprint ([`send_single_run_blueprint`]): the scene and a
 //! view that follows the estimate's pelvis (entity `follow`), a legend (`legend`, markdown), and
