@@ -218,3 +218,129 @@ fn send_columns(
     rec.send_columns(entity, [seq, capture], serialized)?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use rerun::external::arrow::array::Array;
+    use rerun::log::{Chunk, LogMsg};
+    use rerun::time::TimelineName;
+
+    use super::*;
+
+    /// (entity, component, seq, capture_ns) → the cell, as text.
+    type Cells = BTreeMap<(String, String, i64, i64), String>;
+
+    fn at(seq: u64) -> FrameTime {
+        FrameTime {
+            seq,
+            capture_ns: 1_000_000 + seq * 16_666_667,
+            live: false,
+        }
+    }
+
+    /// A run's log calls, made through `log`: what the logger does, including a series' held
+    /// first value logged at its own, earlier time and entities whose component sets change.
+    fn log_a_run(log: &mut Log) -> anyhow::Result<()> {
+        for seq in 0..7u64 {
+            log.set_time(at(seq))?;
+            let x = seq as f32;
+            log.log(
+                "skeleton/joints",
+                &rerun::Points3D::new([[x, 0.0, 0.0], [x, 1.0, 0.0]]).with_radii([0.1, 0.2]),
+            )?;
+            if seq % 2 == 1 {
+                log.log(
+                    "plots/speed",
+                    &rerun::Scalars::new([x as f64, 2.0 * x as f64]),
+                )?;
+            }
+            // Colours on the first frame only: the entity's components differ in their rows.
+            let points = rerun::Points3D::new([[0.0, x, 0.0]]);
+            if seq == 0 {
+                log.log(
+                    "contacts",
+                    &points.with_colors([rerun::Color::from_rgb(1, 2, 3)]),
+                )?;
+            } else {
+                log.log("contacts", &points)?;
+            }
+            if seq == 4 {
+                // As `Plots::series`: a held value at the time it came, then back to now.
+                log.set_time(at(2))?;
+                log.log("plots/late", &rerun::Scalars::single(7.0))?;
+                log.set_time(at(4))?;
+                log.log("plots/late", &rerun::Scalars::single(8.0))?;
+            }
+        }
+        log.send_gathered()
+    }
+
+    fn cells_of(messages: Vec<LogMsg>) -> Cells {
+        let seq_name = TimelineName::from_static_str("seq");
+        let capture_name = TimelineName::from_static_str("capture_time");
+        let mut cells = Cells::new();
+        for message in messages {
+            let LogMsg::ArrowMsg(_, arrow) = message else {
+                continue;
+            };
+            let chunk = Chunk::from_arrow_msg(&arrow).expect("a chunk");
+            if chunk.is_static() {
+                continue;
+            }
+            let seq = chunk.timelines()[&seq_name].times_raw().to_vec();
+            let capture = chunk.timelines()[&capture_name].times_raw().to_vec();
+            for column in chunk.components().0.values() {
+                for row in 0..chunk.num_rows() {
+                    if column.list_array.is_null(row) {
+                        continue;
+                    }
+                    let key = (
+                        chunk.entity_path().to_string(),
+                        column.descriptor.component.to_string(),
+                        seq[row],
+                        capture[row],
+                    );
+                    let value = format!("{:?}", column.list_array.value(row));
+                    assert!(cells.insert(key.clone(), value).is_none(), "{key:?} twice");
+                }
+            }
+        }
+        cells
+    }
+
+    fn run_with(make: impl FnOnce(RecordingStream) -> Log) -> Cells {
+        let (rec, storage) = rerun::RecordingStreamBuilder::new("columns-test")
+            .memory()
+            .expect("memory recording");
+        let mut log = make(rec);
+        log_a_run(&mut log).expect("logged");
+        let rec = log.into_stream();
+        rec.flush_blocking().expect("flushed");
+        cells_of(storage.take())
+    }
+
+    #[test]
+    fn columns_hold_what_call_by_call_logging_holds() {
+        let by_call = run_with(Log::call_by_call);
+        // Three frames a send: sends at seq 3 and 6, the rest at the end.
+        let in_columns = run_with(|rec| Log::in_columns(rec, 3));
+        // Counted by hand from `log_a_run`: joints 7 rows × (positions, radii); speed 3 rows;
+        // contacts 7 positions and 1 colour; late 2 rows.
+        let count = |entity: &str| in_columns.keys().filter(|k| k.0 == entity).count();
+        assert_eq!(count("/skeleton/joints"), 14);
+        assert_eq!(count("/plots/speed"), 3);
+        assert_eq!(count("/contacts"), 8);
+        assert_eq!(count("/plots/late"), 2);
+        assert_eq!(in_columns.len(), 27);
+        assert_eq!(in_columns, by_call);
+        // The held value kept its own time.
+        let late: Vec<i64> = in_columns
+            .keys()
+            .filter(|k| k.0 == "/plots/late")
+            .map(|k| k.2)
+            .collect();
+        assert_eq!(late, [2, 4]);
+    }
+}
