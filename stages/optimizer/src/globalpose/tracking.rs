@@ -75,37 +75,43 @@ pub fn solve_tracking(
 
 /// Solve `A·x = b` for symmetric positive definite `A` by Cholesky, overwriting `A` with its factor
 /// (lower triangle) and `b` with `x`. False when `A` is not positive definite or not finite.
+///
+/// The loops run down the columns of the column-major storage, so the innermost loops read and
+/// write contiguous memory and vectorise; the textbook form (a dot product along a row per entry)
+/// strides by a whole column per step. Every entry still gets the same subtractions in the same
+/// order, so the result is the same to the bit (test: `..._same_bits_as_the_textbook_form`).
+/// Measured: this solve was about 40 % of the GlobalPose optimizer's time in an offline graph.
 pub fn cholesky_solve_in_place(a: &mut MassMatrix, b: &mut DofVector) -> bool {
     const N: usize = NUM_DOFS;
     let s = a.as_mut_slice(); // column-major: (r, c) at c·N + r
     for c in 0..N {
-        // Diagonal.
-        let mut d = s[c * N + c];
+        // Column c from the diagonal down: A[r][c] − Σ_k L[r][k]·L[c][k], k in order.
+        let (done, rest) = s.split_at_mut(c * N);
+        let column = &mut rest[c..N];
         for k in 0..c {
-            let l = s[k * N + c];
-            d -= l * l;
+            let earlier = &done[k * N + c..k * N + N];
+            let l_ck = earlier[0];
+            for (v, l_rk) in column.iter_mut().zip(earlier) {
+                *v -= l_rk * l_ck;
+            }
         }
+        let d = column[0];
         if d.is_nan() || d <= 0.0 {
             return false;
         }
         let d = d.sqrt();
-        s[c * N + c] = d;
-        // Column c below the diagonal: L[r][c] = (A[r][c] − Σ_k L[r][k]·L[c][k]) / L[c][c].
-        for r in c + 1..N {
-            let mut v = s[c * N + r];
-            for k in 0..c {
-                v -= s[k * N + r] * s[k * N + c];
-            }
-            s[c * N + r] = v / d;
+        column[0] = d;
+        for v in &mut column[1..] {
+            *v /= d;
         }
     }
-    // L·y = b.
-    for r in 0..N {
-        let mut v = b[r];
-        for k in 0..r {
-            v -= s[k * N + r] * b[k];
+    // L·y = b, by columns: y[k] is final once the columns before it are subtracted.
+    for k in 0..N {
+        let y = b[k] / s[k * N + k];
+        b[k] = y;
+        for r in k + 1..N {
+            b[r] -= s[k * N + r] * y;
         }
-        b[r] = v / s[r * N + r];
     }
     // Lᵀ·x = y.
     for r in (0..N).rev() {
@@ -199,6 +205,71 @@ mod tests {
             err < 1e-8 * scale.max(1.0),
             "max error {err} (scale {scale})"
         );
+    }
+
+    /// The textbook Cholesky (a dot product along a row per entry) and substitutions, as the
+    /// solve was written before it ran down the columns.
+    fn textbook_cholesky_solve(a: &mut MassMatrix, b: &mut DofVector) {
+        const N: usize = NUM_DOFS;
+        for c in 0..N {
+            let mut d = a[(c, c)];
+            for k in 0..c {
+                d -= a[(c, k)] * a[(c, k)];
+            }
+            let d = d.sqrt();
+            a[(c, c)] = d;
+            for r in c + 1..N {
+                let mut v = a[(r, c)];
+                for k in 0..c {
+                    v -= a[(r, k)] * a[(c, k)];
+                }
+                a[(r, c)] = v / d;
+            }
+        }
+        for r in 0..N {
+            let mut v = b[r];
+            for k in 0..r {
+                v -= a[(r, k)] * b[k];
+            }
+            b[r] = v / a[(r, r)];
+        }
+        for r in (0..N).rev() {
+            let mut v = b[r];
+            for k in r + 1..N {
+                v -= a[(k, r)] * b[k];
+            }
+            b[r] = v / a[(r, r)];
+        }
+    }
+
+    #[test]
+    fn globalpose_cholesky_by_columns_gives_the_same_bits_as_the_textbook_form() {
+        let mut seed = 11u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        };
+        for _ in 0..5 {
+            let m = MassMatrix::from_fn(|_, _| rnd());
+            let spd = m.transpose() * m + MassMatrix::identity() * 0.1;
+            let rhs = DofVector::from_fn(|_, _| rnd());
+            let (mut a, mut x) = (Box::new(spd), rhs);
+            let (mut a_ref, mut x_ref) = (Box::new(spd), rhs);
+            assert!(cholesky_solve_in_place(&mut a, &mut x));
+            textbook_cholesky_solve(&mut a_ref, &mut x_ref);
+            assert_eq!(x.as_slice(), x_ref.as_slice());
+            // The factor too (lower triangle; the solve leaves the upper one as it was).
+            for c in 0..NUM_DOFS {
+                for r in c..NUM_DOFS {
+                    assert_eq!(a[(r, c)].to_bits(), a_ref[(r, c)].to_bits(), "L[{r}][{c}]");
+                }
+            }
+            // And it solves the system.
+            let residual = (spd * x - rhs).amax();
+            assert!(residual < 1e-9, "residual {residual}");
+        }
     }
 
     #[test]
