@@ -129,15 +129,19 @@ mod tests {
     use super::*;
     use nalgebra::DMatrix;
 
-    #[test]
-    fn globalpose_normal_equations_equal_an_svd_solve_of_the_stacked_rows() {
-        let mut seed = 7u64;
-        let mut rnd = || {
+    /// Uniform numbers in [-1, 1) from a 64-bit linear congruential generator seeded with `seed`.
+    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
             seed = seed
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
             ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        }
+    }
+
+    #[test]
+    fn globalpose_normal_equations_equal_an_svd_solve_of_the_stacked_rows() {
+        let mut rnd = uniform(7);
         // A symmetric positive definite "mass matrix" with a spread of scales, random Jacobians.
         let b = MassMatrix::from_fn(|_, _| rnd());
         let mut mass = Box::new(b.transpose() * b * 0.2);
@@ -244,13 +248,7 @@ mod tests {
 
     #[test]
     fn globalpose_cholesky_by_columns_gives_the_same_bits_as_the_textbook_form() {
-        let mut seed = 11u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        let mut rnd = uniform(11);
         for _ in 0..5 {
             let m = MassMatrix::from_fn(|_, _| rnd());
             let spd = m.transpose() * m + MassMatrix::identity() * 0.1;
