@@ -173,10 +173,8 @@ impl Log {
         };
         gathered.first_seq = None;
         for (entity, components) in &mut gathered.entities {
-            let mut pending: Vec<ComponentRows> = std::mem::take(components)
-                .into_iter()
-                .filter(|c| !c.times.is_empty())
-                .collect();
+            // (A component is only listed once a row of it was logged: none is empty.)
+            let mut pending = std::mem::take(components);
             while !pending.is_empty() {
                 let times = pending[0].times.clone();
                 let (same, rest): (Vec<_>, Vec<_>) =

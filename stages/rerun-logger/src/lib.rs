@@ -607,9 +607,8 @@ struct SkeletonDrawer {
     follows_estimate: bool,
     /// The followed estimate's root positions by seq (its valid frames).
     estimate_roots: std::collections::BTreeMap<u64, [f32; 3]>,
-    /// Kinematics frames (root-relative joints) waiting for the estimate of their seq, by seq:
-    /// input, time, joints.
-    waiting_kinematics: std::collections::BTreeMap<u64, Vec<(String, FrameTime, RelativeJoints)>>,
+    /// Kinematics frames waiting for the estimate of their seq.
+    waiting_kinematics: WaitingKinematics,
     /// `truth = "beside"`: the truth is drawn with the followed estimate of its seq, moved beside it.
     truth_beside: bool,
 }
@@ -826,21 +825,24 @@ impl SkeletonDrawer {
     }
 
     /// Draws the kinematics frames up to `seq` that waited for an estimate, at `root` (the
-    /// estimate of `seq`), each at its own time.
+    /// estimate of `seq`).
     fn place_waiting_kinematics(
         &mut self,
         rec: &mut Log,
         seq: u64,
         root: [f32; 3],
     ) -> anyhow::Result<()> {
-        let now = rec.now();
+        // Called for every estimate frame: nothing to do unless a frame up to `seq` waits.
+        if self
+            .waiting_kinematics
+            .first_key_value()
+            .is_none_or(|(first, _)| *first > seq)
+        {
+            return Ok(());
+        }
         let later = self.waiting_kinematics.split_off(&(seq + 1));
         let due = std::mem::replace(&mut self.waiting_kinematics, later);
-        for (input, time, joints) in due.into_values().flatten() {
-            rec.set_time(time)?;
-            self.log_joints(rec, &input, &at_root(&joints, root), None)?;
-        }
-        rec.set_time(now)
+        self.draw_kinematics(rec, due, root)
     }
 
     /// At the end of the stream: the kinematics frames no estimate came for, at the last
@@ -852,7 +854,24 @@ impl SkeletonDrawer {
             .last()
             .copied()
             .unwrap_or([0.0; 3]);
-        self.place_waiting_kinematics(rec, u64::MAX - 1, root)
+        let due = std::mem::take(&mut self.waiting_kinematics);
+        self.draw_kinematics(rec, due, root)
+    }
+
+    /// Kinematics frames that waited, drawn at `root`, each at its own time; the time is then
+    /// set back to the frame being logged.
+    fn draw_kinematics(
+        &self,
+        rec: &mut Log,
+        due: WaitingKinematics,
+        root: [f32; 3],
+    ) -> anyhow::Result<()> {
+        let now = rec.now();
+        for (input, time, joints) in due.into_values().flatten() {
+            rec.set_time(time)?;
+            self.log_joints(rec, &input, &at_root(&joints, root), None)?;
+        }
+        rec.set_time(now)
     }
 
     /// The truth's pose of `seq`, its root moved horizontally to [`TRUTH_BESIDE_M`] along +x from the
@@ -905,6 +924,9 @@ impl SkeletonDrawer {
 
 /// A kinematics frame's joints, relative to its root (m).
 type RelativeJoints = [[f32; 3]; NUM_JOINTS];
+
+/// Kinematics frames by seq: input, time and root-relative joints.
+type WaitingKinematics = std::collections::BTreeMap<u64, Vec<(String, FrameTime, RelativeJoints)>>;
 
 /// Root-relative `joints` placed at `root`.
 fn at_root(joints: &RelativeJoints, root: [f32; 3]) -> [[f32; 3]; NUM_JOINTS] {
