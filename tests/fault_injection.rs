@@ -124,8 +124,8 @@ fn killing_any_stage_of_the_globalpose_graph_fails_or_isolates_as_declared() {
 }
 
 /// The pip graph live (the sample's first 8 s at sensor rate) with a restart policy on the killed
-/// stage: it is back within its backoff, its first frame after the restart carries RESTARTED, and
-/// the run ends normally with the motion recorded to the last frame.
+/// stage: it is back within its backoff, its frames after the restart carry restart count 1 (the
+/// first of them RESTARTED, where the live recorder kept it), and the run ends normally with the motion recorded to the last frame.
 #[test]
 fn a_killed_stage_with_a_restart_policy_rejoins_the_live_pip_graph() {
     use imuflow_graph::frames::{KinematicsFrame, MotionFrame, flags, frame_from_bytes};
@@ -175,21 +175,38 @@ fn a_killed_stage_with_a_restart_policy_rejoins_the_live_pip_graph() {
             headers.len()
         );
         assert_eq!(headers.last().map(|h| h.seq), Some(FRAMES - 1), "'{stage}'");
-        let restarted: Vec<u64> = headers
+        // The recorder is a live reader: under load it keeps only the newest frames, so it may lose
+        // the one frame flagged RESTARTED. Every frame carries the publishing process's restart
+        // count (frames.rs), so the restart shows as the count's one step from 0 to 1, and a
+        // RESTARTED flag, where it survived, sits on the first frame of the new process.
+        let counts: Vec<u32> = headers.iter().map(|h| h.restarts).collect();
+        let first_new = counts
+            .iter()
+            .position(|&c| c == 1)
+            .unwrap_or_else(|| panic!("'{stage}': no frame from the restarted process"));
+        assert!(
+            counts[..first_new].iter().all(|&c| c == 0)
+                && counts[first_new..].iter().all(|&c| c == 1),
+            "'{stage}': restart counts {counts:?}"
+        );
+        let restart_seq = headers[first_new].seq;
+        assert!(
+            (120..FRAMES).contains(&restart_seq),
+            "'{stage}' restarted at frame {restart_seq}"
+        );
+        let flagged: Vec<u64> = headers
             .iter()
             .filter(|h| h.has(flags::RESTARTED))
             .map(|h| h.seq)
             .collect();
-        assert_eq!(restarted.len(), 1, "'{stage}': {restarted:?}");
         assert!(
-            (120..FRAMES).contains(&restarted[0]),
-            "'{stage}' restarted at frame {}",
-            restarted[0]
+            flagged.is_empty() || flagged == [restart_seq],
+            "'{stage}': RESTARTED on {flagged:?}, the new process's first recorded frame is {restart_seq}"
         );
         assert_clean(&sb);
         eprintln!(
-            "pip live: '{stage}' killed -> restarted at frame {}",
-            restarted[0]
+            "pip live: '{stage}' killed -> restarted at frame {restart_seq} (flag recorded: {})",
+            !flagged.is_empty()
         );
     }
 }
