@@ -85,7 +85,7 @@ use crate::integrate::{contact_joints_rel, refined_root_velocity, stationary_wei
 use crate::{
     DT_S, Method, MotionEstimate, PhysicsBody, Reference, StepReport, Terrain, pull_to_floor,
 };
-use tracking::{TrackingTerms, solve_tracking};
+use tracking::{TrackingTerms, solve_tracking, square_skipping_zeros};
 
 /// GlobalPose's gains and weights. `Default` is the paper's/code's values (reference §5.4).
 #[derive(Clone, Debug, PartialEq)]
@@ -281,7 +281,7 @@ impl GlobalPose {
         self.data.set_state(model, &self.pose, &self.v);
         s.mass.copy_from(self.data.mass_matrix(model));
         let h = *self.data.bias_forces(model);
-        s.mass.mul_to(&s.mass, &mut s.mass_squared);
+        square_skipping_zeros(&s.mass, &mut s.mass_squared);
         let mut current = [Vector3::zeros(); NUM_CONTACT_JOINTS];
         let mut velocity = [Vector3::zeros(); NUM_CONTACT_JOINTS];
         let mut jdot_v = [Vector3::zeros(); NUM_CONTACT_JOINTS];
