@@ -437,7 +437,7 @@ impl Qp {
         // Dual linear term d − C·z_u (before scaling).
         let mut p = DVector::from_fn(m, |i, _| self.d[i] - x.column(i).dot(&z));
         let l = chol.l();
-        if !l.solve_lower_triangular_mut(&mut x) {
+        if !solve_lower_triangular_from_first_nonzero(&l, &mut x) {
             return Reduced::NotPositiveDefinite;
         }
         // Scale each row to ‖L⁻¹cᵢ‖ = 1 (μ = D·ν).
@@ -672,6 +672,34 @@ pub(super) fn clarabel_dual(
 }
 
 /// clarabel's settings from the configuration.
+/// `x ← L⁻¹·x` for lower-triangular `l`, column by column, each from its first nonzero entry. The
+/// columns of `Cᵀ` are sparse: a friction-pyramid row touches only its point's three λ, which come
+/// after the 75 DoFs, so its solution is zero above them and its substitution is a short one at the
+/// end. Below the first nonzero this is nalgebra's `solve_lower_triangular_mut` step for step
+/// (`xᵢ = xᵢ/lᵢᵢ`, then `x_r += (−xᵢ)·l_ri` for the rows below); above it that loop would divide
+/// zeros and add zero multiples: the same bits (test). False when the diagonal holds a zero.
+fn solve_lower_triangular_from_first_nonzero(l: &DMatrix<f64>, x: &mut DMatrix<f64>) -> bool {
+    let n = l.nrows();
+    if (0..n).any(|i| l[(i, i)] == 0.0) {
+        return false;
+    }
+    let ls = l.as_slice(); // column-major: (r, c) at c·n + r
+    for b in x.as_mut_slice().chunks_exact_mut(n) {
+        let Some(first) = b.iter().position(|&v| v != 0.0) else {
+            continue;
+        };
+        for i in first..n {
+            let coeff = b[i] / ls[i * n + i];
+            b[i] = coeff;
+            let below = &ls[i * n + i + 1..(i + 1) * n];
+            for (y, &l_ri) in b[i + 1..].iter_mut().zip(below) {
+                *y += -coeff * l_ri;
+            }
+        }
+    }
+    true
+}
+
 fn settings(config: &PipConfig) -> DefaultSettings<f64> {
     let tol = config.solver_tolerance;
     DefaultSettings {
@@ -715,4 +743,43 @@ fn chain_columns(j: JointId, out: &mut Vec<usize>) {
         k = a.parent();
     }
     out[start..].sort_unstable();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pip_sparse_forward_substitution_gives_the_same_bits_as_nalgebras() {
+        let mut seed = 5u64;
+        let mut rnd = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        };
+        let n = NUM_DOFS + 12;
+        let a = DMatrix::<f64>::from_fn(n, n, |_, _| rnd());
+        let spd = a.transpose() * &a + DMatrix::<f64>::identity(n, n);
+        let l = Cholesky::new(spd).expect("positive definite").l();
+        // Columns like Cᵀ's: one nonzero (a velocity bound), a few at the end (a friction row),
+        // none, and a dense one.
+        let mut x = DMatrix::<f64>::zeros(n, 4);
+        x[(40, 0)] = 1.0;
+        for r in [n - 3, n - 2, n - 1] {
+            x[(r, 1)] = rnd();
+        }
+        for r in 0..n {
+            x[(r, 3)] = rnd();
+        }
+        let mut want = x.clone();
+        assert!(l.solve_lower_triangular_mut(&mut want));
+        assert!(solve_lower_triangular_from_first_nonzero(&l, &mut x));
+        for (i, (a, b)) in x.iter().zip(want.iter()).enumerate() {
+            // `==`: a leading zero may differ in sign, nothing else.
+            assert!(a == b, "entry {i}: {a:e} against {b:e}");
+        }
+        assert!(x.column(0).iter().take(40).all(|&v| v == 0.0));
+        assert!(x[(40, 0)] != 0.0 && x[(n - 1, 0)] != 0.0);
+    }
 }
