@@ -361,18 +361,18 @@ impl Qp {
                 }
             }
         }
-        self.q
-            .iter()
-            .chain(self.paa.iter())
-            .chain(self.mass.iter())
-            .chain(self.h.iter())
-            .chain(&self.lam_w)
-            .chain(&self.d)
-            .chain(&self.c_vals)
-            .all(|x| x.is_finite())
-            && self.contact_jac[..nc]
-                .iter()
-                .all(|j| j.iter().all(|x| x.is_finite()))
+        [
+            self.q.as_slice(),
+            self.paa.as_slice(),
+            self.mass.as_slice(),
+            self.h.as_slice(),
+            &self.lam_w,
+            &self.d,
+            &self.c_vals,
+        ]
+        .into_iter()
+        .chain(self.contact_jac[..nc].iter().map(|j| j.as_slice()))
+        .all(all_finite)
     }
 
     /// The reduced formulation (module docs): `z = [v̇, λ]`.
@@ -436,8 +436,9 @@ impl Qp {
         }
         // Dual linear term d − C·z_u (before scaling).
         let mut p = DVector::from_fn(m, |i, _| self.d[i] - x.column(i).dot(&z));
-        let l = chol.l();
-        if !solve_lower_triangular_from_first_nonzero(&l, &mut x) {
+        // Both substitutions read only the lower triangle: the factor as the Cholesky left it.
+        let l = chol.l_dirty();
+        if !solve_lower_triangular_from_first_nonzero(l, &mut x) {
             return Reduced::NotPositiveDefinite;
         }
         // Scale each row to ‖L⁻¹cᵢ‖ = 1 (μ = D·ν).
@@ -672,6 +673,13 @@ pub(super) fn clarabel_dual(
 }
 
 /// clarabel's settings from the configuration.
+/// Whether every value is finite. A fold without an early exit: the compiler vectorises it, where a
+/// short-circuiting `all` over chained iterators checked one value at a time (measured: 3 % of
+/// `imuflow bench physics` for the 12,000 values of an assembled QP).
+fn all_finite(values: &[f64]) -> bool {
+    values.iter().fold(true, |ok, v| ok & v.is_finite())
+}
+
 /// `x ← L⁻¹·x` for lower-triangular `l`, column by column, each from its first nonzero entry. The
 /// columns of `Cᵀ` are sparse: a friction-pyramid row touches only its point's three λ, which come
 /// after the 75 DoFs, so its solution is zero above them and its substitution is a short one at the
@@ -748,6 +756,20 @@ fn chain_columns(j: JointId, out: &mut Vec<usize>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pip_all_finite_finds_any_infinity_or_nan() {
+        let mut values = vec![1.0; 1001];
+        assert!(all_finite(&values) && all_finite(&[]));
+        for bad in [f64::INFINITY, f64::NEG_INFINITY, f64::NAN] {
+            for at in [0, 500, 1000] {
+                values[at] = bad;
+                assert!(!all_finite(&values), "{bad} at {at}");
+                values[at] = -0.0;
+            }
+        }
+        assert!(all_finite(&values));
+    }
 
     #[test]
     fn pip_sparse_forward_substitution_gives_the_same_bits_as_nalgebras() {
