@@ -15,12 +15,14 @@
 //! World: model frame M (x left, y up, z forward), floor at y = 0, gravity (0, −9.81, 0).
 
 pub mod bench;
+mod cholesky;
 pub mod estimate;
 pub mod globalpose;
 pub mod integrate;
 pub mod pip;
 pub mod reference;
 pub mod stage;
+mod wide;
 
 pub use estimate::MotionEstimate;
 pub use reference::Reference;

@@ -22,6 +22,8 @@ use nalgebra::Vector3;
 
 use imuflow_contact::force::NUM_CONTACT_JOINTS;
 
+use crate::wide::with_avx2;
+
 /// The terms of one tracking pass.
 pub struct TrackingTerms<'a> {
     /// Desired angular accelerations `θ̈_des` in the rotational DoFs (entries `3..75`; `0..3` ignored).
@@ -111,8 +113,19 @@ fn add_weighted_gram(normal: &mut MassMatrix, k: f64, j: &PointJacobian) -> bool
 /// product of fixed-size matrices computes it (a column `axpy` per `k`); the columns with
 /// `m[k][c] = 0` are left out, and adding their products could change nothing but the sign of a
 /// zero: the same bits as `m * m` for a finite `m` (test), in 42 % of the multiply-adds.
-/// Measured: the dense product was most of `GlobalPose::step`'s own time.
+/// Measured: the dense product was most of `GlobalPose::step`'s own time. Runs four lanes wide
+/// where the CPU has AVX2 ([`crate::wide`]).
 pub fn square_skipping_zeros(m: &MassMatrix, out: &mut MassMatrix) {
+    square_skipping_zeros_avx2_or_not(m, out);
+}
+
+with_avx2! {
+    fn square_skipping_zeros_avx2_or_not(m: &MassMatrix, out: &mut MassMatrix) -> () =
+        square_skipping_zeros_body;
+}
+
+#[inline(always)]
+fn square_skipping_zeros_body(m: &MassMatrix, out: &mut MassMatrix) {
     const N: usize = NUM_DOFS;
     let src = m.as_slice(); // column-major: (r, c) at c·N + r
     let dst = out.as_mut_slice();
@@ -132,34 +145,17 @@ pub fn square_skipping_zeros(m: &MassMatrix, out: &mut MassMatrix) {
 /// Solve `A·x = b` for symmetric positive definite `A` by Cholesky, overwriting `A` with its factor
 /// (lower triangle) and `b` with `x`. False when `A` is not positive definite or not finite.
 ///
-/// The loops run down the columns of the column-major storage, so the innermost loops read and
-/// write contiguous memory and vectorise; the textbook form (a dot product along a row per entry)
-/// strides by a whole column per step. Every entry still gets the same subtractions in the same
-/// order, so the result is the same to the bit (test: `..._same_bits_as_the_textbook_form`).
-/// Measured: this solve was about 40 % of the GlobalPose optimizer's time in an offline graph.
+/// The factorisation ([`crate::cholesky::factorise`]) runs down the columns of the column-major
+/// storage, so the innermost loops read and write contiguous memory and vectorise (four lanes wide
+/// with AVX2); the textbook form (a dot product along a row per entry) strides by a whole column
+/// per step. Every entry still gets the same subtractions in the same order, so the result is the
+/// same to the bit (test: `..._same_bits_as_the_textbook_form`). Measured: this solve was about
+/// 40 % of the GlobalPose optimizer's time in an offline graph.
 pub fn cholesky_solve_in_place(a: &mut MassMatrix, b: &mut DofVector) -> bool {
     const N: usize = NUM_DOFS;
     let s = a.as_mut_slice(); // column-major: (r, c) at c·N + r
-    for c in 0..N {
-        // Column c from the diagonal down: A[r][c] − Σ_k L[r][k]·L[c][k], k in order.
-        let (done, rest) = s.split_at_mut(c * N);
-        let column = &mut rest[c..N];
-        for k in 0..c {
-            let earlier = &done[k * N + c..k * N + N];
-            let l_ck = earlier[0];
-            for (v, l_rk) in column.iter_mut().zip(earlier) {
-                *v -= l_rk * l_ck;
-            }
-        }
-        let d = column[0];
-        if d.is_nan() || d <= 0.0 {
-            return false;
-        }
-        let d = d.sqrt();
-        column[0] = d;
-        for v in &mut column[1..] {
-            *v /= d;
-        }
+    if !crate::cholesky::factorise(s, N) {
+        return false;
     }
     // L·y = b, by columns: y[k] is final once the columns before it are subtracted.
     for k in 0..N {
@@ -387,6 +383,22 @@ mod tests {
         let mut jac = jacobians[0];
         jac[(1, 40)] = f64::INFINITY;
         assert!(!add_weighted_gram(&mut MassMatrix::zeros(), 1.0, &jac));
+    }
+
+    #[test]
+    fn globalpose_mass_squared_avx2_build_gives_the_same_bits_as_the_portable_one() {
+        if !crate::wide::avx2() {
+            eprintln!("no AVX2 on this CPU: only the portable build runs here");
+            return;
+        }
+        for seed in [21, 22] {
+            let (mass, _) = a_body_in_motion(seed);
+            let (mut wide, mut portable) =
+                (Box::new(MassMatrix::zeros()), Box::new(MassMatrix::zeros()));
+            square_skipping_zeros(&mass, &mut wide);
+            square_skipping_zeros_body(&mass, &mut portable);
+            assert_eq!(wide.as_slice(), portable.as_slice());
+        }
     }
 
     #[test]

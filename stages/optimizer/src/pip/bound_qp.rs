@@ -16,6 +16,8 @@
 
 use nalgebra::{DMatrix, DVector};
 
+use crate::cholesky::ColumnCholesky;
+
 /// Fraction of the step to the boundary taken (keeps ν and s strictly positive).
 const STEP_TO_BOUNDARY: f64 = 0.99;
 
@@ -62,7 +64,7 @@ pub fn solve(
         for i in 0..m {
             kkt[(i, i)] += s[i] / nu[i];
         }
-        let chol = kkt.cholesky()?;
+        let chol = ColumnCholesky::new(kkt)?;
         r.neg_mut();
         let step = |rc: &DVector<f64>| {
             let rhs = &r + rc.component_div(&nu);
@@ -100,7 +102,7 @@ fn starting_point(q: &DMatrix<f64>, p: &DVector<f64>) -> Option<(DVector<f64>, D
     for i in 0..m {
         regularised[(i, i)] += 1.0;
     }
-    let mut nu = regularised.cholesky()?.solve(p);
+    let mut nu = ColumnCholesky::new(regularised)?.solve(p);
     nu.neg_mut();
     let mut s = q * &nu + p;
     let shift_nu = (-1.5 * nu.min()).max(0.0) + 1e-8;

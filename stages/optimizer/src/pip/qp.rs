@@ -40,9 +40,10 @@ use imuflow_body::{Imu, JointId, NUM_JOINTS, Pose};
 use imuflow_contact::ContactSet;
 use imuflow_contact::pip::FEET;
 use imuflow_graph::frames::MAX_CONTACT_POINTS;
-use nalgebra::{Cholesky, DMatrix, DVector, Rotation3, Vector3};
+use nalgebra::{DMatrix, DVector, Rotation3, Vector3};
 
 use super::{POSITION_PD_JOINTS, PipConfig, bound_qp};
+use crate::cholesky::ColumnCholesky;
 use crate::{PhysicsBody, Reference};
 
 /// What the solver reported for one step (the last solve when there was a re-solve).
@@ -418,7 +419,7 @@ impl Qp {
         for i in 0..NUM_DOFS {
             g[i] += self.q[i];
         }
-        let Some(chol) = Cholesky::new(hess) else {
+        let Some(chol) = ColumnCholesky::new(hess) else {
             return Reduced::NotPositiveDefinite;
         };
         let mut z = chol.solve(&g);
@@ -756,6 +757,7 @@ fn chain_columns(j: JointId, out: &mut Vec<usize>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Cholesky;
 
     #[test]
     fn pip_all_finite_finds_any_infinity_or_nan() {
