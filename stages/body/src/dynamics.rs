@@ -680,7 +680,7 @@ impl DynamicsData {
         point_in_joint: &Vector3<f64>,
         out: &mut PointJacobian,
     ) {
-        out.fill(0.0);
+        out.as_mut_slice().fill(0.0);
         let p = self.point_position(joint, point_in_joint);
         out.fixed_view_mut::<3, 3>(0, 0)
             .copy_from(&Matrix3::identity());
@@ -708,7 +708,7 @@ impl DynamicsData {
     /// World angular velocity Jacobian of `joint` (3 × 75): `R_Wi` on each ancestor i's block (root
     /// included), zero elsewhere. Overwrites all of `out`.
     pub fn angular_jacobian(&self, joint: JointId, out: &mut AngularJacobian) {
-        out.fill(0.0);
+        out.as_mut_slice().fill(0.0);
         let mut k = Some(joint);
         while let Some(j) = k {
             out.fixed_view_mut::<3, 3>(0, joint_dof(j))

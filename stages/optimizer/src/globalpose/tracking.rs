@@ -54,8 +54,14 @@ pub fn solve_tracking(
     qddot: &mut DofVector,
 ) -> bool {
     let beta = terms.torque_weight;
-    normal.copy_from(terms.mass_squared);
-    *normal *= beta;
+    // β·M² in one pass over the slices (a copy and then nalgebra's `*=` were two).
+    for (n, &m2) in normal
+        .as_mut_slice()
+        .iter_mut()
+        .zip(terms.mass_squared.as_slice())
+    {
+        *n = m2 * beta;
+    }
     terms.mass.mul_to(terms.torque_target, qddot);
     *qddot *= beta;
     for d in 3..NUM_DOFS {

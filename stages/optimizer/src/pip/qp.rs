@@ -44,6 +44,7 @@ use nalgebra::{DMatrix, DVector, Rotation3, Vector3};
 
 use super::{POSITION_PD_JOINTS, PipConfig, bound_qp};
 use crate::cholesky::ColumnCholesky;
+use crate::wide::with_avx2;
 use crate::{PhysicsBody, Reference};
 
 /// What the solver reported for one step (the last solve when there was a re-solve).
@@ -226,7 +227,8 @@ impl Qp {
         let dt = config.dt;
 
         // ---- cost ----
-        self.paa.fill(0.0);
+        // As slices: nalgebra's `fill` walks its element iterator, which does not become a memset.
+        self.paa.as_mut_slice().fill(0.0);
         self.q.fill(0.0);
         // Joint-rotation PD (Eq. 3/5), tangent space, root rotation included.
         for j in JointId::all() {
@@ -692,21 +694,68 @@ fn solve_lower_triangular_from_first_nonzero(l: &DMatrix<f64>, x: &mut DMatrix<f
     if (0..n).any(|i| l[(i, i)] == 0.0) {
         return false;
     }
-    let ls = l.as_slice(); // column-major: (r, c) at c·n + r
     for b in x.as_mut_slice().chunks_exact_mut(n) {
-        let Some(first) = b.iter().position(|&v| v != 0.0) else {
-            continue;
-        };
-        for i in first..n {
-            let coeff = b[i] / ls[i * n + i];
-            b[i] = coeff;
-            let below = &ls[i * n + i + 1..(i + 1) * n];
-            for (y, &l_ri) in b[i + 1..].iter_mut().zip(below) {
-                *y += -coeff * l_ri;
-            }
+        if let Some(first) = b.iter().position(|&v| v != 0.0) {
+            forward_substitute(l.as_slice(), n, b, first);
         }
     }
     true
+}
+
+with_avx2! {
+    /// One column `b` of the substitution, from row `first` on, over column-major `l` (`n × n`).
+    fn forward_substitute(l: &[f64], n: usize, b: &mut [f64], first: usize) -> () =
+        forward_substitute_body;
+}
+
+#[inline(always)]
+fn forward_substitute_body(l: &[f64], n: usize, b: &mut [f64], first: usize) {
+    let column = |i: usize| &l[i * n..(i + 1) * n];
+    let mut i = first;
+    // Four unknowns per pass over the rows below them: each row still gets `x_r += (−xᵢ)·l_ri`
+    // for i in order, but is loaded and stored once per four.
+    while i + 4 <= n {
+        let [l0, l1, l2, l3] = std::array::from_fn(|k| column(i + k));
+        // The four unknowns, each after the updates from the ones before it.
+        let c0 = b[i] / l0[i];
+        b[i] = c0;
+        b[i + 1] += -c0 * l0[i + 1];
+        b[i + 2] += -c0 * l0[i + 2];
+        b[i + 3] += -c0 * l0[i + 3];
+        let c1 = b[i + 1] / l1[i + 1];
+        b[i + 1] = c1;
+        b[i + 2] += -c1 * l1[i + 2];
+        b[i + 3] += -c1 * l1[i + 3];
+        let c2 = b[i + 2] / l2[i + 2];
+        b[i + 2] = c2;
+        b[i + 3] += -c2 * l2[i + 3];
+        let c3 = b[i + 3] / l3[i + 3];
+        b[i + 3] = c3;
+        let below = i + 4..n;
+        let rows = b[below.clone()]
+            .iter_mut()
+            .zip(&l0[below.clone()])
+            .zip(&l1[below.clone()])
+            .zip(&l2[below.clone()])
+            .zip(&l3[below]);
+        for ((((y, x0), x1), x2), x3) in rows {
+            let mut v = *y;
+            v += -c0 * x0;
+            v += -c1 * x1;
+            v += -c2 * x2;
+            v += -c3 * x3;
+            *y = v;
+        }
+        i += 4;
+    }
+    for i in i..n {
+        let li = column(i);
+        let coeff = b[i] / li[i];
+        b[i] = coeff;
+        for (y, &l_ri) in b[i + 1..].iter_mut().zip(&li[i + 1..]) {
+            *y += -coeff * l_ri;
+        }
+    }
 }
 
 fn settings(config: &PipConfig) -> DefaultSettings<f64> {
@@ -798,7 +847,16 @@ mod tests {
         }
         let mut want = x.clone();
         assert!(l.solve_lower_triangular_mut(&mut want));
+        // The portable build, column by column (the call below takes the AVX2 one where it can).
+        let mut portable = x.clone();
+        for b in portable.as_mut_slice().chunks_exact_mut(n) {
+            if let Some(first) = b.iter().position(|&v| v != 0.0) {
+                forward_substitute_body(l.as_slice(), n, b, first);
+            }
+        }
         assert!(solve_lower_triangular_from_first_nonzero(&l, &mut x));
+        let bits = |m: &DMatrix<f64>| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&portable), bits(&x));
         for (i, (a, b)) in x.iter().zip(want.iter()).enumerate() {
             // `==`: a leading zero may differ in sign, nothing else.
             assert!(a == b, "entry {i}: {a:e} against {b:e}");
