@@ -100,16 +100,8 @@ fn factorise_body(a: &mut [f64], n: usize) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_random::uniform;
     use nalgebra::Cholesky;
-
-    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
-        move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        }
-    }
 
     fn bits(v: &[f64]) -> Vec<u64> {
         v.iter().map(|x| x.to_bits()).collect()

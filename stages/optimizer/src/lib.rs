@@ -24,6 +24,9 @@ pub mod reference;
 pub mod stage;
 mod wide;
 
+#[cfg(test)]
+mod test_random;
+
 pub use estimate::MotionEstimate;
 pub use reference::Reference;
 pub use stage::{SPEC, run};

@@ -185,17 +185,8 @@ pub fn cholesky_solve_in_place(a: &mut MassMatrix, b: &mut DofVector) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_random::uniform;
     use nalgebra::DMatrix;
-
-    /// Uniform numbers in [-1, 1) from a 64-bit linear congruential generator seeded with `seed`.
-    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
-        move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        }
-    }
 
     #[test]
     fn globalpose_normal_equations_equal_an_svd_solve_of_the_stacked_rows() {

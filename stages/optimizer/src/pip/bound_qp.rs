@@ -131,22 +131,14 @@ mod tests {
     use crate::pip::PipConfig;
     use crate::pip::qp::clarabel_dual;
 
-    /// A reproducible pseudo-random number in [-1, 1).
-    fn lcg(state: &mut u64) -> f64 {
-        *state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((*state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-    }
-
     /// `Q = XᵀX` with `rank` rows in X (Q singular when rank < m, as the dual's can be), and
     /// `p = Xᵀw + t` with `t ≥ 0`: bounded below on `ν ≥ 0` (along Q's null space the cost is
     /// `tᵀν ≥ 0`), as the dual of a feasible QP is.
     fn problem(m: usize, rank: usize, seed: u64) -> (DMatrix<f64>, DVector<f64>) {
-        let mut state = seed;
-        let x = DMatrix::from_fn(rank, m, |_, _| lcg(&mut state));
-        let w = DVector::from_fn(rank, |_, _| lcg(&mut state) * 3.0);
-        let t = DVector::from_fn(m, |_, _| lcg(&mut state).abs() * 0.5);
+        let mut rnd = crate::test_random::uniform(seed);
+        let x = DMatrix::from_fn(rank, m, |_, _| rnd());
+        let w = DVector::from_fn(rank, |_, _| rnd() * 3.0);
+        let t = DVector::from_fn(m, |_, _| rnd().abs() * 0.5);
         (x.transpose() * &x, x.transpose() * w + t)
     }
 

@@ -824,13 +824,7 @@ mod tests {
 
     #[test]
     fn pip_sparse_forward_substitution_gives_the_same_bits_as_nalgebras() {
-        let mut seed = 5u64;
-        let mut rnd = move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        let mut rnd = crate::test_random::uniform(5);
         let n = NUM_DOFS + 12;
         let a = DMatrix::<f64>::from_fn(n, n, |_, _| rnd());
         let spd = a.transpose() * &a + DMatrix::<f64>::identity(n, n);
