@@ -257,21 +257,36 @@ params = {{ path = "{{dir}}/all.mcap" }}
     let stdout = text(&out.stdout);
     assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
     assert!(stdout.contains("restarted 'calib' 1 time(s)"), "{stdout}");
-    let frames: Vec<(u64, u32)> = mcap_messages(&sb.path("all.mcap"))
+    let headers: Vec<FrameHeader> = mcap_messages(&sb.path("all.mcap"))
         .into_iter()
         .filter(|m| m.0 == "calib.body_imu")
         .map(|m| {
-            let h = frame_from_bytes::<BodyImuFrame>(&m.2)
+            frame_from_bytes::<BodyImuFrame>(&m.2)
                 .expect("a BodyImuFrame")
-                .header;
-            (h.seq, h.flags)
+                .header
         })
         .collect();
-    let restart = frames
+    // The restarted process's frames carry restart count 1. The one frame flagged RESTARTED
+    // may be among those a live recorder drops under load; where it was kept, it is the new
+    // process's first.
+    let restart = headers
         .iter()
-        .position(|(_, f)| f & flags::RESTARTED != 0)
-        .expect("a RESTARTED frame");
+        .position(|h| h.restarts == 1)
+        .expect("frames from the restarted calibration");
+    let flagged: Vec<usize> = (0..headers.len())
+        .filter(|&i| headers[i].has(flags::RESTARTED))
+        .collect();
+    assert!(
+        flagged.is_empty() || flagged == [restart],
+        "RESTARTED on frames {flagged:?}, the restarted process's first is {restart}"
+    );
+    let frames: Vec<(u64, u32)> = headers.iter().map(|h| (h.seq, h.flags)).collect();
     let (before, after) = frames.split_at(restart);
+    assert!(
+        headers[..restart].iter().all(|h| h.restarts == 0)
+            && headers[restart..].iter().all(|h| h.restarts == 1),
+        "one restart"
+    );
     assert!(
         before.iter().any(|(_, f)| f & flags::CALIBRATING == 0),
         "calibrated before the kill"
