@@ -1,8 +1,9 @@
-//! A Cholesky factorisation of dense `DMatrix`es that gives nalgebra's bits, four lanes wide where
+//! A Cholesky factorisation of dense matrices that gives nalgebra's bits, four lanes wide where
 //! the CPU has AVX2.
 //!
 //! PIP's QP factorises its reduced Hessian (about 90 × 90) once a solve and its dual's
-//! normal matrix (about 30 × 30) twice per interior-point iteration; nalgebra's
+//! normal matrix (about 30 × 30) once per interior-point iteration and for the starting point;
+//! GlobalPose's tracking factorises its 75 × 75 normal matrix twice a frame. nalgebra's
 //! `Cholesky::new_internal` was the largest single item of `imuflow bench physics` (16-18 % of its
 //! samples), compiled, as the whole binary, for plain x86-64. This is the same left-looking
 //! algorithm with the same arithmetic in the same order: column `j` gets `−L[j][k]·(column k)`
