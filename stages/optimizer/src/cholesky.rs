@@ -63,19 +63,11 @@ fn factorise_body(a: &mut [f64], n: usize) -> bool {
             (-c[0], c)
         };
         // Four earlier columns per pass over column j: each entry still gets `y = f·x + y` for
-        // k = 0, 1, 2, … in order, but is loaded and stored once per four (the pass was bound by
-        // those loads and stores).
+        // k = 0, 1, 2, … in order.
         let mut k = 0;
         while k + 4 <= j {
             let [(f0, c0), (f1, c1), (f2, c2), (f3, c3)] = std::array::from_fn(|i| earlier(k + i));
-            for ((((y, x0), x1), x2), x3) in column.iter_mut().zip(c0).zip(c1).zip(c2).zip(c3) {
-                let mut v = *y;
-                v += f0 * x0;
-                v += f1 * x1;
-                v += f2 * x2;
-                v += f3 * x3;
-                *y = v;
-            }
+            add_four_columns(column, [f0, f1, f2, f3], [c0, c1, c2, c3]);
             k += 4;
         }
         for k in k..j {
@@ -96,6 +88,23 @@ fn factorise_body(a: &mut [f64], n: usize) -> bool {
         }
     }
     true
+}
+
+/// `y += f₀·x₀`, then `+= f₁·x₁`, `+= f₂·x₂`, `+= f₃·x₃`, entry by entry in that order: four
+/// column `axpy`s with the bits of four passes, each entry loaded and stored once (the passes were
+/// bound by those loads and stores). Inlined into its callers' AVX2 builds.
+#[inline(always)]
+pub(crate) fn add_four_columns(y: &mut [f64], f: [f64; 4], x: [&[f64]; 4]) {
+    let [f0, f1, f2, f3] = f;
+    let [x0, x1, x2, x3] = x;
+    for ((((y, x0), x1), x2), x3) in y.iter_mut().zip(x0).zip(x1).zip(x2).zip(x3) {
+        let mut v = *y;
+        v += f0 * x0;
+        v += f1 * x1;
+        v += f2 * x2;
+        v += f3 * x3;
+        *y = v;
+    }
 }
 
 #[cfg(test)]

@@ -113,20 +113,16 @@ fn add_weighted_gram(normal: &mut MassMatrix, k: f64, j: &PointJacobian) -> bool
     true
 }
 
-/// `out = m·m` for a matrix with many exact zeros, such as a mass matrix (an entry is zero unless one
-/// of its two DoFs' joints is an ancestor of the other's: 42 % of the SMPL tree's entries are not).
-/// Column `c` of the product is the sum of `m[k][c]·(column k)` in the order of `k`, as nalgebra's
-/// product of fixed-size matrices computes it (a column `axpy` per `k`); the columns with
-/// `m[k][c] = 0` are left out, and adding their products could change nothing but the sign of a
-/// zero: the same bits as `m * m` for a finite `m` (test), in 42 % of the multiply-adds.
-/// Measured: the dense product was most of `GlobalPose::step`'s own time. Runs four lanes wide
-/// where the CPU has AVX2 ([`crate::wide`]).
-pub fn square_skipping_zeros(m: &MassMatrix, out: &mut MassMatrix) {
-    square_skipping_zeros_avx2_or_not(m, out);
-}
-
 with_avx2! {
-    fn square_skipping_zeros_avx2_or_not(m: &MassMatrix, out: &mut MassMatrix) -> () =
+    /// `out = m·m` for a matrix with many exact zeros, such as a mass matrix (an entry is zero
+    /// unless one of its two DoFs' joints is an ancestor of the other's: 42 % of the SMPL tree's
+    /// entries are not). Column `c` of the product is the sum of `m[k][c]·(column k)` in the order
+    /// of `k`, as nalgebra's product of fixed-size matrices computes it (a column `axpy` per `k`);
+    /// the columns with `m[k][c] = 0` are left out, and adding their products could change nothing
+    /// but the sign of a zero: the same bits as `m * m` for a finite `m` (test), in 42 % of the
+    /// multiply-adds. Measured: the dense product was most of `GlobalPose::step`'s own time. Runs
+    /// four lanes wide where the CPU has AVX2 ([`crate::wide`]).
+    pub fn square_skipping_zeros(m: &MassMatrix, out: &mut MassMatrix) -> () =
         square_skipping_zeros_body;
 }
 

@@ -43,7 +43,7 @@ use imuflow_graph::frames::MAX_CONTACT_POINTS;
 use nalgebra::{DMatrix, DVector, Rotation3, Vector3};
 
 use super::{POSITION_PD_JOINTS, PipConfig, bound_qp};
-use crate::cholesky::ColumnCholesky;
+use crate::cholesky::{ColumnCholesky, add_four_columns};
 use crate::wide::with_avx2;
 use crate::{PhysicsBody, Reference};
 
@@ -675,7 +675,6 @@ pub(super) fn clarabel_dual(
     Some((DVector::from_column_slice(&sol.x), sol.iterations))
 }
 
-/// clarabel's settings from the configuration.
 /// Whether every value is finite. A fold without an early exit: the compiler vectorises it, where a
 /// short-circuiting `all` over chained iterators checked one value at a time (measured: 3 % of
 /// `imuflow bench physics` for the 12,000 values of an assembled QP).
@@ -713,7 +712,7 @@ fn forward_substitute_body(l: &[f64], n: usize, b: &mut [f64], first: usize) {
     let column = |i: usize| &l[i * n..(i + 1) * n];
     let mut i = first;
     // Four unknowns per pass over the rows below them: each row still gets `x_r += (−xᵢ)·l_ri`
-    // for i in order, but is loaded and stored once per four.
+    // for i in order.
     while i + 4 <= n {
         let [l0, l1, l2, l3] = std::array::from_fn(|k| column(i + k));
         // The four unknowns, each after the updates from the ones before it.
@@ -732,20 +731,11 @@ fn forward_substitute_body(l: &[f64], n: usize, b: &mut [f64], first: usize) {
         let c3 = b[i + 3] / l3[i + 3];
         b[i + 3] = c3;
         let below = i + 4..n;
-        let rows = b[below.clone()]
-            .iter_mut()
-            .zip(&l0[below.clone()])
-            .zip(&l1[below.clone()])
-            .zip(&l2[below.clone()])
-            .zip(&l3[below]);
-        for ((((y, x0), x1), x2), x3) in rows {
-            let mut v = *y;
-            v += -c0 * x0;
-            v += -c1 * x1;
-            v += -c2 * x2;
-            v += -c3 * x3;
-            *y = v;
-        }
+        add_four_columns(
+            &mut b[below.clone()],
+            [-c0, -c1, -c2, -c3],
+            [l0, l1, l2, l3].map(|l| &l[below.clone()]),
+        );
         i += 4;
     }
     for i in i..n {
@@ -758,6 +748,7 @@ fn forward_substitute_body(l: &[f64], n: usize, b: &mut [f64], first: usize) {
     }
 }
 
+/// clarabel's settings from the configuration.
 fn settings(config: &PipConfig) -> DefaultSettings<f64> {
     let tol = config.solver_tolerance;
     DefaultSettings {
