@@ -94,12 +94,11 @@ fn a_killed_validation_stage_leaves_the_capture_running_to_the_end() {
 name = "kill-validation"
 [stages.source]
 kind = "imu-source"
-params = {{ mode = "replay", path = "{sample}" }}
+# Paced at the sample's 60 Hz: the stream lasts 25 s on any machine, so the kill lands mid-stream.
+params = {{ mode = "replay", path = "{sample}", realtime = true }}
 [stages.val]
 kind = "validation"
 inputs = {{ motion = "source.truth" }}
-# Ten times the default substeps: slow enough that the kill surely lands mid-stream.
-params = {{ substeps = 40 }}
 on_failure = "stop-branch"
 [stages.record]
 kind = "recorder"

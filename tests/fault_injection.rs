@@ -20,7 +20,7 @@ use common::{
     Sandbox, assert_clean, count, mcap_messages, sample_run_args, text, wait_for_stage,
     wait_with_timeout,
 };
-use imuflow_imu_source::replay::for_each_record;
+use imuflow_recording::for_each_record;
 
 /// models/sample/README.md: 1511 frames with the true pose.
 const SAMPLE_FRAMES: usize = 1511;
@@ -31,7 +31,9 @@ const SAMPLE_FRAMES: usize = 1511;
 static LIVE_ALONE: std::sync::RwLock<()> = std::sync::RwLock::new(());
 
 /// When to kill `stage`: 0.3-1.5 s after it started, drawn from its name (FNV-1a), so a failure
-/// reproduces.
+/// reproduces. The source is paced at the sample's 60 Hz (`realtime`), so the run lasts 25 s
+/// whatever the machine's speed and the kill always lands mid-stream: unpaced, a debug run of the
+/// sample takes 1.4 s on a fast machine and ended before the kill.
 fn kill_delay(graph: &str, stage: &str) -> Duration {
     let hash = format!("{graph}/{stage}")
         .bytes()
@@ -58,7 +60,12 @@ fn kill_each_stage(graph_name: &str, stages: &[&str]) {
     for stage in stages {
         let sb = Sandbox::new(&format!("fault-{graph_name}-{stage}"));
         let mcap = sb.path("run.mcap");
-        let args = sample_run_args(graph_name, &mcap, &sb.path("run.rrd"), &[]);
+        let args = sample_run_args(
+            graph_name,
+            &mcap,
+            &sb.path("run.rrd"),
+            &["stages.source.params.realtime=true"],
+        );
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         let child = sb.spawn(&args);
         let pid = wait_for_stage(&sb, stage, Duration::from_secs(60))

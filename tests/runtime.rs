@@ -149,8 +149,10 @@ fn a_failing_stage_stops_the_run_quickly_naming_it_and_recordings_stay_valid() {
         stderr.contains("boom: simulated sensor failure"),
         "last stderr lines shown:\n{stderr}"
     );
-    // Start-up plus 0.5 s of running plus the stop must stay well under the 100000-frame stream.
-    assert!(took < Duration::from_secs(4), "run took {took:?}");
+    // Start-up plus 0.5 s of running plus the stop, well under the 100000-frame stream (28 min at
+    // 60 Hz): found at the failure, not at the stream's end. The bound leaves room for a debug
+    // build's start-up on a loaded machine.
+    assert!(took < Duration::from_secs(15), "run took {took:?}");
 
     let messages = mcap_messages(&sb.path("crash.mcap"));
     let frames = messages.iter().filter(|m| m.0 == "source.imu").count();

@@ -96,9 +96,10 @@ fn a_hung_isolated_stage_stops_only_its_branch() {
 /// the stream flows, and expects the watchdog to end the run naming `stage`.
 fn freeze(name: &str, victim: &str, stage: &str) {
     let sb = Sandbox::new(name);
-    // More frames than can flow before the freeze (a debug build streams a few thousand a
-    // second); the run ends by the watchdog. Every stage gets 1 s (the source too).
-    let file = graph(&sb, 300_000, "[]", "");
+    // Far more frames than can flow before the freeze, on any machine (a debug build streams a
+    // few thousand to a few tens of thousands a second); the run ends by the watchdog. Every stage
+    // gets 1 s (the source too).
+    let file = graph(&sb, 30_000_000, "[]", "");
     let text_in = std::fs::read_to_string(&file).expect("graph");
     std::fs::write(
         &file,
