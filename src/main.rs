@@ -176,7 +176,7 @@ enum DatasetCommand {
         /// ideal copies, validation, test and holdout stay on the 1.75 m subject
         #[arg(long, value_delimiter = ',', value_name = "LOW,HIGH")]
         vary_stature: Option<Vec<f64>>,
-        /// Joint mapping TOML of the clips' skeleton (format: stages/motion/mappings/bandai-namco.toml);
+        /// Joint mapping TOML of the clips' skeleton (format: libs/motion/mappings/bandai-namco.toml);
         /// default: the built-in Bandai Namco mapping.
         #[arg(long, value_name = "FILE")]
         mapping: Option<PathBuf>,

@@ -214,7 +214,7 @@ fn batch_mode_scores_every_clip_pairs_the_variants_and_resumes() {
     let data = sb.path("clips");
     std::fs::create_dir_all(&data).expect("clips dir");
     let names = names_in_split(6, imuflow_dataset::Split::Test);
-    let walk = format!("{root}/stages/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
+    let walk = format!("{root}/libs/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
     for name in &names[..5] {
         std::fs::copy(&walk, data.join(name)).expect("copy clip");
     }
@@ -440,7 +440,7 @@ fn ablation_files_expand_into_variants_and_bad_ones_are_named() {
 fn a_bvh_input_is_synthesized_with_the_sensor_errors_asked_for() {
     let sb = Sandbox::new("compare-sensor-errors");
     let root = env!("CARGO_MANIFEST_DIR");
-    let walk = format!("{root}/stages/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
+    let walk = format!("{root}/libs/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
     let (pip, gp) = (
         format!("{root}/configs/pip.toml"),
         format!("{root}/configs/globalpose.toml"),

@@ -13,7 +13,7 @@ use std::path::Path;
 
 use imuflow_graph::Graph;
 use imuflow_graph::spec::Registry;
-use imuflow_imu_source::replay::Recording;
+use imuflow_recording::Recording;
 use imuflow_imu_source::udp::{PACKET_SIZE, Packet};
 use imuflow_motion::bvh::Bvh;
 use imuflow_motion::retarget::{BANDAI_NAMCO_MAPPING_TOML, SourceSkeleton};
@@ -116,7 +116,7 @@ fn registry() -> Registry {
         imuflow_imu_source::SPEC,
         imuflow_calibration::SPEC,
         imuflow_kinematics::SPEC,
-        imuflow_contact::SPEC,
+        imuflow_contact_stage::SPEC,
         imuflow_optimizer::SPEC,
         imuflow_validation::SPEC,
     ])
@@ -127,7 +127,7 @@ proptest! {
 
     #[test]
     fn bvh_files(edits in edits()) {
-        let text = mutate(read("stages/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh"), &edits);
+        let text = mutate(read("libs/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh"), &edits);
         let text = String::from_utf8_lossy(&text);
         if let Err(e) = Bvh::parse(&text, "fuzzed.bvh") {
             prop_assert!(e.to_string().contains("fuzzed.bvh"), "{e}");

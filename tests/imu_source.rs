@@ -11,7 +11,7 @@ use imuflow_imu_source::udp;
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("stages/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh")
+        .join("libs/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh")
 }
 
 /// Frames at 60 Hz over the fixture's duration, from its header (independent of the body crate):

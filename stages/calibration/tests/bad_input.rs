@@ -7,14 +7,14 @@ use imuflow_calibration::{
     Calibrator, CalibratorConfig, Event, InertialFrame, Method, NUM_IMUS, Rejection,
 };
 use imuflow_graph::frames::{BodyImuFrame, ImuFrame, flags};
-use imuflow_imu_source::prelude::PreludeKind;
-use imuflow_imu_source::synth::{InertialFrame as SynthFrame, Motion};
+use imuflow_synth::prelude::PreludeKind;
+use imuflow_synth::Motion;
 
 fn walk_motion(seed: u64) -> Motion {
     synthesize(
         short_clip(),
         prelude(PreludeKind::Walk),
-        setup(SynthFrame::Model, 0.0, 20.0),
+        setup(InertialFrame::Model, 0.0, 20.0),
         true,
         seed,
     )
@@ -83,7 +83,7 @@ fn a_step_that_takes_too_long_or_is_too_short_is_rejected_with_its_reason() {
     let motion = synthesize(
         short_clip(),
         slow,
-        setup(SynthFrame::Model, 0.0, 0.0),
+        setup(InertialFrame::Model, 0.0, 0.0),
         true,
         3,
     );
@@ -113,7 +113,7 @@ fn a_step_that_takes_too_long_or_is_too_short_is_rejected_with_its_reason() {
     let motion = synthesize(
         short_clip(),
         short,
-        setup(SynthFrame::Model, 0.0, 0.0),
+        setup(InertialFrame::Model, 0.0, 0.0),
         true,
         3,
     );
@@ -287,7 +287,7 @@ fn method_none_passes_bone_orientations_through() {
     let motion = synthesize(
         short_clip(),
         prelude(PreludeKind::None),
-        imuflow_imu_source::synth::SensorSetup::default(),
+        imuflow_synth::SensorSetup::default(),
         false,
         0,
     );

@@ -9,8 +9,7 @@ use common::*;
 use imuflow_calibration::file::{load, save};
 use imuflow_calibration::{Calibrator, InertialFrame};
 use imuflow_graph::frames::{BodyImuFrame, flags};
-use imuflow_imu_source::prelude::PreludeKind;
-use imuflow_imu_source::synth::InertialFrame as SynthFrame;
+use imuflow_synth::prelude::PreludeKind;
 
 fn temp_dir(name: &str) -> PathBuf {
     let dir =
@@ -24,11 +23,11 @@ fn a_saved_calibration_reproduces_the_session_s_output() {
     let motion = synthesize(
         short_clip(),
         prelude(PreludeKind::Walk),
-        setup(SynthFrame::ZUp, 50.0, 30.0),
+        setup(InertialFrame::ZUp, 50.0, 30.0),
         true,
         21,
     );
-    let config = walking(frame_of(SynthFrame::ZUp));
+    let config = walking(InertialFrame::ZUp);
     let session = run(config, &motion);
     let at = session.calibrated_at().expect("calibrated");
     let calibration = session
@@ -70,7 +69,7 @@ fn malformed_files_name_the_file_and_the_field() {
     let motion = synthesize(
         short_clip(),
         prelude(PreludeKind::Tpose),
-        setup(SynthFrame::Model, 0.0, 0.0),
+        setup(InertialFrame::Model, 0.0, 0.0),
         false,
         1,
     );

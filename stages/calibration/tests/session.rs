@@ -3,9 +3,9 @@
 mod common;
 
 use common::*;
-use imuflow_calibration::NUM_IMUS;
-use imuflow_imu_source::prelude::PreludeKind;
-use imuflow_imu_source::synth::{InertialFrame as SynthFrame, Motion};
+use imuflow_calibration::{InertialFrame, NUM_IMUS};
+use imuflow_synth::prelude::PreludeKind;
+use imuflow_synth::Motion;
 
 /// Bone orientation errors (deg) of every sensor on every frame after the calibration.
 fn errors_after_calibration(session: &Session, motion: &Motion) -> Vec<f64> {
@@ -39,13 +39,13 @@ fn thirty_seconds(seed: u64, offset_deg: f64, augment: bool) -> Motion {
     )
 }
 
-const FRAMES: [SynthFrame; 3] = [SynthFrame::Model, SynthFrame::ZUp, SynthFrame::ZDown];
+const FRAMES: [InertialFrame; 3] = [InertialFrame::Model, InertialFrame::ZUp, InertialFrame::ZDown];
 
 #[test]
 fn without_noise_thirty_seconds_reproduce_the_true_bone_orientations() {
     for seed in 0..2 {
         let motion = thirty_seconds(seed, 0.0, false);
-        let frame = frame_of(FRAMES[seed as usize % 3]);
+        let frame = FRAMES[seed as usize % 3];
         for session in [
             run(walking(frame), &motion),
             run(tpose(frame, 25.0), &motion),
@@ -72,7 +72,7 @@ fn with_reference_noise_thirty_seconds_stay_within_tolerance() {
     // 4.5e-3 rad/√s (1.4° after 30 s), which a one-time calibration cannot follow.
     for seed in 0..3 {
         let motion = thirty_seconds(seed, 0.0, true);
-        let frame = frame_of(FRAMES[seed as usize % 3]);
+        let frame = FRAMES[seed as usize % 3];
         let (mean, p95, max) = stats(errors_after_calibration(
             &run(walking(frame), &motion),
             &motion,
@@ -99,7 +99,7 @@ fn per_sensor_heading_offsets_defeat_a_tpose_but_not_walking() {
     let mut tpose_means = Vec::new();
     for seed in 3..5 {
         let motion = thirty_seconds(seed, 40.0, true);
-        let frame = frame_of(FRAMES[seed as usize % 3]);
+        let frame = FRAMES[seed as usize % 3];
         let (walking_mean, _, walking_max) = stats(errors_after_calibration(
             &run(walking(frame), &motion),
             &motion,

@@ -3,19 +3,18 @@
 mod common;
 
 use common::*;
-use imuflow_calibration::{Event, NUM_IMUS, ReferencePose, Rejection};
-use imuflow_imu_source::prelude::PreludeKind;
-use imuflow_imu_source::synth::InertialFrame as SynthFrame;
+use imuflow_calibration::{InertialFrame, Event, NUM_IMUS, ReferencePose, Rejection};
+use imuflow_synth::prelude::PreludeKind;
 use nalgebra::Vector3;
 
-const FRAMES: [SynthFrame; 3] = [SynthFrame::Model, SynthFrame::ZUp, SynthFrame::ZDown];
+const FRAMES: [InertialFrame; 3] = [InertialFrame::Model, InertialFrame::ZUp, InertialFrame::ZDown];
 
 fn sb_errors(seed: u64, augment: bool) -> [f64; NUM_IMUS] {
     let p = prelude(PreludeKind::Tpose);
     let frame = FRAMES[seed as usize % 3];
     let heading = -150.0 + 37.0 * seed as f64;
     let motion = synthesize(short_clip(), p, setup(frame, heading, 0.0), augment, seed);
-    let session = run(tpose(frame_of(frame), heading), &motion);
+    let session = run(tpose(frame, heading), &motion);
     let at = session
         .calibrated_at()
         .unwrap_or_else(|| panic!("seed {seed}: {:?}", session.events));
@@ -49,14 +48,14 @@ fn with_reference_noise_mountings_are_within_one_and_a_half_degrees() {
 #[test]
 fn an_n_pose_hold_works_with_pose_n() {
     let p = prelude(PreludeKind::Walk);
-    let motion = synthesize(short_clip(), p, setup(SynthFrame::ZUp, 10.0, 0.0), true, 4);
-    let mut config = tpose(frame_of(SynthFrame::ZUp), 10.0);
+    let motion = synthesize(short_clip(), p, setup(InertialFrame::ZUp, 10.0, 0.0), true, 4);
+    let mut config = tpose(InertialFrame::ZUp, 10.0);
     config.pose = ReferencePose::N;
     let session = run(config, &motion);
     let e = sensor_from_bone_errors_deg(&session, &motion, first_stand_mid(&p));
     assert!(max(e) < 1.5, "{e:?}");
     // With the T-pose reference the forearms come out 90° off.
-    let wrong = run(tpose(frame_of(SynthFrame::ZUp), 10.0), &motion);
+    let wrong = run(tpose(InertialFrame::ZUp, 10.0), &motion);
     let e = sensor_from_bone_errors_deg(&wrong, &motion, first_stand_mid(&p));
     assert!(e[0] > 80.0 && e[1] > 80.0 && e[5] < 1.5, "{e:?}");
 }
@@ -66,11 +65,11 @@ fn a_wrong_frame_convention_is_rejected_by_the_gravity_check() {
     let motion = synthesize(
         short_clip(),
         prelude(PreludeKind::Tpose),
-        setup(SynthFrame::ZUp, 0.0, 0.0),
+        setup(InertialFrame::ZUp, 0.0, 0.0),
         false,
         1,
     );
-    let session = run(tpose(frame_of(SynthFrame::ZDown), 0.0), &motion);
+    let session = run(tpose(InertialFrame::ZDown, 0.0), &motion);
     assert!(session.calibrated_at().is_none());
     let Some((
         _,
@@ -104,7 +103,7 @@ fn an_accelerometer_offset_is_estimated_while_still_and_removed() {
     let motion = synthesize(
         short_clip(),
         prelude(PreludeKind::Tpose),
-        setup(SynthFrame::ZDown, 0.0, 0.0),
+        setup(InertialFrame::ZDown, 0.0, 0.0),
         false,
         2,
     );
@@ -116,7 +115,7 @@ fn an_accelerometer_offset_is_estimated_while_still_and_removed() {
         }
         f
     });
-    let session = run_frames(tpose(frame_of(SynthFrame::ZDown), 0.0), frames);
+    let session = run_frames(tpose(InertialFrame::ZDown, 0.0), frames);
     let at = session.calibrated_at().expect("calibrated");
     let cal = session.calibrator.calibration().expect("calibrated");
     assert!(
@@ -131,7 +130,7 @@ fn an_accelerometer_offset_is_estimated_while_still_and_removed() {
     let a = Vector3::from(still.free_acceleration_mps2[3].map(f64::from));
     assert!(a.norm() < 1e-3, "{a:?}");
     // Without the offset it would read the bias.
-    let mut config = tpose(frame_of(SynthFrame::ZDown), 0.0);
+    let mut config = tpose(InertialFrame::ZDown, 0.0);
     config.accel_offset = false;
     let frames = (0..motion.len()).map(|i| {
         let mut f = motion.imu_frame(i).expect("frame");

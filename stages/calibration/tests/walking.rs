@@ -5,13 +5,12 @@ mod common;
 
 use common::*;
 use imuflow_body::rotation::Axis;
-use imuflow_calibration::{Event, NUM_IMUS, PELVIS, Rejection};
+use imuflow_calibration::{InertialFrame, Event, NUM_IMUS, PELVIS, Rejection};
 use imuflow_graph::frames::flags;
-use imuflow_imu_source::prelude::{PoseTrack, PreludeKind, n_pose, standing_root_height_m};
-use imuflow_imu_source::synth::InertialFrame as SynthFrame;
+use imuflow_synth::prelude::{PoseTrack, PreludeKind, n_pose, standing_root_height_m};
 use nalgebra::Vector3;
 
-const FRAMES: [SynthFrame; 3] = [SynthFrame::Model, SynthFrame::ZUp, SynthFrame::ZDown];
+const FRAMES: [InertialFrame; 3] = [InertialFrame::Model, InertialFrame::ZUp, InertialFrame::ZDown];
 
 /// Calibrates a stand–step–stand of seed `seed` (convention by seed, heading 70°, offsets ±45°);
 /// returns the per-sensor R_SB and heading errors (deg).
@@ -19,7 +18,7 @@ fn errors(seed: u64, augment: bool) -> ([f64; NUM_IMUS], [f64; NUM_IMUS]) {
     let p = prelude(PreludeKind::Walk);
     let frame = FRAMES[seed as usize % 3];
     let motion = synthesize(short_clip(), p, setup(frame, 70.0, 45.0), augment, seed);
-    let session = run(walking(frame_of(frame)), &motion);
+    let session = run(walking(frame), &motion);
     assert!(
         session.calibrated_at().is_some(),
         "seed {seed}: {:?}",
@@ -77,11 +76,11 @@ fn frames_are_flagged_calibrating_until_the_calibration_is_accepted() {
     let motion = synthesize(
         short_clip(),
         p,
-        setup(SynthFrame::ZUp, -30.0, 20.0),
+        setup(InertialFrame::ZUp, -30.0, 20.0),
         false,
         5,
     );
-    let session = run(walking(frame_of(SynthFrame::ZUp)), &motion);
+    let session = run(walking(InertialFrame::ZUp), &motion);
     let at = session.calibrated_at().expect("calibrated");
     // The second stand is detected `hold_s` (1.5 s) after it starts, so the prelude's 3 s stand
     // after the step is still going on.
@@ -113,11 +112,11 @@ fn not_returning_to_the_start_pose_asks_for_a_redo() {
     let motion = synthesize(
         short_clip(),
         p,
-        setup(SynthFrame::Model, 0.0, 10.0),
+        setup(InertialFrame::Model, 0.0, 10.0),
         true,
         8,
     );
-    let session = run(walking(frame_of(SynthFrame::Model)), &motion);
+    let session = run(walking(InertialFrame::Model), &motion);
     assert!(session.calibrated_at().is_none());
     let rejected: Vec<&Rejection> = session
         .events
@@ -164,11 +163,11 @@ fn a_rejected_attempt_is_followed_by_a_good_one() {
     let motion = synthesize(
         clip,
         prelude(PreludeKind::None),
-        setup(SynthFrame::ZDown, 120.0, 45.0),
+        setup(InertialFrame::ZDown, 120.0, 45.0),
         true,
         9,
     );
-    let session = run(walking(frame_of(SynthFrame::ZDown)), &motion);
+    let session = run(walking(InertialFrame::ZDown), &motion);
     assert_eq!(session.rejections().len(), 1, "{:?}", session.events);
     assert!(
         session.rejections()[0].contains("turned"),
@@ -200,7 +199,7 @@ fn a_later_step_re_estimates_a_heading_that_drifted() {
         frame_time_s: 1.0 / RATE_HZ,
         poses: track.into_poses(),
     };
-    let frame = SynthFrame::ZUp;
+    let frame = InertialFrame::ZUp;
     let motion = synthesize(
         clip,
         prelude(PreludeKind::None),
@@ -210,9 +209,9 @@ fn a_later_step_re_estimates_a_heading_that_drifted() {
     );
     let drift_from = 1 + 180 + 72 + 120;
     let drift = 15f64.to_radians();
-    let up_in_i = frame_of(frame).up_in_inertial();
+    let up_in_i = frame.up_in_inertial();
     let frames = |drift_update: bool| {
-        let mut config = walking(frame_of(frame));
+        let mut config = walking(frame);
         config.drift_update = drift_update;
         let frames = (0..motion.len()).map(|i| {
             let mut f = motion.imu_frame(i).expect("frame");
@@ -256,7 +255,7 @@ fn a_later_step_re_estimates_a_heading_that_drifted() {
     assert!(without > 10.0, "{without}");
     // Sanity: the yaw about M's y used for ψ matches the drift's axis.
     assert!(
-        (frame_of(frame).model_from_inertial(0.0) * up_in_i.into_inner()
+        (frame.model_from_inertial(0.0) * up_in_i.into_inner()
             - Axis::Y.unit().into_inner())
         .norm()
             < 1e-12

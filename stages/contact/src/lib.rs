@@ -1,24 +1,9 @@
-//! Contact estimation for the physics optimizer.
+//! The `contact` stage kind: PIP's contact rule (CVPR 2022 §3.2.3; reference §5.2) between the
+//! kinematics networks and the optimizer. The rule itself, the contact geometry and the wire form of
+//! a contact set live in the `imuflow-contact` library (libs/contact), which the optimizer links too.
 //!
-//! - [`geometry`]: where each joint touches the ground (its clearance above the floor when resting on it)
-//!   and the contact points of a contact joint.
-//! - [`set`]: [`ContactSet`], the result every method produces, and its wire form ([`ContactFrame`]).
-//! - [`pip`]: PIP's rule (CVPR 2022 §3.2.3; reference §5.2): joint height plus the networks' foot-contact
-//!   probability, 4 points of a 20 cm square per contact joint.
-//! - [`force`]: GlobalPose's force-based estimation (SIGGRAPH 2025 §3.3; reference §5.4 steps 7–10):
-//!   explain the pre-tracking residual root wrench with friction-cone contact forces.
-//! - `stage`: the `contact` stage kind (PIP's rule between kinematics and the optimizer).
-//!
-//! The world is the model frame M (y up) with the floor at y = 0 unless a proxy surface says otherwise.
-//!
-//! [`ContactFrame`]: imuflow_graph::frames::ContactFrame
+//! - `stage`: the [`SPEC`] (ports, parameters) and [`run`], the process's main loop.
 
-pub mod force;
-pub mod geometry;
-pub mod pip;
-pub mod set;
-pub mod stage;
+mod stage;
 
-pub use geometry::ContactGeometry;
-pub use set::{ContactPoint, ContactSet};
 pub use stage::{SPEC, run};

@@ -10,45 +10,20 @@
 //!   the optimizer continues from, so the rule is applied to it.
 //!
 //! `MotionFrame` is decoded here (local rotations + root position → forward kinematics) because the
-//! optimizer crate depends on this one, not the other way round.
+//! stages import no other stage.
 
 use anyhow::Context;
 use imuflow_body::kinematics::FkData;
-use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose, forward_kinematics};
+use imuflow_body::{BodyModel, NUM_JOINTS, Pose, forward_kinematics};
 use imuflow_graph::frames::{ContactFrame, Frame, KinematicsFrame, MotionFrame, flags};
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
 use imuflow_graph::stage::Params;
 use imuflow_graph::{FrameType, StageContext};
 use nalgebra::Vector3;
 
-use crate::pip::{PipContactConfig, pip_contacts};
-use crate::{ContactGeometry, ContactSet};
-
-/// The subject's stature, shared by every stage that builds the body model.
-pub const STATURE_PARAM: ParamSpec = ParamSpec::float(
-    "stature_m",
-    1.0,
-    2.5,
-    "1.75",
-    "subject stature (m): scales the body model",
-);
-/// The subject's mass, shared by every stage that builds the body model.
-pub const MASS_PARAM: ParamSpec = ParamSpec::float(
-    "mass_kg",
-    20.0,
-    250.0,
-    "70",
-    "subject mass (kg): scales the segment masses",
-);
-
-/// The built-in body model scaled by a stage's `stature_m` and `mass_kg`.
-pub fn subject_body(params: &Params) -> anyhow::Result<BodyModel> {
-    Ok(BodyModel::new(
-        &BodyParams::builtin()?,
-        params.float(STATURE_PARAM.name, 1.75),
-        params.float(MASS_PARAM.name, 70.0),
-    )?)
-}
+use imuflow_contact::pip::{PipContactConfig, pip_contacts};
+use imuflow_contact::subject::{MASS_PARAM, STATURE_PARAM, subject_body};
+use imuflow_contact::{ContactGeometry, ContactSet};
 
 pub const SPEC: StageSpec = StageSpec {
     kind: "contact",
@@ -200,6 +175,7 @@ pub fn run() -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use imuflow_body::BodyParams;
     use bytemuck::Zeroable;
     use imuflow_body::JointId;
     use imuflow_body::rotation::quat_wxyz_from_rotation;

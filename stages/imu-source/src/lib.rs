@@ -8,7 +8,7 @@
 //!   the orientation is `R_MS` (the sensor's inertial frame is the model frame M, the sensor frame
 //!   the bone frame); specific force and angular rate are in the sensor frame. For calibration
 //!   tests: a calibration prelude ([`prelude`]), random mountings and inertial-frame conventions
-//!   with per-sensor heading offsets ([`synth::SensorSetup`]). `truth` carries the pose of the
+//!   with per-sensor heading offsets ([`imuflow_imuflow_synth::SensorSetup`]). `truth` carries the pose of the
 //!   same `seq`, prelude included.
 //! - `replay`: re-publishes the `ImuFrame`s (and `MotionFrame`s, if any) of a recorder's mcap file
 //!   in file order, keeping their `seq`, `capture_ns` and flags.
@@ -17,23 +17,22 @@
 //! A sample that is not finite clears its sensor's bit of `valid_mask` and flags the frame
 //! INVALID; it never stops the stage.
 
-pub mod prelude;
-pub mod replay;
-pub mod synth;
+mod replay;
+mod synth;
 pub mod udp;
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use imuflow_graph::frames::{ImuFrame, MotionFrame, NUM_IMUS, flags};
+use imuflow_graph::frames::{ImuFrame, MotionFrame};
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
 use imuflow_graph::stage::{Params, Step};
 use imuflow_graph::transport::Output;
 use imuflow_graph::{FrameType, Mode, StageContext};
+use imuflow_synth::prelude;
+pub use imuflow_synth::{ALL_VALID, mark_invalid_sensors};
 
-/// Every sensor valid.
-pub const ALL_VALID: u32 = (1 << NUM_IMUS) - 1;
 
 /// How often (frames) a source reports progress to the launcher.
 const PROGRESS_EVERY: u64 = 30;
@@ -153,7 +152,7 @@ pub const SPEC: StageSpec = StageSpec {
         },
         ParamSpec {
             name: "frame",
-            ty: ParamType::Choice(&synth::InertialFrame::NAMES),
+            ty: ParamType::Choice(&imuflow_synth::InertialFrame::NAMES),
             required: false,
             default: "model",
             doc: "synthesize: inertial frame the orientations are reported in: model (I = M), z-up (x forward, z up), z-down (x forward, z down)",
@@ -239,7 +238,7 @@ pub fn run() -> anyhow::Result<()> {
     match mode.as_str() {
         "synthesize" => {
             let path = required_path(&params, &stage, &mode)?;
-            let options = synth::Options {
+            let options = imuflow_synth::Options {
                 mapping: params.str("mapping").map(PathBuf::from),
                 stature_m: params
                     .0
@@ -256,7 +255,7 @@ pub fn run() -> anyhow::Result<()> {
                 sensors: sensor_setup(&params, &stage)?,
             };
             let rate_hz = ctx.graph().rate_hz;
-            let motion = synth::Motion::load(&path, &options, rate_hz).with_context(|| {
+            let motion = imuflow_synth::Motion::load(&path, &options, rate_hz).with_context(|| {
                 format!(
                     "stage '{stage}': cannot synthesize IMUs from '{}'",
                     path.display()
@@ -266,7 +265,7 @@ pub fn run() -> anyhow::Result<()> {
         }
         "replay" => {
             let path = required_path(&params, &stage, &mode)?;
-            let recording = replay::Recording::load(
+            let recording = imuflow_recording::Recording::load(
                 &path,
                 params.str("topic").filter(|t| !t.is_empty()),
                 params.str("truth_topic").filter(|t| !t.is_empty()),
@@ -305,15 +304,15 @@ fn prelude_options(params: &Params<'_>, stage: &str) -> anyhow::Result<prelude::
     })
 }
 
-fn sensor_setup(params: &Params<'_>, stage: &str) -> anyhow::Result<synth::SensorSetup> {
+fn sensor_setup(params: &Params<'_>, stage: &str) -> anyhow::Result<imuflow_synth::SensorSetup> {
     let name = params.str("frame").unwrap_or("model");
-    let Some(frame) = synth::InertialFrame::parse(name) else {
+    let Some(frame) = imuflow_synth::InertialFrame::parse(name) else {
         bail!(
             "stage '{stage}': unknown frame '{name}' ({})",
-            synth::InertialFrame::NAMES.join(", ")
+            imuflow_synth::InertialFrame::NAMES.join(", ")
         );
     };
-    Ok(synth::SensorSetup {
+    Ok(imuflow_synth::SensorSetup {
         random_mounting: params.str("mounting") == Some("random"),
         frame,
         frame_heading_deg: params.float("frame_heading_deg", 0.0),
@@ -328,21 +327,6 @@ fn required_path(params: &Params<'_>, stage: &str, mode: &str) -> anyhow::Result
     }
 }
 
-/// Marks non-finite sensors of `frame` invalid: clears their `valid_mask` bits (starting from
-/// `valid_mask` as given) and sets the INVALID flag when any sensor is invalid.
-pub fn mark_invalid_sensors(frame: &mut ImuFrame) {
-    for i in 0..NUM_IMUS {
-        let finite = frame.orientation_wxyz[i].iter().all(|v| v.is_finite())
-            && frame.specific_force_mps2[i].iter().all(|v| v.is_finite())
-            && frame.angular_rate_radps[i].iter().all(|v| v.is_finite());
-        if !finite {
-            frame.valid_mask &= !(1 << i);
-        }
-    }
-    if frame.valid_mask & ALL_VALID != ALL_VALID {
-        frame.header.flags |= flags::INVALID;
-    }
-}
 
 /// The publishing side shared by the modes: both outputs, pacing and progress.
 pub(crate) struct Publisher {
@@ -437,28 +421,5 @@ impl Publisher {
         } = self;
         ctx.finish(&mut [&mut imu, &mut truth])?;
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn nan_sample_clears_its_bit_and_flags_the_frame() {
-        let mut f = ImuFrame {
-            valid_mask: ALL_VALID,
-            ..Default::default()
-        };
-        for q in &mut f.orientation_wxyz {
-            *q = [1.0, 0.0, 0.0, 0.0];
-        }
-        mark_invalid_sensors(&mut f);
-        assert_eq!(f.valid_mask, ALL_VALID);
-        assert_eq!(f.header.flags, 0);
-        f.angular_rate_radps[3][1] = f32::NAN;
-        mark_invalid_sensors(&mut f);
-        assert_eq!(f.valid_mask, ALL_VALID & !(1 << 3));
-        assert!(f.header.has(flags::INVALID));
     }
 }

@@ -7,7 +7,7 @@ use imuflow_kinematics::lean::LeanRnn;
 use imuflow_kinematics::weights::Weights;
 
 // The body crate's counting allocator (its integration tests' shared module), compiled in here.
-#[path = "../../body/tests/common/mod.rs"]
+#[path = "../../../libs/body/tests/common/mod.rs"]
 mod common;
 
 use common::{Counting, allocations};

@@ -10,7 +10,7 @@
 
 use anyhow::{Context, bail};
 use imuflow_contact::ContactSet;
-use imuflow_contact::stage::{MASS_PARAM, STATURE_PARAM, subject_body};
+use imuflow_contact::subject::{MASS_PARAM, STATURE_PARAM, subject_body};
 use imuflow_graph::frames::{ContactFrame, KinematicsFrame, MotionFrame, flags};
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
 use imuflow_graph::stage::Params;

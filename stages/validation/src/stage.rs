@@ -12,7 +12,7 @@ use anyhow::Context;
 use imuflow_body::kinematics::Pose;
 use imuflow_body::rotation::axis_angle_from_rotation;
 use imuflow_body::skeleton::JointId;
-use imuflow_contact::stage::{MASS_PARAM, STATURE_PARAM, subject_body};
+use imuflow_contact::subject::{MASS_PARAM, STATURE_PARAM, subject_body};
 use imuflow_graph::frames::{ContactFrame, MotionFrame, NUM_DOFS, ValidationFrame, flags};
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
 use imuflow_graph::stage::Params;

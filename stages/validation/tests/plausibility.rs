@@ -7,7 +7,7 @@ use std::path::Path;
 use imuflow_body::body_model::{BodyModel, BodyParams};
 use imuflow_body::kinematics::Pose;
 use imuflow_body::skeleton::JointId;
-use imuflow_imu_source::replay::{Recorded, Recording};
+use imuflow_recording::{Recorded, Recording};
 use imuflow_validation::sim::Joints;
 use imuflow_validation::{FallRule, Mode, SimConfig, SimModel, Stats, Validator};
 use nalgebra::{Rotation3, Vector3};

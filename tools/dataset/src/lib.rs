@@ -105,7 +105,7 @@ pub struct BuildOptions {
     /// uniformly from this range, m (mass in proportion to stature², the same build), instead
     /// of the subject's: people come in all sizes. `None`: every sequence on the subject.
     pub vary_stature: Option<(f64, f64)>,
-    /// Joint mapping of the clips' skeleton (`stages/motion/mappings/bandai-namco.toml` documents the
+    /// Joint mapping of the clips' skeleton (`libs/motion/mappings/bandai-namco.toml` documents the
     /// format); `None`: the built-in Bandai Namco mapping.
     pub mapping: Option<PathBuf>,
     /// A shard is closed before it would exceed this many frames.

@@ -14,7 +14,7 @@ use safetensors::{Dtype, SafeTensors};
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../stages/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh")
+        .join("../../libs/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh")
 }
 
 /// Frames of the fixture after retargeting and resampling to 60 Hz, computed with the body crate.

@@ -4,7 +4,7 @@
 use imuflow_body::{BodyModel, BodyParams};
 use imuflow_eval::score::{disagreement, score_against_truth, score_without_truth};
 use imuflow_graph::frames::MotionFrame;
-use imuflow_imu_source::replay::{Recorded, Recording};
+use imuflow_recording::{Recorded, Recording};
 
 fn sample_truth() -> Vec<MotionFrame> {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/sample/walk.mcap");

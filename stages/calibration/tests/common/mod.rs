@@ -12,8 +12,8 @@ use imuflow_calibration::{
     Calibrator, CalibratorConfig, Event, InertialFrame, Method, NUM_IMUS, PELVIS,
 };
 use imuflow_graph::frames::{BodyImuFrame, ImuFrame};
-use imuflow_imu_source::prelude::{PreludeKind, PreludeOptions};
-use imuflow_imu_source::synth::{self, Motion, Options, SensorSetup};
+use imuflow_synth::prelude::{PreludeKind, PreludeOptions};
+use imuflow_synth::{self as synth, Motion, Options, SensorSetup};
 use imuflow_motion::bvh::Bvh;
 use imuflow_motion::retarget::{
     MotionClip, RetargetOptions, SourceSkeleton, resample, retarget_bvh,
@@ -62,7 +62,7 @@ pub fn prelude(kind: PreludeKind) -> PreludeOptions {
 }
 
 /// Random mountings; the given convention, heading and ±offset.
-pub fn setup(frame: synth::InertialFrame, heading_deg: f64, offset_deg: f64) -> SensorSetup {
+pub fn setup(frame: InertialFrame, heading_deg: f64, offset_deg: f64) -> SensorSetup {
     SensorSetup {
         random_mounting: true,
         frame,
@@ -89,14 +89,6 @@ pub fn synthesize(
     Motion::from_clip(clip, &body(), &options).expect("synthesis")
 }
 
-/// The calibration stage's convention matching the imu-source's.
-pub fn frame_of(f: synth::InertialFrame) -> InertialFrame {
-    match f {
-        synth::InertialFrame::Model => InertialFrame::Model,
-        synth::InertialFrame::ZUp => InertialFrame::ZUp,
-        synth::InertialFrame::ZDown => InertialFrame::ZDown,
-    }
-}
 
 pub fn walking(frame: InertialFrame) -> CalibratorConfig {
     CalibratorConfig {

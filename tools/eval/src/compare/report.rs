@@ -15,7 +15,7 @@ use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
 use imuflow_graph::combine::Combined;
 use imuflow_graph::frames::{BodyImuFrame, MotionFrame, ValidationFrame, frame_from_bytes};
 use imuflow_graph::launch::RunReport;
-use imuflow_imu_source::replay::for_each_record;
+use imuflow_recording::for_each_record;
 
 use crate::score::{
     MotionScores, SKIPPED_FLAGS, disagreement, score_against_truth, score_without_truth,

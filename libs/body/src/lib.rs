@@ -19,6 +19,7 @@
 
 pub mod body_model;
 pub mod dynamics;
+pub mod inertial;
 pub mod kinematics;
 pub mod limb_joints;
 pub mod rotation;

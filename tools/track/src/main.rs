@@ -2,8 +2,8 @@
 //! per frame and what preceded the falls: the quickest way to try the controller's gains.
 //!
 //! ```text
-//! cargo run --release -p imuflow-validation --example track -- CLIP [FIRST [COUNT]]
-//! cargo run --release -p imuflow-validation --example track -- @LIST    # one clip path a line
+//! cargo run --release -p imuflow-track -- CLIP [FIRST [COUNT]]
+//! cargo run --release -p imuflow-track -- @LIST    # one clip path a line
 //! ```
 //!
 //! CLIP is a recording with a truth channel (`models/sample/walk.mcap`) or a Bandai Namco BVH.
@@ -26,8 +26,8 @@ use anyhow::Context;
 use imuflow_body::body_model::{BodyModel, BodyParams};
 use imuflow_body::kinematics::{FkData, Pose, forward_kinematics};
 use imuflow_body::skeleton::JointId;
-use imuflow_imu_source::replay::{Recorded, Recording};
-use imuflow_imu_source::synth::{Motion, Options};
+use imuflow_recording::{Recorded, Recording};
+use imuflow_synth::{Motion, Options};
 use imuflow_validation::model::DEFAULT_FOOT_PITCH_DEG;
 use imuflow_validation::sim::Joints;
 use imuflow_validation::{FallRule, Mode, SimConfig, SimModel, Validator};

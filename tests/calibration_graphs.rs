@@ -1,42 +1,25 @@
-//! The example graphs validate against the stage specs, with the method switched by `--set`, and
+//! The calibration example graphs validate against the stage specs, with the method switched by `--set`, and
 //! run end to end through the calibrator (in process).
 
 use std::path::{Path, PathBuf};
 
 use imuflow_calibration::stage::config_from_params;
 use imuflow_calibration::{Calibrator, Event, Method};
-use imuflow_graph::spec::{InputsSpec, Registry, Role, StageSpec};
+use imuflow_graph::spec::Registry;
 use imuflow_graph::stage::Params;
 use imuflow_graph::{Graph, frames::BodyImuFrame};
-
-/// The rerun-logger's spec as far as these graphs use it (its crate pulls in rerun, too heavy for
-/// this crate's tests; the workspace's graph tests check the real one).
-const RERUN_LOGGER: StageSpec = StageSpec {
-    kind: "rerun-logger",
-    role: Role::Sink,
-    summary: "stand-in",
-    inputs: InputsSpec::Any,
-    outputs: &[],
-    params: &[imuflow_graph::spec::ParamSpec {
-        name: "path",
-        ty: imuflow_graph::spec::ParamType::Path,
-        required: false,
-        default: "",
-        doc: "",
-    }],
-};
 
 fn registry() -> Registry {
     Registry::new([
         imuflow_imu_source::SPEC,
         imuflow_calibration::SPEC,
         imuflow_recorder::SPEC,
-        RERUN_LOGGER,
+        imuflow_rerun_logger::SPEC,
     ])
 }
 
 fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+    Path::new(env!("CARGO_MANIFEST_DIR")).to_path_buf()
 }
 
 fn load(name: &str, sets: &[&str]) -> Graph {
@@ -50,19 +33,19 @@ fn run_graph(graph: &Graph) -> Vec<Event> {
     let source = Params(&graph.stages["source"].params);
     let calib = Params(&graph.stages["calib"].params);
     let config = config_from_params(&calib, graph.rate_hz).expect("config");
-    let options = imuflow_imu_source::synth::Options {
+    let options = imuflow_synth::Options {
         augment: source.bool("augment", false),
         seed: source.int("seed", 0) as u64,
-        prelude: imuflow_imu_source::prelude::PreludeOptions {
-            kind: imuflow_imu_source::prelude::PreludeKind::parse(
+        prelude: imuflow_synth::prelude::PreludeOptions {
+            kind: imuflow_synth::prelude::PreludeKind::parse(
                 source.str("prelude").expect("prelude"),
             )
             .expect("known"),
             ..Default::default()
         },
-        sensors: imuflow_imu_source::synth::SensorSetup {
+        sensors: imuflow_synth::SensorSetup {
             random_mounting: source.str("mounting") == Some("random"),
-            frame: imuflow_imu_source::synth::InertialFrame::parse(
+            frame: imuflow_synth::InertialFrame::parse(
                 source.str("frame").expect("frame"),
             )
             .expect("known"),
@@ -72,7 +55,7 @@ fn run_graph(graph: &Graph) -> Vec<Event> {
         ..Default::default()
     };
     let bvh = root().join(source.str("path").expect("path"));
-    let motion = imuflow_imu_source::synth::Motion::load(&bvh, &options, graph.rate_hz)
+    let motion = imuflow_synth::Motion::load(&bvh, &options, graph.rate_hz)
         .expect("synthesizes");
     let mut calibrator = Calibrator::new(config);
     let mut events = Vec::new();

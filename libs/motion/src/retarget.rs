@@ -186,7 +186,7 @@ pub enum RetargetError {
 }
 
 /// Built-in mapping of the Bandai Namco Research motion dataset skeleton (22 joints, ZXY rotations,
-/// centimetres, Y up), from `stages/motion/mappings/bandai-namco.toml`, which documents the format.
+/// centimetres, Y up), from `libs/motion/mappings/bandai-namco.toml`, which documents the format.
 /// `joint_Root` is a static parent of `Hips` and is ignored. SMPL's spine2 and the hand-end joints have
 /// no counterpart and get identity local rotations.
 pub const BANDAI_NAMCO_MAPPING_TOML: &str = include_str!("../mappings/bandai-namco.toml");
