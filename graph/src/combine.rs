@@ -12,11 +12,10 @@ use std::fmt::Write;
 use std::path::Path;
 
 use crate::frames::FrameType;
+use crate::naming::grouped;
 use crate::graph::{Graph, OnFailure, Runner, StageNode};
 use crate::spec::Role;
 
-/// Separator in a sink input name between the variant and what it carries (`pip__motion`).
-pub const GROUP_SEPARATOR: &str = "__";
 
 /// Sink kinds that a comparison replaces with its own (one recorder, one logger for all).
 const REPLACED_SINKS: [&str; 2] = ["recorder", "rerun-logger"];
@@ -258,7 +257,7 @@ pub fn combine(
         sink_inputs.push(("truth".into(), t.clone()));
     }
     for o in &outputs {
-        let group = |what: &str| format!("{}{GROUP_SEPARATOR}{what}", o.name);
+        let group = |what: &str| grouped(&o.name, what);
         sink_inputs.push((group("motion"), o.motion.clone()));
         if let Some(c) = &o.contacts {
             sink_inputs.push((group("contacts"), c.clone()));
@@ -282,7 +281,7 @@ pub fn combine(
     let mut body_imus = BTreeSet::new();
     for o in &outputs {
         if let Some(b) = o.body_imu.as_ref().filter(|b| body_imus.insert(b.as_str())) {
-            recorded.push((format!("{}{GROUP_SEPARATOR}body_imu", o.name), b.clone()));
+            recorded.push((grouped(&o.name, "body_imu"), b.clone()));
         }
     }
     if let Some(rrd) = &sinks.rrd {

@@ -12,6 +12,7 @@ pub mod combine;
 pub mod frames;
 pub mod graph;
 pub mod launch;
+pub mod naming;
 pub mod overrides;
 pub mod schema;
 pub mod spec;

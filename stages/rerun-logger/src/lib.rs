@@ -48,7 +48,6 @@ use anyhow::{Context, bail};
 use imuflow_body::rotation::angle_between;
 use imuflow_body::skeleton::SIP_JOINTS;
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose, forward_kinematics};
-use imuflow_graph::combine::GROUP_SEPARATOR;
 use imuflow_graph::frames::{
     BodyImuFrame, ContactFrame, FrameLayout, FrameType, ImuFrame, KinematicsFrame, MotionFrame,
     NUM_IMUS, ScalarType, ValidationFrame, flags,
@@ -117,10 +116,7 @@ const TRUTH_BESIDE_M: f32 = 0.8;
 /// Truth frames kept for the error series (motion arrives a pipeline's latency after its truth).
 const TRUTH_FRAMES_KEPT: usize = 1200;
 
-/// The entity path of an input: `<group>__<what>` becomes `<group>/<what>`.
-pub fn entity_of(input: &str) -> String {
-    input.replace(GROUP_SEPARATOR, "/")
-}
+use imuflow_graph::naming::entity_of;
 
 /// The group of an entity path, if it has one.
 fn group_of(entity: &str) -> Option<&str> {
