@@ -1,9 +1,9 @@
 //! Dump the exported URDF and our dynamics at random states, for the independent Pinocchio check
-//! `tools/verify/check_dynamics.py`.
+//! `scripts/verify/check_dynamics.py`.
 //!
 //! ```sh
 //! CARGO_TARGET_DIR=/work/target-dyn cargo run --release -p imuflow-body --example dump_dynamics -- out/dynamics
-//! python tools/verify/check_dynamics.py out/dynamics
+//! python scripts/verify/check_dynamics.py out/dynamics
 //! ```
 //!
 //! Writes `DIR/body.urdf` and `DIR/dynamics.json`: the model (joint names and parents, armature, gravity),

@@ -11,7 +11,7 @@
 //!   The three angles are intrinsic XYZ Euler angles, `R = Rx(a)·Ry(b)·Rz(c)`
 //!   ([`crate::rotation::euler_xyz_from_rotation`]); they have gimbal lock at b = ±π/2, which our own
 //!   spherical-joint dynamics does not. Tools that support spherical joints should merge each triple
-//!   (Pinocchio check: `tools/verify/check_dynamics.py`).
+//!   (Pinocchio check: `scripts/verify/check_dynamics.py`).
 //! - Massless joints (spine2, neck, collars, feet, hands) get links without `<inertial>`.
 //! - URDF cannot express armature (rotor inertia); a comment records the value the dynamics adds
 //!   ([`crate::dynamics::DEFAULT_ARMATURE_KGM2`] per rotational DoF) and gravity (0, −9.81, 0) in M.

@@ -3,7 +3,7 @@
 # two epochs, no dropout) on the CPU and on the GPU, whose losses must agree, then PIP at the
 # paper's size (256x2) timed on both (stages/kinematics/README.md, "Training on a GPU").
 #
-#   stages/kinematics/scripts/check-cuda.sh BINARY BVH_DIR OUT_DIR
+#   scripts/check-cuda.sh BINARY BVH_DIR OUT_DIR
 #
 # BINARY: an imuflow built with `--features cuda`; BVH_DIR: some clips (200 random Bandai clips were
 # used); OUT_DIR: where the logs and both loss.csv go. DEVICES=cpu checks the script without a GPU;

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Means of one metric per content group of a compare batch (clips.jsonl), for docs/results.
 
-    python3 tools/eval/scripts/group_clips.py out/full-test/clips.jsonl ["joint position error"]
+    python3 scripts/eval/group_clips.py out/full-test/clips.jsonl ["joint position error"]
 
 The group of a Bandai clip is its content: dataset-2 names are dataset-2_<content>_<style>_<n>,
 dataset-1 clips are grouped as one (17 contents, few clips each). Standard library only.

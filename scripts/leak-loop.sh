@@ -5,14 +5,14 @@
 # shared-memory files of the runs, imuflow processes, zombies, and the file descriptors of the
 # last launcher (a leak inside one launcher run shows there).
 #
-#   tools/leak-loop/leak-loop.sh [N]          # needs target/release/imuflow (cargo build --release)
+#   scripts/leak-loop.sh [N]          # needs target/release/imuflow (cargo build --release)
 #
 # Each run uses its own graph copy and output folder under a scratch directory, and one
 # IMUFLOW_SHM_PREFIX for the whole loop so that only this loop's files are counted. A killed
 # launcher's files are removed by the next run's start (as in real use); the loop ends with one
 # clean run and then counts.
 set -uo pipefail
-cd "$(dirname "$0")/../.."
+cd "$(dirname "$0")/.."
 runs=${1:-100}
 exe=target/release/imuflow
 [ -x "$exe" ] || { echo "leak-loop: $exe missing: cargo build --release" >&2; exit 2; }
