@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use imuflow_kinematics::Method;
-use imuflow_kinematics::train::{TrainDevice, TrainOptions, train};
+use imuflow_train::train::{TrainDevice, TrainOptions, train};
 
 /// Options of `imuflow train`.
 #[derive(Args)]
@@ -122,7 +122,7 @@ pub struct ImportArgs {
 }
 
 pub fn import(args: ImportArgs) -> anyhow::Result<()> {
-    imuflow_kinematics::import::import_checkpoint(args.method, &args.checkpoint, &args.out)?;
+    imuflow_train::import::import_checkpoint(args.method, &args.checkpoint, &args.out)?;
     println!(
         "wrote {} ({} networks from {})",
         args.out.display(),

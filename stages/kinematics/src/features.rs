@@ -12,6 +12,10 @@ pub const ROOT_IMU: usize = 5;
 pub const PIP_INPUT: usize = 72;
 /// GlobalPose input size: [aRB 18, wRB 18, RRB 45, gR0 3] (reference §2.4).
 pub const GLOBALPOSE_INPUT: usize = 84;
+/// Frame rate of the shards and the networks (reference §0).
+pub const FPS: f32 = 60.0;
+/// PIP's joint velocities are predicted divided by this (reference §2.2, `vel_scale = 3`).
+pub const PIP_VELOCITY_SCALE: f32 = 3.0;
 
 /// Row-major 3×3.
 pub type Mat3 = [f32; 9];

@@ -16,7 +16,7 @@ use imuflow_body::skeleton::{
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
 use nalgebra::{Matrix3, Rotation3, Unit, UnitQuaternion, Vector3};
 
-use crate::data::{FPS, PIP_VELOCITY_SCALE};
+use crate::features::{FPS, PIP_VELOCITY_SCALE};
 use crate::features::{
     GLOBALPOSE_INPUT, ImuInput, PIP_INPUT, ROOT_IMU, globalpose_input, pip_input,
 };

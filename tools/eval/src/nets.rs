@@ -17,7 +17,7 @@ use imuflow_body::skeleton::NUM_IMUS;
 use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
 use imuflow_dataset::Split;
 use imuflow_kinematics::Method;
-use imuflow_kinematics::data::{FPS, pose_of};
+use imuflow_train::data::{FPS, pose_of};
 use imuflow_kinematics::features::ImuInput;
 use imuflow_kinematics::infer::sensor_rotation;
 use imuflow_kinematics::infer::{LimbJoints, SensorBones, Streamer};

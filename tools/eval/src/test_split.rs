@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use imuflow_dataset::Split;
-use imuflow_kinematics::data::{Shard, shard_files};
+use imuflow_train::data::{Shard, shard_files};
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// Which copies of each test clip to evaluate.

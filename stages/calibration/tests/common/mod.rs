@@ -29,7 +29,7 @@ pub fn body() -> BodyModel {
 /// The committed walking fixture (1.6 s) at 60 Hz.
 pub fn fixture_clip(body: &BodyModel) -> MotionClip {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
+        .join("../../libs/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
     let bvh = Bvh::read(&path).expect("fixture");
     let source = SourceSkeleton::bandai_namco().expect("mapping");
     let clip = retarget_bvh(&bvh, &source, body, &RetargetOptions::default()).expect("retarget");

@@ -32,7 +32,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use imuflow_body::Pose;
-use imuflow_kinematics::data::pose_of;
+use imuflow_train::data::pose_of;
 use imuflow_kinematics::infer::Streamer;
 use imuflow_kinematics::weights::Weights;
 use imuflow_optimizer::globalpose::{GlobalPose, GlobalPoseConfig};

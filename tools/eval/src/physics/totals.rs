@@ -1,7 +1,7 @@
 //! Running totals of one physics method over the test split (sums; the report divides).
 
 use imuflow_body::Pose;
-use imuflow_kinematics::data::FPS;
+use imuflow_train::data::FPS;
 use imuflow_validation::{FallRule, Mode, SimConfig, SimModel, Validator};
 
 /// Accumulated scores of one method: sums over frames (or sequences, where named) that the report

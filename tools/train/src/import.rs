@@ -8,9 +8,9 @@ use std::path::Path;
 
 use candle_core::{DType, Tensor};
 
-use crate::error::WeightsError;
-use crate::method::Method;
-use crate::weights::{self, WeightsMetadata, nets_from_tensors};
+use imuflow_kinematics::error::WeightsError;
+use imuflow_kinematics::method::Method;
+use imuflow_kinematics::weights::{self, WeightsMetadata, nets_from_tensors};
 
 /// Read a PyTorch checkpoint's tensors, checked against `method`'s nets.
 pub fn read_checkpoint(

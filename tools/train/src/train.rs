@@ -32,9 +32,9 @@ use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 
 use crate::data::{TrainSet, load_split};
-use crate::method::Method;
-use crate::net::{Rnn, RnnSpec, init_parameters};
-use crate::weights::{self, WeightsMetadata};
+use imuflow_kinematics::method::Method;
+use imuflow_kinematics::net::{Rnn, RnnSpec, init_parameters};
+use imuflow_kinematics::weights::{self, WeightsMetadata};
 
 /// Options of one training run.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -825,7 +825,7 @@ fn init_from_weights(
     method: Method,
     device: &Device,
 ) -> anyhow::Result<serde_json::Value> {
-    let weights = crate::weights::Weights::load(path, method)
+    let weights = imuflow_kinematics::weights::Weights::load(path, method)
         .with_context(|| format!("--init-weights {}", path.display()))?;
     let tensors = candle_core::safetensors::load(path, device)
         .with_context(|| format!("reading {}", path.display()))?;

@@ -15,19 +15,16 @@ use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
 use nalgebra::{Rotation3, Vector3};
 use safetensors::SafeTensors;
 
-use crate::features::{
+use imuflow_kinematics::features::{
     GLOBALPOSE_INPUT, ImuInput, Mat3, PIP_INPUT, ROOT_IMU, globalpose_input, mul, pip_input,
     rt_mul, rt_mul_vec,
 };
-use crate::method::Method;
+use imuflow_kinematics::method::Method;
+pub use imuflow_kinematics::features::{FPS, PIP_VELOCITY_SCALE};
 
-/// Frame rate of the shards and the networks (reference §0).
-pub const FPS: f32 = 60.0;
 /// A foot (or stationary joint) moving less than this between frames is in contact (TransPose paper
 /// §4.3: u = 0.008 m per 60 Hz frame).
 pub const CONTACT_THRESHOLD_M: f32 = 0.008;
-/// PIP's joint velocities are predicted divided by this (reference §2.2, `vel_scale = 3`).
-pub const PIP_VELOCITY_SCALE: f32 = 3.0;
 
 /// One derived quantity for every frame.
 #[derive(Clone, Debug, Default)]

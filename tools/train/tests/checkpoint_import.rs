@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use candle_core::{Device, Tensor};
 use imuflow_kinematics::Method;
-use imuflow_kinematics::import::{import_checkpoint, read_checkpoint};
+use imuflow_train::import::{import_checkpoint, read_checkpoint};
 use imuflow_kinematics::weights::{Weights, nets_from_tensors};
 
 fn fixture(name: &str) -> PathBuf {

@@ -7,13 +7,13 @@ use std::path::{Path, PathBuf};
 use imuflow_body::Pose;
 use imuflow_kinematics::Method;
 use imuflow_kinematics::infer::Streamer;
-use imuflow_kinematics::train::{TrainOptions, train};
+use imuflow_train::train::{TrainOptions, train};
 use imuflow_kinematics::weights::Weights;
 use nalgebra::Vector3;
 
 fn fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../motion/tests/fixtures/bandai-walk-normal-trimmed.bvh")
+        .join("../../libs/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh")
 }
 
 /// Copies of the fixture under names whose split hashes put clips in train and validation
@@ -187,7 +187,7 @@ fn rows_steps(weights: &Path) -> serde_json::Value {
 /// shards), the same sample every time, and the arrays hold exactly the frames loaded.
 #[test]
 fn a_frame_budget_samples_sequences_across_all_shards() {
-    use imuflow_kinematics::data::load_split;
+    use imuflow_train::data::load_split;
     let dir = tempfile::tempdir().unwrap();
     let input = input_clips(dir.path());
     let out = dir.path().join("dataset");
@@ -237,7 +237,7 @@ fn a_frame_budget_samples_sequences_across_all_shards() {
 /// bodies; the loader must compute GlobalPose's IMU-position targets on each sequence's own body.
 #[test]
 fn resized_sequences_get_imu_positions_of_their_own_body() {
-    use imuflow_kinematics::data::load_split;
+    use imuflow_train::data::load_split;
     let dir = tempfile::tempdir().unwrap();
     let input = input_clips(dir.path());
     let out = dir.path().join("dataset");
