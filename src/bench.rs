@@ -524,8 +524,8 @@ fn bench_physics(frames: usize) -> anyhow::Result<()> {
 /// `imuflow bench validation`: the simulation tracking a recording's true motion, both modes.
 fn bench_validation(input: &Path) -> anyhow::Result<()> {
     use imuflow_body::Pose;
-    use imuflow_recording::{Recorded, Recording};
     use imuflow_optimizer::bench::summary;
+    use imuflow_recording::{Recorded, Recording};
     use imuflow_validation::sim::Joints;
     use imuflow_validation::{FallRule, Mode, SimConfig, SimModel, Validator};
 

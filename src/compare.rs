@@ -1,9 +1,5 @@
-//! `imuflow compare`: variants on identical input in one run, then their scores side by side.
-//!
-//! The variant graphs are combined (`imuflow_graph::combine`): the first one's source, and every
-//! stage the same in all variants, feed a copy of each variant's own stages; one recorder and one
-//! rerun logger take every variant's outputs. The combined graph is written next to the results
-//! (`<out>/<name>.toml`) and run like any graph; the report is computed from its recording.
+//! `imuflow compare`: the command line of tools/compare (imuflow-compare), which does the work:
+//! variants on identical input in one run, then their scores side by side (docs/compare.md).
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -11,11 +7,12 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::Args;
 use clap::builder::{PossibleValuesParser, TypedValueParser};
+use imuflow_compare::batch::{self, BatchOptions};
+use imuflow_compare::run::{Input, RunError};
+use imuflow_compare::single::{self, Outcome, SingleError, SingleOptions};
+use imuflow_compare::{SensorErrors, SinkPaths, Variant, variants};
 use imuflow_dataset::Split;
-use imuflow_eval::compare::batch::{self, BatchOptions};
-use imuflow_graph::Graph;
-use imuflow_graph::combine::{self, AblationVariant, Combined, SensorErrors, SinkPaths, Variant};
-use imuflow_graph::launch::{self, LaunchOptions};
+use imuflow_graph::launch::LaunchOptions;
 
 use crate::registry;
 
@@ -94,202 +91,121 @@ pub fn run(args: CompareArgs) -> ExitCode {
     }
 }
 
-/// The command line's files as variants: a graph file is one variant (no overrides), an ablation
-/// file (configs/ab/) its `[[variant]]`s. Also returns the single ablation file's name, if that is
-/// all.
-fn variant_sources(files: &[PathBuf]) -> anyhow::Result<(Vec<AblationVariant>, Option<String>)> {
-    let mut sources = Vec::new();
-    let mut ablation_names = Vec::new();
-    for path in files {
-        match combine::read_ablation(path)? {
-            Some(ablation) => {
-                ablation_names.push(ablation.name);
-                sources.extend(ablation.variants);
-            }
-            None => sources.push(AblationVariant {
-                name: variant_name(path),
-                graph: path.clone(),
-                set: Vec::new(),
-            }),
-        }
-    }
-    if sources.len() < 2 {
-        anyhow::bail!(
-            "compare needs two or more variants: graph files, or an ablation file (configs/ab/) that lists them"
-        );
-    }
-    let name = (files.len() == 1).then(|| ablation_names.pop()).flatten();
-    Ok((sources, name))
-}
-
 fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
     let registry = registry::registry();
-    let (sources, ablation_name) = variant_sources(&args.variants)?;
-    let mut variants = Vec::new();
-    for source in &sources {
-        let graph = match Graph::load(&source.graph, &source.set, &registry) {
-            Ok(g) => g,
-            Err(e) => {
-                eprintln!("error: {e}");
-                return Ok(ExitCode::from(2));
-            }
-        };
-        let name = unique_name(&source.name, &variants);
-        variants.push(Variant { name, graph });
-    }
+    let (sources, ablation_name) = variants::variant_sources(&args.variants)?;
+    let variants = match variants::load(&sources, &registry) {
+        Ok(v) => v,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return Ok(ExitCode::from(2));
+        }
+    };
     let name = args
         .name
         .clone()
         .or(ablation_name)
         .unwrap_or_else(|| "compare".to_owned());
-
-    if let Some(data) = &args.data {
-        return batch(args, &name, &sources, data, &variants, &registry);
-    }
-    let out = args
-        .out
-        .clone()
-        .unwrap_or_else(|| PathBuf::from(format!("out/{name}")));
-    if let Some(input) = &args.input {
-        combine::replace_source(
-            &mut variants[0].graph,
-            input,
-            args.mapping.as_deref(),
-            args.sensor_errors,
-        )
-        .context("--input")?;
-    }
-    let stem = out.join(&name);
-    let sinks = SinkPaths {
-        mcap: stem.with_extension("mcap").display().to_string(),
-        rrd: Some(stem.with_extension("rrd").display().to_string()),
-        overlaid: args.overlaid,
-    };
-    let combined = match combine::combine(&name, &variants, &sinks) {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("error: cannot compare: {e}");
-            return Ok(ExitCode::from(2));
-        }
-    };
-    if args.print_graph {
-        print!("{}", combined.text);
-        return Ok(ExitCode::SUCCESS);
-    }
-    for note in &combined.notes {
-        eprintln!("note: {note}");
-    }
-    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
-    let graph_path = stem.with_extension("toml");
-    std::fs::write(&graph_path, &combined.text)
-        .with_context(|| format!("cannot write {}", graph_path.display()))?;
-    let graph = match Graph::from_str_with(&graph_path, &combined.text, &[], &registry) {
-        Ok(g) => g,
-        Err(e) => {
-            // The combination of valid graphs must itself be valid: say so rather than blame the user.
-            anyhow::bail!("the combined graph is invalid (a bug in compare): {e}");
-        }
-    };
-    for w in &graph.warnings {
-        eprintln!("warning: {w}");
-    }
-    describe(&combined);
-    let options = LaunchOptions {
+    let launch = LaunchOptions {
         imuflow_exe: std::env::current_exe().context("cannot find the imuflow executable")?,
         progress: !args.no_progress,
         forward_logs: !args.quiet,
     };
-    let report = match launch::run(&graph, &options) {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("error: {e}");
-            return Ok(ExitCode::FAILURE);
-        }
+    if let Some(data) = &args.data {
+        return batch(args, &name, &sources, data, &variants, &registry, launch);
+    }
+    let options = SingleOptions {
+        out: args
+            .out
+            .clone()
+            .unwrap_or_else(|| PathBuf::from(format!("out/{name}"))),
+        name,
+        input: args.input.as_ref().map(|path| Input {
+            path: path.clone(),
+            mapping: args.mapping.clone(),
+            sensor_errors: args.sensor_errors,
+        }),
+        overlaid: args.overlaid,
+        launch,
     };
-    crate::print_summary(&graph, &report);
-    for branch in &report.failed_branches {
-        eprintln!("warning: {branch}");
+    if args.print_graph {
+        let combined = imuflow_compare::run::combine_variants(
+            &options.name,
+            &variants,
+            options.input.as_ref(),
+            &options.sinks(),
+        );
+        return Ok(match combined {
+            Ok(c) => {
+                print!("{}", c.text);
+                ExitCode::SUCCESS
+            }
+            Err(e) => run_error(e),
+        });
     }
-    println!(
-        "wrote {} (graph), {} and {}",
-        graph_path.display(),
-        sinks.rrd.as_deref().unwrap_or_default(),
-        sinks.mcap
-    );
-    if report.interrupted {
-        eprintln!("stopped by the user; outputs were finalized");
-        return Ok(ExitCode::from(130));
+    match single::run(&options, &variants, &registry, crate::print_summary) {
+        Ok(Outcome::Reported(report)) => {
+            println!("report: {}", report.display());
+            Ok(ExitCode::SUCCESS)
+        }
+        Ok(Outcome::Interrupted) => {
+            eprintln!("stopped by the user; outputs were finalized");
+            Ok(ExitCode::from(130))
+        }
+        Err(SingleError::Run(e)) => Ok(run_error(e)),
+        Err(e @ SingleError::Report(_)) => Err(e.into()),
     }
-    let written = imuflow_eval::compare::write(
-        &name,
-        &out,
-        Path::new(&sinks.mcap),
-        &combined,
-        &report,
-        graph.rate_hz,
-    )
-    .context("cannot write the report")?;
-    println!("report: {}", written.display());
-    Ok(ExitCode::SUCCESS)
 }
 
-/// Batch mode: the variants over every clip of a dataset split (imuflow_eval::compare::batch).
+/// A comparison that did not run: variants that cannot be compared are the user's to fix (exit 2,
+/// as an invalid graph is); anything else is a failure.
+fn run_error(e: RunError) -> ExitCode {
+    eprintln!("error: {e}");
+    match e {
+        RunError::Incomparable(_) => ExitCode::from(2),
+        _ => ExitCode::FAILURE,
+    }
+}
+
+/// Batch mode: the variants over every clip of a dataset split (imuflow_compare::batch).
 fn batch(
     args: &CompareArgs,
     name: &str,
-    sources: &[AblationVariant],
+    sources: &[imuflow_compare::combine::AblationVariant],
     data: &Path,
     variants: &[Variant],
     registry: &imuflow_graph::spec::Registry,
+    launch: LaunchOptions,
 ) -> anyhow::Result<ExitCode> {
     let split = Split::ALL
         .into_iter()
         .find(|s| s.name() == args.split)
         .context("--split")?;
-    let out = args
-        .out
-        .clone()
-        .unwrap_or_else(|| PathBuf::from(format!("out/{name}-{split}")));
     // Refuse incomparable variants before the first clip, as a single comparison does.
     let probe = SinkPaths {
         mcap: String::new(),
         rrd: None,
         overlaid: false,
     };
-    if let Err(e) = combine::combine(name, variants, &probe) {
-        eprintln!("error: cannot compare: {e}");
-        return Ok(ExitCode::from(2));
-    }
-    // The variants' files identify the comparison: a resumed batch must run the same graphs.
-    let mut fingerprint = String::new();
-    for source in sources {
-        let path = &source.graph;
-        let mut text =
-            std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-        text.extend(source.set.join("\n").bytes());
-        fingerprint.push_str(&format!("{:016x}", imuflow_dataset::fnv1a64(&text)));
-    }
-    if let Some(m) = &args.mapping {
-        let text = std::fs::read(m).with_context(|| format!("cannot read {}", m.display()))?;
-        fingerprint.push_str(&format!("{:016x}", imuflow_dataset::fnv1a64(&text)));
-    }
-    // Other signals are other results: a resumed batch must synthesize the same ones.
-    if args.sensor_errors != SensorErrors::default() {
-        fingerprint.push_str(&format!("-sensor-errors={:?}", args.sensor_errors));
+    if let Err(e) = imuflow_compare::run::combine_variants(name, variants, None, &probe) {
+        return Ok(run_error(e));
     }
     let options = BatchOptions {
         name: name.to_owned(),
-        out: out.clone(),
+        out: args
+            .out
+            .clone()
+            .unwrap_or_else(|| PathBuf::from(format!("out/{name}-{split}"))),
         data: data.to_owned(),
         split,
         limit: args.limit,
         mapping: args.mapping.clone(),
         sensor_errors: args.sensor_errors,
-        imuflow_exe: std::env::current_exe().context("cannot find the imuflow executable")?,
-        progress: !args.no_progress,
+        imuflow_exe: launch.imuflow_exe,
+        progress: launch.progress,
         keep_recordings: args.keep_recordings,
         fresh: args.fresh,
-        fingerprint,
+        fingerprint: batch::fingerprint(sources, args.mapping.as_deref(), args.sensor_errors)?,
         command: std::env::args()
             .enumerate()
             .map(|(i, a)| if i == 0 { "imuflow".to_owned() } else { a })
@@ -318,55 +234,4 @@ fn batch(
         return Ok(ExitCode::FAILURE);
     }
     Ok(ExitCode::SUCCESS)
-}
-
-/// What runs: shared stages and each variant's branch.
-fn describe(combined: &Combined) {
-    println!("shared by all variants: {}", combined.shared.join(", "));
-    for v in &combined.variants {
-        println!(
-            "{}: {} (motion {}{})",
-            v.name,
-            v.stages.join(", "),
-            v.motion,
-            v.validation
-                .as_ref()
-                .map_or(String::new(), |val| format!(", validation {val}"))
-        );
-    }
-}
-
-/// A variant's name from its file: the stem, reduced to the characters stage ids allow.
-fn variant_name(path: &Path) -> String {
-    let stem = path
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let name: String = stem
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '_' || c == '-' {
-                c
-            } else {
-                '-'
-            }
-        })
-        .collect();
-    if name.is_empty() {
-        "variant".into()
-    } else {
-        name
-    }
-}
-
-/// `name`, or `name-2`, `name-3`, ... when an earlier variant has it (the same file twice).
-fn unique_name(name: &str, earlier: &[Variant]) -> String {
-    let taken = |n: &str| earlier.iter().any(|v| v.name == n);
-    if !taken(name) {
-        return name.to_owned();
-    }
-    (2..)
-        .map(|i| format!("{name}-{i}"))
-        .find(|n| !taken(n))
-        .expect("some suffix is free")
 }

@@ -45,18 +45,15 @@ fn run_graph(graph: &Graph) -> Vec<Event> {
         },
         sensors: imuflow_synth::SensorSetup {
             random_mounting: source.str("mounting") == Some("random"),
-            frame: imuflow_synth::InertialFrame::parse(
-                source.str("frame").expect("frame"),
-            )
-            .expect("known"),
+            frame: imuflow_synth::InertialFrame::parse(source.str("frame").expect("frame"))
+                .expect("known"),
             frame_heading_deg: source.float("frame_heading_deg", 0.0),
             heading_offset_deg: source.float("heading_offset_deg", 0.0),
         },
         ..Default::default()
     };
     let bvh = root().join(source.str("path").expect("path"));
-    let motion = imuflow_synth::Motion::load(&bvh, &options, graph.rate_hz)
-        .expect("synthesizes");
+    let motion = imuflow_synth::Motion::load(&bvh, &options, graph.rate_hz).expect("synthesizes");
     let mut calibrator = Calibrator::new(config);
     let mut events = Vec::new();
     for t in 0..motion.len() {

@@ -13,10 +13,10 @@ use std::path::Path;
 
 use imuflow_graph::Graph;
 use imuflow_graph::spec::Registry;
-use imuflow_recording::Recording;
 use imuflow_imu_source::udp::{PACKET_SIZE, Packet};
 use imuflow_motion::bvh::Bvh;
 use imuflow_motion::retarget::{BANDAI_NAMCO_MAPPING_TOML, SourceSkeleton};
+use imuflow_recording::Recording;
 use proptest::prelude::*;
 use proptest::sample::Index;
 
@@ -161,7 +161,7 @@ proptest! {
         std::fs::create_dir_all(&dir).expect("temp dir");
         let path = dir.join("fuzzed-ablation.toml");
         std::fs::write(&path, &text).expect("write");
-        if let Err(e) = imuflow_graph::combine::read_ablation(&path) {
+        if let Err(e) = imuflow_compare::combine::read_ablation(&path) {
             prop_assert!(e.to_string().contains("fuzzed-ablation.toml"), "{e}");
         }
     }

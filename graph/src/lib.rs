@@ -5,10 +5,8 @@
 //! - [`transport`]: typed ports over iceoryx2 publish-subscribe plus wake-up events.
 //! - [`stage`]: the Stage API that built-in and external stage processes use.
 //! - [`launch`]: the launcher/supervisor behind `imuflow run`.
-//! - [`combine`]: variant graphs combined into one A/B graph (`imuflow compare`).
 //! - [`wire`]: the wire contract as data, for stages in other languages (Python).
 
-pub mod combine;
 pub mod frames;
 pub mod graph;
 pub mod launch;

@@ -123,7 +123,8 @@ impl SensorSetup {
             frames.heading_rad[k] = heading;
             // R_MI,k = R_y(−heading)·R_MI(0), so R_IM,k = R_MI(0)ᵀ·R_y(heading).
             frames.inertial_from_model[k] =
-                self.frame.model_from_inertial_at_zero_heading().transpose() * Axis::Y.rotation(heading);
+                self.frame.model_from_inertial_at_zero_heading().transpose()
+                    * Axis::Y.rotation(heading);
         }
         frames
     }

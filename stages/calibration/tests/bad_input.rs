@@ -7,8 +7,8 @@ use imuflow_calibration::{
     Calibrator, CalibratorConfig, Event, InertialFrame, Method, NUM_IMUS, Rejection,
 };
 use imuflow_graph::frames::{BodyImuFrame, ImuFrame, flags};
-use imuflow_synth::prelude::PreludeKind;
 use imuflow_synth::Motion;
+use imuflow_synth::prelude::PreludeKind;
 
 fn walk_motion(seed: u64) -> Motion {
     synthesize(

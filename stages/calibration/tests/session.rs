@@ -4,8 +4,8 @@ mod common;
 
 use common::*;
 use imuflow_calibration::{InertialFrame, NUM_IMUS};
-use imuflow_synth::prelude::PreludeKind;
 use imuflow_synth::Motion;
+use imuflow_synth::prelude::PreludeKind;
 
 /// Bone orientation errors (deg) of every sensor on every frame after the calibration.
 fn errors_after_calibration(session: &Session, motion: &Motion) -> Vec<f64> {
@@ -39,7 +39,11 @@ fn thirty_seconds(seed: u64, offset_deg: f64, augment: bool) -> Motion {
     )
 }
 
-const FRAMES: [InertialFrame; 3] = [InertialFrame::Model, InertialFrame::ZUp, InertialFrame::ZDown];
+const FRAMES: [InertialFrame; 3] = [
+    InertialFrame::Model,
+    InertialFrame::ZUp,
+    InertialFrame::ZDown,
+];
 
 #[test]
 fn without_noise_thirty_seconds_reproduce_the_true_bone_orientations() {

@@ -3,11 +3,15 @@
 mod common;
 
 use common::*;
-use imuflow_calibration::{InertialFrame, Event, NUM_IMUS, ReferencePose, Rejection};
+use imuflow_calibration::{Event, InertialFrame, NUM_IMUS, ReferencePose, Rejection};
 use imuflow_synth::prelude::PreludeKind;
 use nalgebra::Vector3;
 
-const FRAMES: [InertialFrame; 3] = [InertialFrame::Model, InertialFrame::ZUp, InertialFrame::ZDown];
+const FRAMES: [InertialFrame; 3] = [
+    InertialFrame::Model,
+    InertialFrame::ZUp,
+    InertialFrame::ZDown,
+];
 
 fn sb_errors(seed: u64, augment: bool) -> [f64; NUM_IMUS] {
     let p = prelude(PreludeKind::Tpose);
@@ -48,7 +52,13 @@ fn with_reference_noise_mountings_are_within_one_and_a_half_degrees() {
 #[test]
 fn an_n_pose_hold_works_with_pose_n() {
     let p = prelude(PreludeKind::Walk);
-    let motion = synthesize(short_clip(), p, setup(InertialFrame::ZUp, 10.0, 0.0), true, 4);
+    let motion = synthesize(
+        short_clip(),
+        p,
+        setup(InertialFrame::ZUp, 10.0, 0.0),
+        true,
+        4,
+    );
     let mut config = tpose(InertialFrame::ZUp, 10.0);
     config.pose = ReferencePose::N;
     let session = run(config, &motion);

@@ -5,12 +5,16 @@ mod common;
 
 use common::*;
 use imuflow_body::rotation::Axis;
-use imuflow_calibration::{InertialFrame, Event, NUM_IMUS, PELVIS, Rejection};
+use imuflow_calibration::{Event, InertialFrame, NUM_IMUS, PELVIS, Rejection};
 use imuflow_graph::frames::flags;
 use imuflow_synth::prelude::{PoseTrack, PreludeKind, n_pose, standing_root_height_m};
 use nalgebra::Vector3;
 
-const FRAMES: [InertialFrame; 3] = [InertialFrame::Model, InertialFrame::ZUp, InertialFrame::ZDown];
+const FRAMES: [InertialFrame; 3] = [
+    InertialFrame::Model,
+    InertialFrame::ZUp,
+    InertialFrame::ZDown,
+];
 
 /// Calibrates a stand–step–stand of seed `seed` (convention by seed, heading 70°, offsets ±45°);
 /// returns the per-sensor R_SB and heading errors (deg).
@@ -255,9 +259,8 @@ fn a_later_step_re_estimates_a_heading_that_drifted() {
     assert!(without > 10.0, "{without}");
     // Sanity: the yaw about M's y used for ψ matches the drift's axis.
     assert!(
-        (frame.model_from_inertial(0.0) * up_in_i.into_inner()
-            - Axis::Y.unit().into_inner())
-        .norm()
+        (frame.model_from_inertial(0.0) * up_in_i.into_inner() - Axis::Y.unit().into_inner())
+            .norm()
             < 1e-12
     );
 }

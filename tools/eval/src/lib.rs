@@ -6,11 +6,9 @@
 //! - [`nets`]: `imuflow eval`, the kinematics nets on the test split.
 //! - [`limbs`]: `imuflow eval --limbs`, the knees' and elbows' share of a pose error.
 //! - [`physics`]: `imuflow eval-physics`, the physics methods on the test split.
-//! - [`compare`]: the report of `imuflow compare` (tables, results.json, plots).
 //! - [`score`]: scores of recorded streams (motion against truth, without truth, two estimates
 //!   against each other, validation), and a paired bootstrap for A/B differences.
 
-pub mod compare;
 pub mod limbs;
 pub mod metrics;
 pub mod nets;

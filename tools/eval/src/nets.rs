@@ -17,11 +17,11 @@ use imuflow_body::skeleton::NUM_IMUS;
 use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
 use imuflow_dataset::Split;
 use imuflow_kinematics::Method;
-use imuflow_train::data::{FPS, pose_of};
 use imuflow_kinematics::features::ImuInput;
 use imuflow_kinematics::infer::sensor_rotation;
 use imuflow_kinematics::infer::{LimbJoints, SensorBones, Streamer};
 use imuflow_kinematics::weights::Weights;
+use imuflow_train::data::{FPS, pose_of};
 use nalgebra::{Rotation3, Vector3};
 
 use crate::limbs::{self, LimbErrors};

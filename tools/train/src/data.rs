@@ -15,12 +15,12 @@ use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
 use nalgebra::{Rotation3, Vector3};
 use safetensors::SafeTensors;
 
+pub use imuflow_kinematics::features::{FPS, PIP_VELOCITY_SCALE};
 use imuflow_kinematics::features::{
     GLOBALPOSE_INPUT, ImuInput, Mat3, PIP_INPUT, ROOT_IMU, globalpose_input, mul, pip_input,
     rt_mul, rt_mul_vec,
 };
 use imuflow_kinematics::method::Method;
-pub use imuflow_kinematics::features::{FPS, PIP_VELOCITY_SCALE};
 
 /// A foot (or stationary joint) moving less than this between frames is in contact (TransPose paper
 /// §4.3: u = 0.008 m per 60 Hz frame).

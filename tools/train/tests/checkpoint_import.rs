@@ -6,8 +6,8 @@ use std::path::PathBuf;
 
 use candle_core::{Device, Tensor};
 use imuflow_kinematics::Method;
-use imuflow_train::import::{import_checkpoint, read_checkpoint};
 use imuflow_kinematics::weights::{Weights, nets_from_tensors};
+use imuflow_train::import::{import_checkpoint, read_checkpoint};
 
 fn fixture(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

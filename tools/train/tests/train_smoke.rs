@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use imuflow_body::Pose;
 use imuflow_kinematics::Method;
 use imuflow_kinematics::infer::Streamer;
-use imuflow_train::train::{TrainOptions, train};
 use imuflow_kinematics::weights::Weights;
+use imuflow_train::train::{TrainOptions, train};
 use nalgebra::Vector3;
 
 fn fixture() -> PathBuf {

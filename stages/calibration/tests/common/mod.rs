@@ -12,12 +12,12 @@ use imuflow_calibration::{
     Calibrator, CalibratorConfig, Event, InertialFrame, Method, NUM_IMUS, PELVIS,
 };
 use imuflow_graph::frames::{BodyImuFrame, ImuFrame};
-use imuflow_synth::prelude::{PreludeKind, PreludeOptions};
-use imuflow_synth::{self as synth, Motion, Options, SensorSetup};
 use imuflow_motion::bvh::Bvh;
 use imuflow_motion::retarget::{
     MotionClip, RetargetOptions, SourceSkeleton, resample, retarget_bvh,
 };
+use imuflow_synth::prelude::{PreludeKind, PreludeOptions};
+use imuflow_synth::{self as synth, Motion, Options, SensorSetup};
 use nalgebra::Rotation3;
 
 pub const RATE_HZ: f64 = 60.0;
@@ -88,7 +88,6 @@ pub fn synthesize(
     };
     Motion::from_clip(clip, &body(), &options).expect("synthesis")
 }
-
 
 pub fn walking(frame: InertialFrame) -> CalibratorConfig {
     CalibratorConfig {

@@ -32,13 +32,13 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use imuflow_body::Pose;
-use imuflow_train::data::pose_of;
 use imuflow_kinematics::infer::Streamer;
 use imuflow_kinematics::weights::Weights;
 use imuflow_optimizer::globalpose::{GlobalPose, GlobalPoseConfig};
 use imuflow_optimizer::integrate::Integrate;
 use imuflow_optimizer::pip::{Pip, PipConfig};
 use imuflow_optimizer::{Method, PhysicsBody};
+use imuflow_train::data::pose_of;
 use imuflow_validation::SimModel;
 use nalgebra::Vector3;
 

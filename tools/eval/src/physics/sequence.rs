@@ -6,9 +6,9 @@ use bytemuck::Zeroable;
 use imuflow_body::kinematics::{FkData, forward_kinematics};
 use imuflow_body::{JointId, NUM_JOINTS, Pose};
 use imuflow_graph::frames::KinematicsFrame;
-use imuflow_train::data::{FPS, Shard, pose_of};
 use imuflow_kinematics::infer::Streamer;
 use imuflow_optimizer::{MotionEstimate, PhysicsBody, Reference};
+use imuflow_train::data::{FPS, Shard, pose_of};
 use imuflow_validation::SimModel;
 use nalgebra::Vector3;
 

@@ -2,7 +2,7 @@
 //!
 //! Reads the combined graph's mcap (each variant's motion and validation, and the truth when the
 //! source has one), keeps the frames every stream can use (same seqs for every variant: the
-//! calibrations end at different frames), scores them with [`crate::score`] (its protocols: pose
+//! calibrations end at different frames), scores them with [`imuflow_eval::score`] (its protocols: pose
 //! errors GlobalPose "G", motion metrics on the recorded joints), and writes `report.md` (one
 //! table, the best per row), `results.json` and PNG plots next to the recording.
 
@@ -10,14 +10,14 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use crate::combine::Combined;
 use anyhow::Context;
 use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
-use imuflow_graph::combine::Combined;
 use imuflow_graph::frames::{BodyImuFrame, MotionFrame, ValidationFrame, frame_from_bytes};
 use imuflow_graph::launch::RunReport;
 use imuflow_recording::for_each_record;
 
-use crate::score::{
+use imuflow_eval::score::{
     MotionScores, SKIPPED_FLAGS, disagreement, score_against_truth, score_without_truth,
     sensor_bone_error_deg, summarize_validation,
 };
@@ -78,7 +78,7 @@ pub fn write(
     rate_hz: f64,
 ) -> anyhow::Result<PathBuf> {
     let scored = score_recording(mcap, combined, rate_hz)?;
-    let plots = super::plots::draw(out, &scored.series, &scored.truth_trajectory)?;
+    let plots = crate::plots::draw(out, &scored.series, &scored.truth_trajectory)?;
     let names: Vec<&str> = scored.names.iter().map(String::as_str).collect();
     let report = markdown(
         name,

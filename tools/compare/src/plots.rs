@@ -9,7 +9,7 @@ use anyhow::Context;
 use imuflow_body::{JointId, NUM_JOINTS};
 use plotters::prelude::*;
 
-use super::report::Series;
+use crate::report::Series;
 
 const SIZE: (u32, u32) = (1000, 520);
 /// The rerun logger's group palette (Okabe & Ito), in variant order.
@@ -23,7 +23,7 @@ const PALETTE: [RGBColor; 6] = [
 ];
 const TRUTH: RGBColor = RGBColor(120, 200, 120);
 /// Bundled so plots render the same on any machine (no system font libraries).
-static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSansMono.ttf");
+static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSansMono.ttf");
 
 fn colour(k: usize) -> RGBColor {
     PALETTE[k % PALETTE.len()]

@@ -20,18 +20,18 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
+use crate::combine::{AblationVariant, SensorErrors, SinkPaths, Variant};
+use crate::run::{CombinedRun, Input, RunError, run_combined};
 use anyhow::Context;
 use imuflow_dataset::{Split, find_bvh_files, split_of};
-use imuflow_graph::Graph;
-use imuflow_graph::combine::{self, SensorErrors, SinkPaths, Variant};
-use imuflow_graph::launch::{self, LaunchOptions};
+use imuflow_graph::launch::LaunchOptions;
 use imuflow_graph::spec::Registry;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
-use super::plots;
-use super::report::{Row, fmt_value, score_recording};
-use crate::score::{PairedDifference, paired_bootstrap};
+use crate::plots;
+use crate::report::{Row, fmt_value, score_recording};
+use imuflow_eval::score::{PairedDifference, paired_bootstrap};
 
 /// Resamples of the paired bootstrap; 2000 keeps the 2.5 % / 97.5 % percentiles within about
 /// ±0.05 standard errors of their limit.
@@ -343,15 +343,6 @@ fn run_clip(
         error: Some(error),
         wall_s: start.elapsed().as_secs_f64(),
     };
-    let mut variants = variants.to_vec();
-    if let Err(e) = combine::replace_source(
-        &mut variants[0].graph,
-        path,
-        options.mapping.as_deref(),
-        options.sensor_errors,
-    ) {
-        return Ok(Some(failed(e.to_string())));
-    }
     let recordings = options.out.join("recordings");
     std::fs::create_dir_all(&recordings)
         .with_context(|| format!("cannot create {}", recordings.display()))?;
@@ -361,27 +352,42 @@ fn run_clip(
         rrd: None,
         overlaid: false,
     };
-    // The variants were checked before the batch started: a refusal now is not the clip's fault.
-    let combined = combine::combine(&options.name, &variants, &sinks)?;
-    let graph_path = options.out.join(format!("{}.toml", options.name));
-    std::fs::write(&graph_path, &combined.text)
-        .with_context(|| format!("cannot write {}", graph_path.display()))?;
-    let graph = Graph::from_str_with(&graph_path, &combined.text, &[], registry)
-        .map_err(|e| anyhow::anyhow!("the combined graph is invalid (a bug in compare): {e}"))?;
+    let input = Input {
+        path: path.to_owned(),
+        mapping: options.mapping.clone(),
+        sensor_errors: options.sensor_errors,
+    };
     let launch_options = LaunchOptions {
         imuflow_exe: options.imuflow_exe.clone(),
         progress: false,
         forward_logs: false,
     };
-    let result = launch::run(&graph, &launch_options);
+    let run = CombinedRun {
+        name: &options.name,
+        variants,
+        input: Some(&input),
+        sinks: &sinks,
+        graph_path: &options.out.join(format!("{}.toml", options.name)),
+        registry,
+        launch: &launch_options,
+    };
+    let result = match run_combined(&run, |_, _| {}) {
+        // The clip's file could not become the source: the clip's fault, the batch goes on.
+        Err(RunError::Input(e)) => return Ok(Some(failed(e))),
+        Err(e @ RunError::Launch(_)) => Err(e),
+        // The variants were checked before the batch started: a refusal now is not the clip's
+        // fault, and neither is an invalid combination or an unwritable folder.
+        Err(e) => return Err(e.into()),
+        Ok(ran) => Ok(ran),
+    };
     let record = match result {
         // Stopped by the user: whatever the run says, the clip is not done (a resume runs it).
         _ if stop.load(Ordering::Relaxed) => None,
         Err(e) => Some(failed(e.to_string())),
-        Ok(run) if run.interrupted => None,
-        Ok(run) => Some(match run.failed_branches.first() {
+        Ok(ran) if ran.report.interrupted => None,
+        Ok(ran) => Some(match ran.report.failed_branches.first() {
             Some(branch) => failed(format!("variant branch stopped: {branch}")),
-            None => match score_recording(&mcap, &combined, graph.rate_hz) {
+            None => match score_recording(&mcap, &ran.combined, ran.graph.rate_hz) {
                 Ok(scored) if scored.frames == 0 => {
                     failed("no frame usable in every variant".into())
                 }
@@ -655,6 +661,31 @@ fn best_mean(s: &MetricSummary) -> Option<usize> {
         .filter_map(|(k, st)| st.map(|st| (k, st.mean)))
         .min_by(|x, y| x.1.total_cmp(&y.1))
         .map(|(k, _)| k)
+}
+
+/// Identifies a comparison by its variants' files (contents and overrides), the BVH mapping and
+/// the sensor-error model: a resumed batch must run the same graphs on the same signals.
+pub fn fingerprint(
+    sources: &[AblationVariant],
+    mapping: Option<&Path>,
+    sensor_errors: SensorErrors,
+) -> anyhow::Result<String> {
+    let mut fingerprint = String::new();
+    for source in sources {
+        let path = &source.graph;
+        let mut text =
+            std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+        text.extend(source.set.join("\n").bytes());
+        fingerprint.push_str(&format!("{:016x}", imuflow_dataset::fnv1a64(&text)));
+    }
+    if let Some(m) = mapping {
+        let text = std::fs::read(m).with_context(|| format!("cannot read {}", m.display()))?;
+        fingerprint.push_str(&format!("{:016x}", imuflow_dataset::fnv1a64(&text)));
+    }
+    if sensor_errors != SensorErrors::default() {
+        fingerprint.push_str(&format!("-sensor-errors={sensor_errors:?}"));
+    }
+    Ok(fingerprint)
 }
 
 #[cfg(test)]

@@ -11,11 +11,10 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write;
 use std::path::Path;
 
-use crate::frames::FrameType;
-use crate::naming::grouped;
-use crate::graph::{Graph, OnFailure, Runner, StageNode};
-use crate::spec::Role;
-
+use imuflow_graph::frames::FrameType;
+use imuflow_graph::graph::{Graph, OnFailure, Runner, StageNode};
+use imuflow_graph::naming::grouped;
+use imuflow_graph::spec::Role;
 
 /// Sink kinds that a comparison replaces with its own (one recorder, one logger for all).
 const REPLACED_SINKS: [&str; 2] = ["recorder", "rerun-logger"];
@@ -152,7 +151,7 @@ pub fn combine(
     );
     let _ = writeln!(text, "name = {}", quote(name));
     let _ = writeln!(text, "rate_hz = {}", float(first.graph.rate_hz));
-    if first.graph.mode == crate::Mode::Live {
+    if first.graph.mode == imuflow_graph::Mode::Live {
         let _ = writeln!(text, "mode = \"live\"");
     }
     let ready = variants
