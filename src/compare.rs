@@ -143,7 +143,7 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
             Err(e) => run_error(e),
         });
     }
-    match single::run(&options, &variants, &registry, crate::print_summary) {
+    match single::run(&options, &variants, &registry) {
         Ok(Outcome::Reported(report)) => {
             println!("report: {}", report.display());
             Ok(ExitCode::SUCCESS)

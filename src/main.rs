@@ -1,11 +1,9 @@
 //! `imuflow`: the command line. A thin dispatcher: the work lives in the crates.
 
-mod bench;
 mod compare;
 mod eval_cmd;
 mod kinematics_cmd;
 mod registry;
-mod without;
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -81,7 +79,7 @@ enum Command {
     Clean,
     /// Benchmarks.
     #[command(subcommand)]
-    Bench(bench::BenchCommand),
+    Bench(imuflow_bench::BenchCommand),
     /// Training data: motion files to synthetic-IMU shards.
     #[command(subcommand)]
     Dataset(DatasetCommand),
@@ -223,7 +221,12 @@ struct GraphArgs {
 
 impl GraphArgs {
     fn load(&self) -> Result<Graph, GraphLoadError> {
-        without::load(&self.file, &self.sets, &self.without, &registry::registry())
+        imuflow_graph::transform::load_without(
+            &self.file,
+            &self.sets,
+            &self.without,
+            &registry::registry(),
+        )
     }
 }
 
@@ -283,17 +286,10 @@ fn main() -> ExitCode {
                 .iter()
                 .map(|t| t.layout())
                 .collect();
-            match serde_json::to_string_pretty(&layouts) {
-                Ok(text) => {
-                    // A closed pipe (`| head`) ends the output, not in a panic.
-                    let _ = writeln!(std::io::stdout(), "{text}");
-                    ExitCode::SUCCESS
-                }
-                Err(e) => {
-                    eprintln!("error: {e}");
-                    ExitCode::FAILURE
-                }
-            }
+            exit_code(serde_json::to_string_pretty(&layouts).map(|text| {
+                // A closed pipe (`| head`) ends the output, not in a panic.
+                let _ = writeln!(std::io::stdout(), "{text}");
+            }))
         }
         Command::Stage {
             kind: Some(kind), ..
@@ -310,53 +306,29 @@ fn main() -> ExitCode {
         }
         Command::Clean => clean(),
         Command::Compare(args) => compare::run(args),
-        Command::EvalPhysics(args) => match eval_cmd::eval_physics(args) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
+        Command::EvalPhysics(args) => exit_code(eval_cmd::eval_physics(args)),
         Command::Body(BodyCommand::ExportUrdf {
             out,
             stature_m,
             mass_kg,
-        }) => match export_urdf(&out, stature_m, mass_kg) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
+        }) => exit_code(export_urdf(&out, stature_m, mass_kg)),
         Command::Dataset(cmd) => dataset(cmd),
-        Command::ImportCheckpoint(args) => match kinematics_cmd::import(args) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
-        Command::Eval(args) => match eval_cmd::eval(args) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
-        Command::Train(args) => match kinematics_cmd::run(args) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
-        Command::Bench(cmd) => match bench::run(cmd) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
+        Command::ImportCheckpoint(args) => exit_code(kinematics_cmd::import(args)),
+        Command::Eval(args) => exit_code(eval_cmd::eval(args)),
+        Command::Train(args) => exit_code(kinematics_cmd::run(args)),
+        Command::Bench(cmd) => exit_code(imuflow_bench::run(cmd, &registry::registry())),
+    }
+}
+
+/// A command's result as the process's exit status: 0, or the error with its causes on stderr and
+/// 1. (An invalid graph or command line is 2, an interrupted run 130: those commands say so.)
+fn exit_code<E: Into<anyhow::Error>>(result: Result<(), E>) -> ExitCode {
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {:#}", e.into());
+            ExitCode::FAILURE
+        }
     }
 }
 
@@ -387,8 +359,8 @@ fn run(args: &GraphArgs, progress: bool, forward_logs: bool, connect: Option<&st
         Err(e) => return invalid(e),
     };
     if let Some(url) = connect {
-        let loggers = registry::connect_rerun_loggers(&mut graph, url);
-        if loggers == 0 {
+        let viewers = imuflow_graph::transform::connect_viewers(&mut graph, url, &registry::registry());
+        if viewers == 0 {
             eprintln!("warning: --connect given but the graph has no rerun-logger stage");
         }
     }
@@ -409,7 +381,7 @@ fn run(args: &GraphArgs, progress: bool, forward_logs: bool, connect: Option<&st
     };
     match launch::run(&graph, &options) {
         Ok(report) => {
-            print_summary(&graph, &report);
+            println!("{report}");
             for branch in &report.failed_branches {
                 eprintln!("warning: {branch}");
             }
@@ -427,112 +399,6 @@ fn run(args: &GraphArgs, progress: bool, forward_logs: bool, connect: Option<&st
             }
             ExitCode::FAILURE
         }
-    }
-}
-
-pub(crate) fn print_summary(graph: &Graph, report: &launch::RunReport) {
-    println!(
-        "graph '{}' finished in {:.2} s after a start-up of {:.2} s (run {})",
-        graph.name,
-        report.wall.as_secs_f64(),
-        report.startup.as_secs_f64(),
-        report.run_id
-    );
-    // Columns as wide as the longest id and kind (exec stages: `exec:smooth.py`).
-    let rows = || {
-        graph
-            .topological_order()
-            .into_iter()
-            .filter_map(|node| report.stages.get(&node.id).map(|(kind, s)| (node, kind, s)))
-    };
-    let id_width = rows()
-        .map(|(n, _, _)| n.id.len())
-        .max()
-        .unwrap_or(0)
-        .max(14);
-    let kind_width = rows().map(|(_, k, _)| k.len()).max().unwrap_or(0).max(14);
-    println!(
-        "{:<id_width$} {:<kind_width$} {:>9} {:>9} {:>8} {:>10} {:>10} {:>7} {:>12} {:>12}",
-        "stage",
-        "kind",
-        "frames in",
-        "out",
-        "dropped",
-        "mean µs",
-        "p99 µs",
-        "busy %",
-        "in-lat p50",
-        "in-lat p99"
-    );
-    for (node, kind, s) in rows() {
-        println!(
-            "{:<id_width$} {:<kind_width$} {:>9} {:>9} {:>8} {:>10.1} {:>10.1} {:>7.1} {:>12.1} {:>12.1}",
-            node.id,
-            kind,
-            s.frames_in,
-            s.frames_out,
-            s.dropped,
-            s.mean_us,
-            s.p99_us,
-            100.0 * s.busy_fraction,
-            s.latency_p50_us,
-            s.latency_p99_us
-        );
-    }
-    print_from_capture(graph, report);
-    for node in graph.topological_order() {
-        if let Some((_, s)) = report.stages.get(&node.id)
-            && !s.detail.is_empty()
-        {
-            println!("{}: {}", node.id, s.detail);
-        }
-    }
-    for (stage, why) in &report.restarts {
-        println!(
-            "restarted '{stage}' {} time(s): {}",
-            why.len(),
-            why.join("; ")
-        );
-    }
-    for branch in &report.failed_branches {
-        println!(
-            "branch of '{}' stopped ({} failed): {}",
-            branch.root,
-            branch.stage,
-            branch.stopped.join(", ")
-        );
-    }
-}
-
-/// Live runs: each sink input's end-to-end latency, from the source's capture to arrival.
-fn print_from_capture(graph: &Graph, report: &launch::RunReport) {
-    let rows: Vec<(String, &imuflow_graph::stats::InputLatency)> = graph
-        .topological_order()
-        .into_iter()
-        .filter(|node| node.role == imuflow_graph::spec::Role::Sink)
-        .filter_map(|node| report.stages.get(&node.id).map(|(_, s)| (node, s)))
-        .flat_map(|(node, s)| {
-            s.from_capture
-                .iter()
-                .map(move |l| (format!("{}.{}", node.id, l.input), l))
-        })
-        .collect();
-    if rows.is_empty() {
-        return;
-    }
-    println!(
-        "{:<28} {:>9} {:>10} {:>10} {:>10}",
-        "end to end (capture→sink)", "frames", "p50 ms", "p99 ms", "max ms"
-    );
-    for (input, l) in rows {
-        println!(
-            "{:<28} {:>9} {:>10.2} {:>10.2} {:>10.2}",
-            input,
-            l.frames,
-            l.p50_us * 1e-3,
-            l.p99_us * 1e-3,
-            l.max_us * 1e-3
-        );
     }
 }
 

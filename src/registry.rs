@@ -5,23 +5,34 @@ use std::fmt::Write;
 use anyhow::bail;
 use imuflow_graph::spec::{InputsSpec, Registry, StageSpec};
 
-use crate::bench;
+/// A built-in stage kind: what it declares, and the main loop its process runs.
+pub struct BuiltinStage {
+    pub spec: StageSpec,
+    pub run: fn() -> anyhow::Result<()>,
+}
 
-/// Every built-in stage kind, in the order `imuflow stage --list` prints them.
-fn specs() -> Vec<StageSpec> {
-    vec![
-        imuflow_test_source::SPEC,
-        imuflow_recorder::SPEC,
-        imuflow_rerun_logger::SPEC,
-        imuflow_imu_source::SPEC,
-        imuflow_calibration::SPEC,
-        imuflow_kinematics::SPEC,
-        imuflow_contact_stage::SPEC,
-        imuflow_optimizer::SPEC,
-        imuflow_validation::SPEC,
-        bench::SOURCE_SPEC,
-        bench::RELAY_SPEC,
-    ]
+/// Every built-in stage kind, in the order `imuflow stage --list` prints them. A new kind is one
+/// line here (and its crate in the workspace's and this binary's Cargo.toml).
+pub const STAGES: &[BuiltinStage] = &[
+    builtin(imuflow_test_source::SPEC, imuflow_test_source::run),
+    builtin(imuflow_recorder::SPEC, imuflow_recorder::run),
+    builtin(imuflow_rerun_logger::SPEC, imuflow_rerun_logger::run),
+    builtin(imuflow_imu_source::SPEC, imuflow_imu_source::run),
+    builtin(imuflow_calibration::SPEC, imuflow_calibration::run),
+    builtin(imuflow_kinematics::SPEC, imuflow_kinematics::run),
+    builtin(imuflow_contact_stage::SPEC, imuflow_contact_stage::run),
+    builtin(imuflow_optimizer::SPEC, imuflow_optimizer::run),
+    builtin(imuflow_validation::SPEC, imuflow_validation::run),
+    builtin(imuflow_bench::SOURCE_SPEC, imuflow_bench::run_source),
+    builtin(imuflow_bench::RELAY_SPEC, imuflow_bench::run_relay),
+];
+
+const fn builtin(spec: StageSpec, run: fn() -> anyhow::Result<()>) -> BuiltinStage {
+    BuiltinStage { spec, run }
+}
+
+fn specs() -> impl Iterator<Item = StageSpec> {
+    STAGES.iter().map(|stage| stage.spec)
 }
 
 pub fn registry() -> Registry {
@@ -30,19 +41,9 @@ pub fn registry() -> Registry {
 
 /// Runs stage `kind` in this process (the launcher set up the environment).
 pub fn run_stage(kind: &str) -> anyhow::Result<()> {
-    match kind {
-        k if k == imuflow_test_source::SPEC.kind => imuflow_test_source::run(),
-        k if k == imuflow_imu_source::SPEC.kind => imuflow_imu_source::run(),
-        k if k == imuflow_recorder::SPEC.kind => imuflow_recorder::run(),
-        k if k == imuflow_rerun_logger::SPEC.kind => imuflow_rerun_logger::run(),
-        k if k == imuflow_calibration::SPEC.kind => imuflow_calibration::run(),
-        k if k == imuflow_kinematics::SPEC.kind => imuflow_kinematics::run(),
-        k if k == imuflow_contact_stage::SPEC.kind => imuflow_contact_stage::run(),
-        k if k == imuflow_optimizer::SPEC.kind => imuflow_optimizer::run(),
-        k if k == imuflow_validation::SPEC.kind => imuflow_validation::run(),
-        k if k == bench::SOURCE_SPEC.kind => bench::run_source(),
-        k if k == bench::RELAY_SPEC.kind => bench::run_relay(),
-        other => bail!("unknown stage kind '{other}' (see `imuflow stage --list`)"),
+    match STAGES.iter().find(|stage| stage.spec.kind == kind) {
+        Some(stage) => (stage.run)(),
+        None => bail!("unknown stage kind '{kind}' (see `imuflow stage --list`)"),
     }
 }
 
@@ -90,19 +91,4 @@ pub fn describe_kinds() -> String {
         out.push('\n');
     }
     out
-}
-
-/// Points every rerun-logger stage at a live viewer instead of its file; returns how many.
-pub fn connect_rerun_loggers(graph: &mut imuflow_graph::Graph, url: &str) -> usize {
-    let mut count = 0;
-    for node in graph.stages.values_mut() {
-        if matches!(&node.runner, imuflow_graph::graph::Runner::Builtin { kind } if kind == imuflow_rerun_logger::SPEC.kind)
-        {
-            node.params.remove("path");
-            node.params
-                .insert("connect".into(), toml::Value::String(url.to_owned()));
-            count += 1;
-        }
-    }
-    count
 }

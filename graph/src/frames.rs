@@ -6,8 +6,9 @@
 //! (`imuflow.ImuFrame.v1`, ...) so a process built with a different layout fails when it connects
 //! instead of reading garbage. Change a layout only together with its version.
 //!
-//! Conventions (ARCHITECTURE.md): model frame M as in SMPL (x = left, y = up, z = forward, gravity
-//! (0, -9.81, 0)); SI units; quaternions are `[w, x, y, z]`; IMU order
+//! The wire contract and its conventions are described in docs/architecture.md ("The wire contract",
+//! "Conventions"): model frame M as in SMPL (x = left, y = up, z = forward, gravity (0, -9.81, 0));
+//! SI units; quaternions are `[w, x, y, z]`; IMU order
 //! [left forearm, right forearm, left lower leg, right lower leg, head, pelvis]; 24 joints in SMPL
 //! order. Each field's doc says its frame of reference and unit.
 

@@ -16,6 +16,7 @@ pub mod schema;
 pub mod spec;
 pub mod stage;
 pub mod stats;
+pub mod transform;
 pub mod transport;
 pub mod validate;
 pub mod wait;

@@ -4,8 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use imuflow_graph::Graph;
-use imuflow_graph::launch::{LaunchOptions, RunReport};
+use imuflow_graph::launch::LaunchOptions;
 use imuflow_graph::spec::Registry;
 
 use crate::combine::{Combined, SinkPaths, Variant};
@@ -50,12 +49,11 @@ pub enum Outcome {
 }
 
 /// Runs the comparison: prints what runs (shared stages, each variant's branch), the run's
-/// summary (`summary`), the files written, then writes the report.
+/// summary, the files written, then writes the report.
 pub fn run(
     options: &SingleOptions,
     variants: &[Variant],
     registry: &Registry,
-    summary: impl FnOnce(&Graph, &RunReport),
 ) -> Result<Outcome, SingleError> {
     let sinks = options.sinks();
     let graph_path = options.graph_path();
@@ -77,7 +75,7 @@ pub fn run(
         }
         describe(combined);
     })?;
-    summary(&ran.graph, &ran.report);
+    println!("{}", ran.report);
     for branch in &ran.report.failed_branches {
         eprintln!("warning: {branch}");
     }

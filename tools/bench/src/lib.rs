@@ -1,5 +1,12 @@
-//! `imuflow bench transport`: per-hop latency and throughput of a chain of stage processes
-//! exchanging MotionFrame-sized frames, through the same launcher and ports real graphs use.
+//! `imuflow bench`: the benchmarks a user runs on their machine (docs/performance.md).
+//!
+//! - `transport`: per-hop latency and throughput of a chain of stage processes exchanging
+//!   MotionFrame-sized frames, through the same launcher and ports real graphs use (its two stage
+//!   kinds, `bench-source` and `bench-relay`, are built-in kinds of the binary).
+//! - `kinematics`, `physics`, `validation`: one stage's per-frame work in a loop.
+//! - `graph`: a whole graph live at sensor rate, then offline.
+//!
+//! The binary hands in its registry of stage kinds: this crate links no stage crate's process.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -11,6 +18,8 @@ use imuflow_graph::launch::{self, LaunchOptions};
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
 use imuflow_graph::stage::{Params, Step};
 use imuflow_graph::transport::now_ns;
+use imuflow_graph::spec::Registry;
+use imuflow_graph::transform::load_without;
 use imuflow_graph::{FrameType, Graph, StageContext};
 
 #[derive(Subcommand)]
@@ -289,13 +298,13 @@ fn run_chain(
     frames: u64,
     rate_hz: f64,
     relay_exec: Option<&[String]>,
+    registry: &Registry,
 ) -> anyhow::Result<ChainResult> {
-    let registry = crate::registry::registry();
     let graph = Graph::from_str_with(
         Path::new("<bench>"),
         &chain_graph(stages, frames, rate_hz, relay_exec),
         &[],
-        &registry,
+        registry,
     )?;
     let options = LaunchOptions {
         imuflow_exe: std::env::current_exe().context("cannot find the imuflow executable")?,
@@ -342,7 +351,7 @@ fn run_chain(
     })
 }
 
-pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
+pub fn run(cmd: BenchCommand, registry: &Registry) -> anyhow::Result<()> {
     let (stages, frames, rate_hz, throughput_frames, relay_exec) = match cmd {
         BenchCommand::Transport {
             stages,
@@ -366,7 +375,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             without,
             seconds,
             no_offline,
-        } => return bench_graph(&file, &sets, &without, seconds, !no_offline),
+        } => return bench_graph(&file, &sets, &without, seconds, !no_offline, registry),
     };
     if stages < 2 {
         bail!("--stages must be at least 2 (a source and a relay)");
@@ -381,7 +390,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         std::mem::size_of::<MotionFrame>(),
         relay_exec.map_or("built-in (Rust)".to_owned(), |c| c.join(" "))
     );
-    let paced = run_chain(stages, frames, rate_hz, relay_exec)?;
+    let paced = run_chain(stages, frames, rate_hz, relay_exec, registry)?;
     println!(
         "\npaced run: {} frames at {rate_hz} Hz ({:.1} s)",
         paced.frames, paced.wall_s
@@ -418,7 +427,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         100.0 * paced.cpu_s / paced.wall_s / stages as f64
     );
 
-    let fast = run_chain(stages, throughput_frames, 0.0, relay_exec)?;
+    let fast = run_chain(stages, throughput_frames, 0.0, relay_exec, registry)?;
     println!(
         "\nthroughput run: {} frames through {} hops in {:.2} s = {:.0} frames/s ({:.1} MB/s per hop)",
         fast.frames,
@@ -617,11 +626,11 @@ fn bench_graph(
     without: &[String],
     seconds: f64,
     offline: bool,
+    registry: &Registry,
 ) -> anyhow::Result<()> {
-    let registry = crate::registry::registry();
     let load = |extra: &[String]| -> anyhow::Result<Graph> {
         let all: Vec<String> = sets.iter().chain(extra).cloned().collect();
-        crate::without::load(file, &all, without, &registry).map_err(|e| anyhow::anyhow!("{e}"))
+        load_without(file, &all, without, registry).map_err(|e| anyhow::anyhow!("{e}"))
     };
     let graph = load(&[])?;
     let scratch = tempfile::tempdir().context("temporary folder for the recordings")?;
@@ -665,13 +674,13 @@ fn bench_graph(
             "\nlive: sources paced at their sensor rate, {frames} frames ({seconds} s of input)"
         );
         let report = launch::run(&live, &options).map_err(|e| anyhow::anyhow!("{e}"))?;
-        crate::print_summary(&live, &report);
+        println!("{report}");
     }
     if offline {
         let offline = load(&redirect)?;
         println!("\noffline: the whole input as fast as the stages go");
         let report = launch::run(&offline, &options).map_err(|e| anyhow::anyhow!("{e}"))?;
-        crate::print_summary(&offline, &report);
+        println!("{report}");
         let frames = sources
             .iter()
             .filter_map(|id| report.stages.get(id))
