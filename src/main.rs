@@ -359,7 +359,8 @@ fn run(args: &GraphArgs, progress: bool, forward_logs: bool, connect: Option<&st
         Err(e) => return invalid(e),
     };
     if let Some(url) = connect {
-        let viewers = imuflow_graph::transform::connect_viewers(&mut graph, url, &registry::registry());
+        let viewers =
+            imuflow_graph::transform::connect_viewers(&mut graph, url, &registry::registry());
         if viewers == 0 {
             eprintln!("warning: --connect given but the graph has no rerun-logger stage");
         }

@@ -4,6 +4,7 @@
 //! - [`schema`], [`validate`], [`graph`]: graph files, their validation and the checked graph.
 //! - [`transport`]: typed ports over iceoryx2 publish-subscribe plus wake-up events.
 //! - [`stage`]: the Stage API that built-in and external stage processes use.
+//! - [`params`]: a stage's parameters as a typed struct, its specs derived ([`stage_params!`]).
 //! - [`launch`]: the launcher/supervisor behind `imuflow run`.
 //! - [`wire`]: the wire contract as data, for stages in other languages (Python).
 
@@ -12,6 +13,7 @@ pub mod graph;
 pub mod launch;
 pub mod naming;
 pub mod overrides;
+pub mod params;
 pub mod schema;
 pub mod spec;
 pub mod stage;

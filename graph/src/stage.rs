@@ -965,7 +965,8 @@ impl ControlMessage {
     }
 }
 
-/// Parameters of a stage, read with the defaults its spec documents.
+/// Parameters of a stage, read key by key with a default given at each read. A stage that declares
+/// its parameters with [`crate::stage_params!`] reads them typed, with the declared defaults.
 pub struct Params<'a>(pub &'a toml::Table);
 
 impl Params<'_> {

@@ -207,7 +207,10 @@ params = { path = "c.out" }
         let registry = registry();
         let mut graph =
             Graph::from_str_with(Path::new("g.toml"), text, &[], &registry).expect("valid graph");
-        assert_eq!(connect_viewers(&mut graph, "rerun+http://h:1/proxy", &registry), 2);
+        assert_eq!(
+            connect_viewers(&mut graph, "rerun+http://h:1/proxy", &registry),
+            2
+        );
         for id in ["a", "b"] {
             let params = &graph.stages[id].params;
             assert!(!params.contains_key("path"), "{id}: {params:?}");

@@ -30,6 +30,7 @@
 
 use imuflow_body::{JointId, NUM_JOINTS};
 use imuflow_graph::frames::MAX_CONTACT_POINTS;
+use imuflow_graph::params::Param;
 use nalgebra::Vector3;
 
 use crate::geometry::{ContactGeometry, PIP_SQUARE_HALF_SIDE_M};
@@ -79,11 +80,25 @@ pub struct PipContactConfig {
     pub surface_height_m: f64,
 }
 
+/// The contact stage's `foot_threshold`: the default of
+/// [`PipContactConfig::foot_probability_threshold`] (PIP: 0.5, reference §5.2).
+pub const FOOT_THRESHOLD_PARAM: Param<f64> = imuflow_graph::param! {
+    /// foot-contact probability above which a foot near the floor is in contact (PIP 0.5)
+    foot_threshold: f64 = 0.5, float(0.0, 1.0)
+};
+
+/// The contact stage's `foot_margin_m`: the default of [`PipContactConfig::foot_margin_m`] (PIP:
+/// floor_y + 0.03, reference §5.2).
+pub const FOOT_MARGIN_PARAM: Param<f64> = imuflow_graph::param! {
+    /// how far above the floor such a foot may be (m, PIP 0.03)
+    foot_margin_m: f64 = 0.03, float(0.0, 0.5)
+};
+
 impl Default for PipContactConfig {
     fn default() -> PipContactConfig {
         PipContactConfig {
-            foot_probability_threshold: 0.5,
-            foot_margin_m: 0.03,
+            foot_probability_threshold: FOOT_THRESHOLD_PARAM.default,
+            foot_margin_m: FOOT_MARGIN_PARAM.default,
             square_half_side_m: PIP_SQUARE_HALF_SIDE_M,
             surface_height_m: 0.0,
         }

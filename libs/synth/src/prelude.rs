@@ -14,6 +14,7 @@ use std::f64::consts::{FRAC_PI_2, PI};
 
 use imuflow_body::rotation::{Axis, slerp};
 use imuflow_body::{BodyModel, JointId, Pose};
+use imuflow_graph::params::Param;
 use imuflow_motion::retarget::MotionClip;
 use nalgebra::{Rotation3, Vector3};
 
@@ -70,12 +71,24 @@ pub struct PreludeOptions {
     pub turn_deg: f64,
 }
 
+/// The imu-source stage's `prelude_stand_s`, the default of [`PreludeOptions::stand_s`].
+pub const STAND_PARAM: Param<f64> = imuflow_graph::param! {
+    /// synthesize: length of each prelude hold / stand, s
+    prelude_stand_s: f64 = 3, float(0.5, 60.0)
+};
+
+/// The imu-source stage's `step_m`, the default of [`PreludeOptions::step_m`].
+pub const STEP_PARAM: Param<f64> = imuflow_graph::param! {
+    /// synthesize: length of the prelude's step forward, m
+    step_m: f64 = 0.6, float(0.1, 1.5)
+};
+
 impl Default for PreludeOptions {
     fn default() -> PreludeOptions {
         PreludeOptions {
             kind: PreludeKind::None,
-            stand_s: 3.0,
-            step_m: 0.6,
+            stand_s: STAND_PARAM.default,
+            step_m: STEP_PARAM.default,
             step_s: 1.2,
             blend_s: 1.0,
             turn_deg: 0.0,

@@ -23,12 +23,14 @@ use crate::convention::{InertialFrame, ReferencePose};
 use crate::error::{NotCalibrated, Rejection};
 use crate::sample::Sample;
 use crate::segments::{Hold, Segmenter};
+use crate::stage::CalibrationParams;
 use crate::stillness::{StillnessConfig, StillnessDetector};
 use crate::tpose::{TposeConfig, calibrate_tpose};
 use crate::walking::{StepWindows, WalkingConfig, calibrate_walking, measure_step};
 use crate::{NUM_IMUS, sensor_name};
 
-/// Everything a session needs; [`CalibratorConfig::default`] holds the stage's defaults.
+/// Everything a session needs; [`CalibratorConfig::default`] holds the stage's defaults (its
+/// parameters, [`CalibrationParams`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CalibratorConfig {
     pub method: Method,
@@ -62,32 +64,9 @@ pub struct CalibratorConfig {
 }
 
 impl Default for CalibratorConfig {
+    /// The calibration stage's defaults ([`CalibrationParams`]) at 60 Hz.
     fn default() -> CalibratorConfig {
-        CalibratorConfig {
-            method: Method::Tpose,
-            frame: InertialFrame::Model,
-            heading_rad: 0.0,
-            pose: ReferencePose::T,
-            accel_offset: true,
-            drift_update: true,
-            nominal_rate_hz: 60.0,
-            hold_s: 1.5,
-            average_s: 1.0,
-            still_window_s: 0.25,
-            // A standing person sways at a few 0.01 rad/s and ~0.1 m/s²; a step turns the shanks at
-            // several rad/s.
-            still_gyro_radps: 0.3,
-            still_accel_std_mps2: 0.4,
-            max_step_s: 3.0,
-            // Reference §4: GlobalPose's gravity sanity check (8°), walking_6dof's thresholds (20°,
-            // 0.1 m).
-            max_gravity_deg: 8.0,
-            max_pose_change_deg: 20.0,
-            max_vertical_m: 0.1,
-            min_step_m: 0.2,
-            max_step_m: 1.5,
-            max_step_mismatch_m: 0.15,
-        }
+        CalibrationParams::default().config_at(60.0)
     }
 }
 

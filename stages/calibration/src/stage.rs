@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use imuflow_graph::frames::{BodyImuFrame, ImuFrame};
-use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
+use imuflow_graph::params::StageParams;
+use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::stage::Params;
 use imuflow_graph::{FrameType, StageContext};
 
@@ -13,6 +14,98 @@ use crate::calibration::{Calibration, Method};
 use crate::calibrator::{Calibrator, CalibratorConfig, Event};
 use crate::convention::{InertialFrame, ReferencePose};
 use crate::{NUM_IMUS, file, sensor_name};
+
+imuflow_graph::stage_params! {
+    /// The calibration stage's parameters, and so [`CalibratorConfig::default`].
+    pub struct CalibrationParams {
+        /// tpose: held pose with a known inertial frame; walking: stand, one step forward, stand;
+        /// none: readings are already R_MB in M
+        method: Method = "tpose", choice(&Method::NAMES);
+        /// load this calibration file (JSON) and skip calibrating
+        from_file: Option<PathBuf>, path;
+        /// write the accepted calibration (and later heading updates) to this JSON file
+        save_to: Option<PathBuf>, path;
+        /// sensors' inertial-frame convention: model (I = M), z-up (Xsens-like), z-down
+        /// (Noitom-like)
+        frame: InertialFrame = "model", choice(&InertialFrame::NAMES);
+        /// tpose: direction the subject faces in I, right-handed about up from the convention's
+        /// forward axis (model: +z, z-up/z-down: +x)
+        heading_deg: f64 = 0, float(-360.0, 360.0);
+        /// the pose held (tpose) or stood in (walking): t = arms out, n = arms down
+        pose: Option<ReferencePose> = computed("t for tpose, n for walking"), choice(&["t", "n"]);
+        /// estimate the accelerometer offset while still and subtract it
+        accel_offset: bool = true, bool;
+        /// walking: re-estimate the heading corrections at every later stand-step-stand
+        drift_update: bool = true, bool;
+        /// a still period counts as a hold / stand after this long, s
+        hold_s: f64 = 1.5, float(0.3, 60.0);
+        /// the end of a hold averaged for orientations and offsets, s
+        average_s: f64 = 1.0, float(0.1, 60.0);
+        /// trailing window of the stillness test, s
+        still_window_s: f64 = 0.25, float(0.05, 5.0);
+        // A standing person sways at a few 0.01 rad/s and ~0.1 m/s²; a step turns the shanks at
+        // several rad/s.
+        /// still: mean angular-rate norm of every sensor below this, rad/s
+        still_gyro_radps: f64 = 0.3, float(0.0, 10.0);
+        /// still: std of every sensor's specific force below this, m/s²
+        still_accel_std_mps2: f64 = 0.4, float(0.0, 10.0);
+        /// walking: longest motion between two stands that counts as one step, s
+        max_step_s: f64 = 3.0, float(0.2, 30.0);
+        // Reference §4: GlobalPose's gravity sanity check (8°), walking_6dof's thresholds (20°,
+        // 0.1 m).
+        /// largest angle between measured gravity and the frame's down axis, deg
+        max_gravity_deg: f64 = 8, float(0.0, 180.0);
+        /// walking: largest orientation change of a sensor between the stands, deg
+        max_pose_change_deg: f64 = 20, float(0.0, 180.0);
+        /// walking: largest vertical displacement of a sensor over the step, m
+        max_vertical_m: f64 = 0.1, float(0.0, 10.0);
+        /// walking: shortest pelvis step, m
+        min_step_m: f64 = 0.2, float(0.0, 10.0);
+        /// walking: longest pelvis step, m
+        max_step_m: f64 = 1.5, float(0.0, 10.0);
+        /// walking: largest difference of a sensor's step length from the pelvis's, m
+        max_step_mismatch_m: f64 = 0.15, float(0.0, 10.0);
+    }
+}
+
+impl CalibrationParams {
+    /// The session configuration at the graph's rate, which must be positive.
+    pub fn config(&self, rate_hz: f64) -> anyhow::Result<CalibratorConfig> {
+        if !(rate_hz.is_finite() && rate_hz > 0.0) {
+            bail!("the graph's rate_hz must be positive, got {rate_hz}");
+        }
+        Ok(self.config_at(rate_hz))
+    }
+
+    /// The session configuration at `rate_hz`, unchecked.
+    pub(crate) fn config_at(&self, rate_hz: f64) -> CalibratorConfig {
+        let pose = self.pose.unwrap_or(match self.method {
+            Method::Walking => ReferencePose::N,
+            Method::Tpose | Method::None => ReferencePose::T,
+        });
+        CalibratorConfig {
+            method: self.method,
+            frame: self.frame,
+            pose,
+            heading_rad: self.heading_deg.to_radians(),
+            accel_offset: self.accel_offset,
+            drift_update: self.drift_update,
+            nominal_rate_hz: rate_hz,
+            hold_s: self.hold_s,
+            average_s: self.average_s,
+            still_window_s: self.still_window_s,
+            still_gyro_radps: self.still_gyro_radps,
+            still_accel_std_mps2: self.still_accel_std_mps2,
+            max_step_s: self.max_step_s,
+            max_gravity_deg: self.max_gravity_deg,
+            max_pose_change_deg: self.max_pose_change_deg,
+            max_vertical_m: self.max_vertical_m,
+            min_step_m: self.min_step_m,
+            max_step_m: self.max_step_m,
+            max_step_mismatch_m: self.max_step_mismatch_m,
+        }
+    }
+}
 
 pub const SPEC: StageSpec = StageSpec {
     kind: "calibration",
@@ -30,216 +123,37 @@ pub const SPEC: StageSpec = StageSpec {
         required: false,
         doc: "calibrated: R_MB, free acceleration and angular velocity in M, heading corrections; CALIBRATING | INVALID until calibrated",
     }],
-    params: &[
-        ParamSpec {
-            name: "method",
-            ty: ParamType::Choice(&Method::NAMES),
-            required: false,
-            default: "tpose",
-            doc: "tpose: held pose with a known inertial frame; walking: stand, one step forward, stand; none: readings are already R_MB in M",
-        },
-        ParamSpec {
-            name: "from_file",
-            ty: ParamType::Path,
-            required: false,
-            default: "",
-            doc: "load this calibration file (JSON) and skip calibrating",
-        },
-        ParamSpec {
-            name: "save_to",
-            ty: ParamType::Path,
-            required: false,
-            default: "",
-            doc: "write the accepted calibration (and later heading updates) to this JSON file",
-        },
-        ParamSpec {
-            name: "frame",
-            ty: ParamType::Choice(&InertialFrame::NAMES),
-            required: false,
-            default: "model",
-            doc: "sensors' inertial-frame convention: model (I = M), z-up (Xsens-like), z-down (Noitom-like)",
-        },
-        ParamSpec::float(
-            "heading_deg",
-            -360.0,
-            360.0,
-            "0",
-            "tpose: direction the subject faces in I, right-handed about up from the convention's forward axis (model: +z, z-up/z-down: +x)",
-        ),
-        ParamSpec {
-            name: "pose",
-            ty: ParamType::Choice(&["t", "n"]),
-            required: false,
-            default: "t for tpose, n for walking",
-            doc: "the pose held (tpose) or stood in (walking): t = arms out, n = arms down",
-        },
-        ParamSpec {
-            name: "accel_offset",
-            ty: ParamType::Bool,
-            required: false,
-            default: "true",
-            doc: "estimate the accelerometer offset while still and subtract it",
-        },
-        ParamSpec {
-            name: "drift_update",
-            ty: ParamType::Bool,
-            required: false,
-            default: "true",
-            doc: "walking: re-estimate the heading corrections at every later stand-step-stand",
-        },
-        ParamSpec::float(
-            "hold_s",
-            0.3,
-            60.0,
-            "1.5",
-            "a still period counts as a hold / stand after this long, s",
-        ),
-        ParamSpec::float(
-            "average_s",
-            0.1,
-            60.0,
-            "1.0",
-            "the end of a hold averaged for orientations and offsets, s",
-        ),
-        ParamSpec::float(
-            "still_window_s",
-            0.05,
-            5.0,
-            "0.25",
-            "trailing window of the stillness test, s",
-        ),
-        ParamSpec::float(
-            "still_gyro_radps",
-            0.0,
-            10.0,
-            "0.3",
-            "still: mean angular-rate norm of every sensor below this, rad/s",
-        ),
-        ParamSpec::float(
-            "still_accel_std_mps2",
-            0.0,
-            10.0,
-            "0.4",
-            "still: std of every sensor's specific force below this, m/s²",
-        ),
-        ParamSpec::float(
-            "max_step_s",
-            0.2,
-            30.0,
-            "3.0",
-            "walking: longest motion between two stands that counts as one step, s",
-        ),
-        ParamSpec::float(
-            "max_gravity_deg",
-            0.0,
-            180.0,
-            "8",
-            "largest angle between measured gravity and the frame's down axis, deg",
-        ),
-        ParamSpec::float(
-            "max_pose_change_deg",
-            0.0,
-            180.0,
-            "20",
-            "walking: largest orientation change of a sensor between the stands, deg",
-        ),
-        ParamSpec::float(
-            "max_vertical_m",
-            0.0,
-            10.0,
-            "0.1",
-            "walking: largest vertical displacement of a sensor over the step, m",
-        ),
-        ParamSpec::float(
-            "min_step_m",
-            0.0,
-            10.0,
-            "0.2",
-            "walking: shortest pelvis step, m",
-        ),
-        ParamSpec::float(
-            "max_step_m",
-            0.0,
-            10.0,
-            "1.5",
-            "walking: longest pelvis step, m",
-        ),
-        ParamSpec::float(
-            "max_step_mismatch_m",
-            0.0,
-            10.0,
-            "0.15",
-            "walking: largest difference of a sensor's step length from the pelvis's, m",
-        ),
-    ],
+    params: CalibrationParams::SPECS,
 };
 
 /// The session configuration from a stage's parameters (validated by the graph already; the
-/// checks here cover external callers).
+/// checks here cover external callers: a value of the wrong type or choice is an error).
 pub fn config_from_params(params: &Params<'_>, rate_hz: f64) -> anyhow::Result<CalibratorConfig> {
-    let d = CalibratorConfig::default();
-    let method = match params.str("method") {
-        None => d.method,
-        Some(m) => Method::parse(m)
-            .with_context(|| format!("unknown method '{m}' ({})", Method::NAMES.join(", ")))?,
-    };
-    let frame = match params.str("frame") {
-        None => d.frame,
-        Some(f) => InertialFrame::parse(f).with_context(|| {
-            format!("unknown frame '{f}' ({})", InertialFrame::NAMES.join(", "))
-        })?,
-    };
-    let pose = match (params.str("pose"), method) {
-        (Some(p), _) => {
-            ReferencePose::parse(p).with_context(|| format!("unknown pose '{p}' (t or n)"))?
-        }
-        (None, Method::Walking) => ReferencePose::N,
-        (None, _) => ReferencePose::T,
-    };
-    if !(rate_hz.is_finite() && rate_hz > 0.0) {
-        bail!("the graph's rate_hz must be positive, got {rate_hz}");
-    }
-    Ok(CalibratorConfig {
-        method,
-        frame,
-        pose,
-        heading_rad: params.float("heading_deg", 0.0).to_radians(),
-        accel_offset: params.bool("accel_offset", d.accel_offset),
-        drift_update: params.bool("drift_update", d.drift_update),
-        nominal_rate_hz: rate_hz,
-        hold_s: params.float("hold_s", d.hold_s),
-        average_s: params.float("average_s", d.average_s),
-        still_window_s: params.float("still_window_s", d.still_window_s),
-        still_gyro_radps: params.float("still_gyro_radps", d.still_gyro_radps),
-        still_accel_std_mps2: params.float("still_accel_std_mps2", d.still_accel_std_mps2),
-        max_step_s: params.float("max_step_s", d.max_step_s),
-        max_gravity_deg: params.float("max_gravity_deg", d.max_gravity_deg),
-        max_pose_change_deg: params.float("max_pose_change_deg", d.max_pose_change_deg),
-        max_vertical_m: params.float("max_vertical_m", d.max_vertical_m),
-        min_step_m: params.float("min_step_m", d.min_step_m),
-        max_step_m: params.float("max_step_m", d.max_step_m),
-        max_step_mismatch_m: params.float("max_step_mismatch_m", d.max_step_mismatch_m),
-    })
+    CalibrationParams::try_from_params(params.0)
+        .map_err(anyhow::Error::msg)?
+        .config(rate_hz)
 }
 
-fn path_param(params: &Params<'_>, key: &str) -> Option<PathBuf> {
-    params.str(key).filter(|p| !p.is_empty()).map(PathBuf::from)
+/// A path parameter, where it names a file (an empty string does not).
+fn path_param(path: &Option<PathBuf>) -> Option<PathBuf> {
+    path.clone().filter(|p| !p.as_os_str().is_empty())
 }
 
 /// Runs the calibration as the current process's stage.
 pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
-    let params = Params(ctx.params());
-    let config = config_from_params(&params, ctx.graph().rate_hz)
+    let params = CalibrationParams::from_params(ctx.params());
+    let config = params
+        .config(ctx.graph().rate_hz)
         .with_context(|| format!("stage '{stage}'"))?;
-    let save_to = path_param(&params, "save_to");
+    let save_to = path_param(&params.save_to);
     // A restart (the graph's `restart` policy) reloads the calibration the stage had reached
     // before it failed, instead of asking the subject to calibrate again.
     let kept = ctx.run_file("calibration.json");
     let from_file = match &kept {
         Some(path) if ctx.restarts() > 0 && path.exists() => Some(path.clone()),
-        _ => path_param(&params, "from_file"),
+        _ => path_param(&params.from_file),
     };
     let mut calibrator = match &from_file {
         Some(path) => {
@@ -372,5 +286,46 @@ fn log_calibration(stage: &str, c: &Calibration) {
             axis.y,
             axis.z,
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_params_defaults_are_the_specs() {
+        imuflow_graph::params::check_defaults::<CalibrationParams>().unwrap();
+    }
+
+    #[test]
+    fn the_pose_is_t_for_tpose_and_n_for_walking_unless_set() {
+        let at = |method, pose| {
+            CalibrationParams {
+                method,
+                pose,
+                ..CalibrationParams::default()
+            }
+            .config_at(60.0)
+            .pose
+        };
+        assert_eq!(at(Method::Tpose, None), ReferencePose::T);
+        assert_eq!(at(Method::None, None), ReferencePose::T);
+        assert_eq!(at(Method::Walking, None), ReferencePose::N);
+        assert_eq!(at(Method::Tpose, Some(ReferencePose::N)), ReferencePose::N);
+        assert_eq!(
+            SPEC.params[5].default, "t for tpose, n for walking",
+            "the text names what config_at computes"
+        );
+    }
+
+    #[test]
+    fn external_callers_get_an_error_for_a_value_the_validator_refuses() {
+        use imuflow_graph::params::toml;
+        let mut table = toml::Table::new();
+        table.insert("method".into(), toml::Value::String("magic".into()));
+        let err = config_from_params(&Params(&table), 60.0).unwrap_err();
+        assert!(err.to_string().contains("params.method"), "{err}");
+        assert!(config_from_params(&Params(&toml::Table::new()), 0.0).is_err());
     }
 }

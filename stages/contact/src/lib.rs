@@ -4,6 +4,6 @@
 //!
 //! - `stage`: the [`SPEC`] (ports, parameters) and [`run`], the process's main loop.
 
-mod stage;
+pub mod stage;
 
 pub use stage::{SPEC, run};

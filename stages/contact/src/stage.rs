@@ -16,14 +16,38 @@ use anyhow::Context;
 use imuflow_body::kinematics::FkData;
 use imuflow_body::{BodyModel, NUM_JOINTS, Pose, forward_kinematics};
 use imuflow_graph::frames::{ContactFrame, Frame, KinematicsFrame, MotionFrame, flags};
-use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
-use imuflow_graph::stage::Params;
+use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::{FrameType, StageContext};
 use nalgebra::Vector3;
 
-use imuflow_contact::pip::{PipContactConfig, pip_contacts};
+use imuflow_contact::pip::{
+    FOOT_MARGIN_PARAM, FOOT_THRESHOLD_PARAM, PipContactConfig, pip_contacts,
+};
 use imuflow_contact::subject::{MASS_PARAM, STATURE_PARAM, subject_body};
 use imuflow_contact::{ContactGeometry, ContactSet};
+
+imuflow_graph::stage_params! {
+    /// The contact stage's parameters.
+    pub struct ContactParams {
+        /// pip (CVPR 2022 §3.2.3: height + foot-contact probability)
+        method: String = "pip", choice(&["pip"]);
+        stature_m: f64 = use STATURE_PARAM;
+        mass_kg: f64 = use MASS_PARAM;
+        foot_threshold: f64 = use FOOT_THRESHOLD_PARAM;
+        foot_margin_m: f64 = use FOOT_MARGIN_PARAM;
+    }
+}
+
+impl ContactParams {
+    /// PIP's rule with these parameters.
+    pub fn pip_config(&self) -> PipContactConfig {
+        PipContactConfig {
+            foot_probability_threshold: self.foot_threshold,
+            foot_margin_m: self.foot_margin_m,
+            ..PipContactConfig::default()
+        }
+    }
+}
 
 pub const SPEC: StageSpec = StageSpec {
     kind: "contact",
@@ -49,31 +73,7 @@ pub const SPEC: StageSpec = StageSpec {
         required: false,
         doc: "contact joints, 4 points each (no forces)",
     }],
-    params: &[
-        ParamSpec {
-            name: "method",
-            ty: ParamType::Choice(&["pip"]),
-            required: false,
-            default: "pip",
-            doc: "pip (CVPR 2022 §3.2.3: height + foot-contact probability)",
-        },
-        STATURE_PARAM,
-        MASS_PARAM,
-        ParamSpec::float(
-            "foot_threshold",
-            0.0,
-            1.0,
-            "0.5",
-            "foot-contact probability above which a foot near the floor is in contact (PIP 0.5)",
-        ),
-        ParamSpec::float(
-            "foot_margin_m",
-            0.0,
-            0.5,
-            "0.03",
-            "how far above the floor such a foot may be (m, PIP 0.03)",
-        ),
-    ],
+    params: ContactParams::SPECS,
 };
 
 /// The stage's per-frame work, free of the graph: decode the fed-back state, apply PIP's rule.
@@ -128,26 +128,18 @@ impl ContactEstimator {
     }
 }
 
-fn config_from(params: &Params) -> PipContactConfig {
-    let d = PipContactConfig::default();
-    PipContactConfig {
-        foot_probability_threshold: params.float("foot_threshold", d.foot_probability_threshold),
-        foot_margin_m: params.float("foot_margin_m", d.foot_margin_m),
-        ..d
-    }
-}
-
 /// Runs the contact stage as the current process's stage.
 pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
-    let params = Params(ctx.params());
-    let method = params.str("method").unwrap_or("pip");
+    let params = ContactParams::from_params(ctx.params());
+    let method = params.method.as_str();
     if method != "pip" {
         anyhow::bail!("stage '{stage}': unknown method '{method}' (pip)");
     }
-    let body = subject_body(&params).with_context(|| format!("stage '{stage}': body model"))?;
-    let mut estimator = ContactEstimator::new(body, config_from(&params));
+    let body = subject_body(params.stature_m, params.mass_kg)
+        .with_context(|| format!("stage '{stage}': body model"))?;
+    let mut estimator = ContactEstimator::new(body, params.pip_config());
     let kin = ctx.input::<KinematicsFrame>("kin")?;
     let state = ctx.input::<MotionFrame>("state")?;
     let mut output = ctx.output::<ContactFrame>("contacts")?;
@@ -175,8 +167,8 @@ pub fn run() -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use imuflow_body::BodyParams;
     use bytemuck::Zeroable;
+    use imuflow_body::BodyParams;
     use imuflow_body::JointId;
     use imuflow_body::rotation::quat_wxyz_from_rotation;
 
@@ -189,6 +181,15 @@ mod tests {
         }
         frame.root_position_m = pose.root_in_world_m.cast::<f32>().into();
         frame
+    }
+
+    #[test]
+    fn the_params_defaults_are_the_specs() {
+        imuflow_graph::params::check_defaults::<ContactParams>().unwrap();
+        assert_eq!(
+            ContactParams::default().pip_config(),
+            PipContactConfig::default()
+        );
     }
 
     #[test]

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use imuflow_graph::StageContext;
 use imuflow_recording::{Recorded, Recording};
 
-use crate::Publisher;
+use crate::publisher::Publisher;
 
 /// Publishes the recording (paced by the recorded capture times when `realtime`).
 /// Replays `recording`; `limit` > 0 ends the stream after that many IMU frames.

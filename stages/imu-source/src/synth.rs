@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 use imuflow_graph::StageContext;
 use imuflow_synth::Motion;
 
-use crate::Publisher;
+use crate::publisher::Publisher;
 
 /// Publishes every frame of `motion` (paced at its rate when `realtime`).
 pub fn run(ctx: StageContext, motion: &Motion, realtime: bool) -> anyhow::Result<()> {

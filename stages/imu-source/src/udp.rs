@@ -30,7 +30,8 @@ use imuflow_graph::StageContext;
 use imuflow_graph::frames::{FrameHeader, ImuFrame, NUM_IMUS};
 use imuflow_graph::transport::now_ns;
 
-use crate::{ALL_VALID, Publisher, mark_invalid_sensors};
+use crate::publisher::Publisher;
+use crate::{ALL_VALID, mark_invalid_sensors};
 
 /// First four bytes of every packet.
 pub const MAGIC: [u8; 4] = *b"IMUF";

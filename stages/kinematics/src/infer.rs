@@ -14,6 +14,7 @@ use imuflow_body::skeleton::{
     CONTACT_JOINTS, FULL_JOINTS, IMU_JOINTS, LEAF_JOINTS, REDUCED_JOINTS,
 };
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
+use imuflow_graph::params::Param;
 use nalgebra::{Matrix3, Rotation3, Unit, UnitQuaternion, Vector3};
 
 use crate::features::{FPS, PIP_VELOCITY_SCALE};
@@ -125,10 +126,18 @@ pub enum SensorBones {
     Network,
 }
 
-/// Default tolerance of [`SensorBones::Measured`]: 0°, the calibrated measurement itself (see
-/// [`SensorBones`]; it was 5° until 2026-11-26, before the knees and elbows were made anatomical
-/// joints, through which the lower legs' and forearms' orientations also set the bones above).
-pub const SENSOR_BONE_TOLERANCE_DEG: f64 = 0.0;
+/// The kinematics stage's `sensor_bone_tolerance_deg`, the tolerance of [`SensorBones::Measured`]:
+/// by default 0°, the calibrated measurement itself (see [`SensorBones`]; it was 5° until
+/// 2026-11-26, before the knees and elbows were made anatomical joints, through which the lower
+/// legs' and forearms' orientations also set the bones above).
+pub const SENSOR_BONE_TOLERANCE_PARAM: Param<f64> = imuflow_graph::param! {
+    /// with sensor_bones = measured: how far a bone may stay from its sensor (0: the measurement
+    /// itself)
+    sensor_bone_tolerance_deg: f64 = 0, float(0.0, 180.0)
+};
+
+/// Default tolerance of [`SensorBones::Measured`], degrees ([`SENSOR_BONE_TOLERANCE_PARAM`]).
+pub const SENSOR_BONE_TOLERANCE_DEG: f64 = SENSOR_BONE_TOLERANCE_PARAM.default;
 
 impl Default for SensorBones {
     fn default() -> SensorBones {

@@ -16,22 +16,61 @@
 //! - Restarted mid-stream (its `restart` policy), the subject is no longer in the start pose: the
 //!   nets start from the pose the sensors show instead ([`pose_from_sensors`]).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use imuflow_graph::frames::{BodyImuFrame, KinematicsFrame, NUM_IMUS, flags};
-use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
-use imuflow_graph::stage::Params;
+use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::{FrameType, StageContext};
 use nalgebra::{Quaternion, Rotation3, UnitQuaternion};
 
 use crate::features::{ImuInput, ROOT_IMU};
 use crate::infer::{
-    Estimate, LIMB_JOINTS, LimbJoints, SENSOR_BONE_TOLERANCE_DEG, SensorBones, StartPose, Streamer,
-    impose_measured_bones, sensor_rotation,
+    Estimate, LIMB_JOINTS, LimbJoints, SENSOR_BONE_TOLERANCE_PARAM, SensorBones, StartPose,
+    Streamer, impose_measured_bones, sensor_rotation,
 };
 use crate::method::Method;
 use crate::weights::Weights;
+
+imuflow_graph::stage_params! {
+    /// The kinematics stage's parameters.
+    pub struct KinematicsParams {
+        /// which paper's networks
+        net: String = "pip", choice(&["pip", "globalpose"]);
+        /// weight file (safetensors from `imuflow train` or `imuflow import-checkpoint`)
+        weights: Option<PathBuf> = computed("models/<net>.safetensors"), path;
+        /// the pose the subject holds when calibration ends (initializes the networks' state);
+        /// auto: the one the calibrated forearm sensors show
+        start_pose: String = "auto", choice(&["auto", "tpose", "npose"]);
+        /// orientation of the bones that carry a sensor (forearms, lower legs, head): measured
+        /// (the calibrated sensor's orientation, or the networks' estimate turned to within
+        /// sensor_bone_tolerance_deg of it) or network (the networks' own, as in the papers)
+        sensor_bones: String = "measured", choice(&["measured", "network"]);
+        sensor_bone_tolerance_deg: f64 = use SENSOR_BONE_TOLERANCE_PARAM;
+        /// anatomical: knees turn about one axis, elbows flex and twist, neither more than 10°
+        /// past straight, and what the networks' pose asks beyond that moves to the hips and
+        /// shoulders (the lower legs and forearms keep their orientation), each flexion set so
+        /// the upper bone points at the networks' predicted knee or elbow;
+        /// anatomical-rotations: the same joints, the flexion from the networks' rotations alone;
+        /// free: the networks' 3-DoF joints, as in the papers
+        limb_joints: String = "anatomical", choice(&LIMB_JOINTS);
+        /// also run the networks on the stream mirrored left-right and average the two estimates
+        /// (test-time mirroring; twice the networks' time per frame)
+        mirror_ensemble: bool = false, bool;
+        /// a second weight file of the same net: both run on every frame and their estimates are
+        /// averaged (a weight ensemble; twice the networks' time per frame, four times with
+        /// mirror_ensemble)
+        ensemble_weights: Option<PathBuf>, path;
+        /// live: read the networks' weights into cache just before each frame is due (the stage
+        /// idles 16 ms between frames and the other processes evict them)
+        warm_weights: bool = true, bool;
+    }
+}
+
+/// The weight file of `method` when the graph names none.
+fn default_weights(method: Method) -> PathBuf {
+    PathBuf::from(format!("models/{}.safetensors", method.name()))
+}
 
 pub const SPEC: StageSpec = StageSpec {
     kind: "kinematics",
@@ -49,92 +88,28 @@ pub const SPEC: StageSpec = StageSpec {
         required: false,
         doc: "the networks' estimate per frame",
     }],
-    params: &[
-        ParamSpec {
-            name: "net",
-            ty: ParamType::Choice(&["pip", "globalpose"]),
-            required: false,
-            default: "pip",
-            doc: "which paper's networks",
-        },
-        ParamSpec {
-            name: "weights",
-            ty: ParamType::Path,
-            required: false,
-            default: "models/<net>.safetensors",
-            doc: "weight file (safetensors from `imuflow train` or `imuflow import-checkpoint`)",
-        },
-        ParamSpec {
-            name: "start_pose",
-            ty: ParamType::Choice(&["auto", "tpose", "npose"]),
-            required: false,
-            default: "auto",
-            doc: "the pose the subject holds when calibration ends (initializes the networks' state); auto: the one the calibrated forearm sensors show",
-        },
-        ParamSpec {
-            name: "sensor_bones",
-            ty: ParamType::Choice(&["measured", "network"]),
-            required: false,
-            default: "measured",
-            doc: "orientation of the bones that carry a sensor (forearms, lower legs, head): measured (the calibrated sensor's orientation, or the networks' estimate turned to within sensor_bone_tolerance_deg of it) or network (the networks' own, as in the papers)",
-        },
-        ParamSpec::float(
-            "sensor_bone_tolerance_deg",
-            0.0,
-            180.0,
-            "0",
-            "with sensor_bones = measured: how far a bone may stay from its sensor (0: the measurement itself)",
-        ),
-        ParamSpec {
-            name: "limb_joints",
-            ty: ParamType::Choice(&LIMB_JOINTS),
-            required: false,
-            default: "anatomical",
-            doc: "anatomical: knees turn about one axis, elbows flex and twist, neither more than 10° past straight, and what the networks' pose asks beyond that moves to the hips and shoulders (the lower legs and forearms keep their orientation), each flexion set so the upper bone points at the networks' predicted knee or elbow; anatomical-rotations: the same joints, the flexion from the networks' rotations alone; free: the networks' 3-DoF joints, as in the papers",
-        },
-        ParamSpec {
-            name: "mirror_ensemble",
-            ty: ParamType::Bool,
-            required: false,
-            default: "false",
-            doc: "also run the networks on the stream mirrored left-right and average the two estimates (test-time mirroring; twice the networks' time per frame)",
-        },
-        ParamSpec {
-            name: "ensemble_weights",
-            ty: ParamType::Path,
-            required: false,
-            default: "",
-            doc: "a second weight file of the same net: both run on every frame and their estimates are averaged (a weight ensemble; twice the networks' time per frame, four times with mirror_ensemble)",
-        },
-        ParamSpec {
-            name: "warm_weights",
-            ty: ParamType::Bool,
-            required: false,
-            default: "true",
-            doc: "live: read the networks' weights into cache just before each frame is due (the stage idles 16 ms between frames and the other processes evict them)",
-        },
-    ],
+    params: KinematicsParams::SPECS,
 };
 
 /// Runs the kinematics stage as the current process's stage.
 pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
-    let params = Params(ctx.params());
-    let method_name = params.str("net").unwrap_or("pip").to_owned();
-    let Some(method) = Method::parse(&method_name) else {
+    let params = KinematicsParams::from_params(ctx.params());
+    let method_name = params.net.as_str();
+    let Some(method) = Method::parse(method_name) else {
         bail!("stage '{stage}': unknown net '{method_name}' (pip or globalpose)");
     };
     let weights_path = params
-        .str("weights")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(format!("models/{}.safetensors", method.name())));
+        .weights
+        .clone()
+        .unwrap_or_else(|| default_weights(method));
     // `None`: the pose the sensors show when the calibration ends (see `StartPose::shown_by`).
-    let fixed_start = match params.str("start_pose") {
-        Some("tpose") => Some(StartPose::TPose),
-        Some("npose") => Some(StartPose::NPose),
-        Some("auto") | None => None,
-        Some(other) => {
+    let fixed_start = match params.start_pose.as_str() {
+        "tpose" => Some(StartPose::TPose),
+        "npose" => Some(StartPose::NPose),
+        "auto" => None,
+        other => {
             bail!("stage '{stage}': unknown start_pose '{other}' (auto, tpose or npose)")
         }
     };
@@ -150,29 +125,37 @@ pub fn run() -> anyhow::Result<()> {
             weights_path.display()
         )
     })?;
-    let sensor_bones_name = params.str("sensor_bones").unwrap_or("measured");
-    let tolerance_deg = params.float("sensor_bone_tolerance_deg", SENSOR_BONE_TOLERANCE_DEG);
+    let sensor_bones_name = params.sensor_bones.as_str();
+    let tolerance_deg = params.sensor_bone_tolerance_deg;
     let Some(sensor_bones) = SensorBones::parse(sensor_bones_name, tolerance_deg) else {
         bail!("stage '{stage}': unknown sensor_bones '{sensor_bones_name}' (measured or network)");
     };
-    let limb_joints = params.str("limb_joints").unwrap_or("anatomical");
+    let limb_joints = params.limb_joints.as_str();
     let Some(limb_joints) = LimbJoints::parse(limb_joints) else {
         bail!(
             "stage '{stage}': unknown limb_joints '{limb_joints}' ({})",
             LIMB_JOINTS.join(", ")
         );
     };
-    let warm_weights = params.bool("warm_weights", true);
+    let warm_weights = params.warm_weights;
     let mut streamer = Streamer::new(weights, start.pose())?;
     streamer.set_sensor_bones(sensor_bones);
     streamer.set_limb_joints(limb_joints);
-    streamer.set_mirror_ensemble(params.bool("mirror_ensemble", false));
-    if let Some(path) = params.str("ensemble_weights").filter(|p| !p.is_empty()) {
-        let partner = Weights::load(Path::new(path), method)
-            .with_context(|| format!("stage '{stage}': loading ensemble_weights '{path}'"))?;
+    streamer.set_mirror_ensemble(params.mirror_ensemble);
+    if let Some(path) = params
+        .ensemble_weights
+        .as_deref()
+        .filter(|p| !p.as_os_str().is_empty())
+    {
+        let partner = Weights::load(path, method).with_context(|| {
+            format!(
+                "stage '{stage}': loading ensemble_weights '{}'",
+                path.display()
+            )
+        })?;
         streamer
             .set_partner(Some(partner))
-            .with_context(|| format!("stage '{stage}': ensemble_weights '{path}'"))?;
+            .with_context(|| format!("stage '{stage}': ensemble_weights '{}'", path.display()))?;
     }
     let input = ctx.input::<BodyImuFrame>("imu")?;
     let mut output = ctx.output::<KinematicsFrame>("kinematics")?;
@@ -308,6 +291,19 @@ mod tests {
 
     fn row_major(r: &Rotation3<f64>) -> [f32; 9] {
         std::array::from_fn(|k| r[(k / 3, k % 3)] as f32)
+    }
+
+    #[test]
+    fn the_params_defaults_are_the_specs() {
+        imuflow_graph::params::check_defaults::<KinematicsParams>().unwrap();
+        let text = SPEC.param("weights").unwrap().default;
+        for method in [Method::Pip, Method::GlobalPose] {
+            assert_eq!(
+                default_weights(method),
+                PathBuf::from(text.replace("<net>", method.name())),
+                "the weights' text names the path default_weights builds"
+            );
+        }
     }
 
     #[test]

@@ -12,18 +12,77 @@ use anyhow::{Context, bail};
 use imuflow_contact::ContactSet;
 use imuflow_contact::subject::{MASS_PARAM, STATURE_PARAM, subject_body};
 use imuflow_graph::frames::{ContactFrame, KinematicsFrame, MotionFrame, flags};
-use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
-use imuflow_graph::stage::Params;
+use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::{FrameType, StageContext};
 
 use crate::estimate::{FEET, place_on_floor};
 use crate::globalpose::{GlobalPose, GlobalPoseConfig};
 use crate::integrate::Integrate;
-use crate::pip::{Pip, PipConfig};
+use crate::pip::{LIMB_BONE_WEIGHT_PARAM, Pip, PipConfig, SENSOR_BONE_WEIGHT_PARAM};
 use crate::{Method, MotionEstimate, PhysicsBody, Reference, Terrain};
 
 /// The methods, as the `method` parameter names them.
 pub const METHODS: [&str; 3] = ["integrate", "pip", "globalpose"];
+
+imuflow_graph::stage_params! {
+    /// The optimizer's parameters. Where the gains and the friction are not set, each method keeps
+    /// its paper's ([`PipConfig::default`], [`GlobalPoseConfig::default`]); their texts say which.
+    pub struct OptimizerParams {
+        /// integrate (no physics), pip (CVPR 2022 QP) or globalpose (SIGGRAPH 2025 double
+        /// tracking)
+        method: String = "integrate", choice(&METHODS);
+        stature_m: f64 = use STATURE_PARAM;
+        mass_kg: f64 = use MASS_PARAM;
+        /// joint-rotation PD stiffness (1/s²)
+        kp_rotation: Option<f64> = computed("pip 2400, globalpose 3600"), float(0.0, 1e6);
+        /// joint-rotation PD damping (1/s)
+        kd_rotation: Option<f64> = computed("60"), float(0.0, 1e4);
+        /// joint-position PD stiffness (1/s²)
+        kp_position: Option<f64> = computed("3600"), float(0.0, 1e6);
+        /// joint-position PD damping (1/s)
+        kd_position: Option<f64> = computed("60"), float(0.0, 1e4);
+        /// friction coefficient μ of the contact cones
+        friction: Option<f64> = computed("pip 0.6, globalpose 0.7"), float(0.0, 5.0);
+        sensor_bone_weight: f64 = use SENSOR_BONE_WEIGHT_PARAM;
+        limb_bone_weight: f64 = use LIMB_BONE_WEIGHT_PARAM;
+        /// integrate and globalpose: flat (stationary feet pulled to the floor from any height: no
+        /// vertical drift) or proxy (GlobalPose's proxy surfaces: steps and seats, but a biased
+        /// network can ratchet the root up)
+        terrain: String = "flat", choice(&Terrain::NAMES);
+    }
+}
+
+impl OptimizerParams {
+    /// PIP's configuration: its own defaults where these parameters leave them.
+    pub fn pip_config(&self) -> PipConfig {
+        let d = PipConfig::default();
+        PipConfig {
+            kp_rotation: self.kp_rotation.unwrap_or(d.kp_rotation),
+            kd_rotation: self.kd_rotation.unwrap_or(d.kd_rotation),
+            kp_position: self.kp_position.unwrap_or(d.kp_position),
+            kd_position: self.kd_position.unwrap_or(d.kd_position),
+            friction: self.friction.unwrap_or(d.friction),
+            coeff_sensor_bone: self.sensor_bone_weight,
+            coeff_limb_bone: self.limb_bone_weight,
+            ..d
+        }
+    }
+
+    /// GlobalPose's configuration on `terrain`: its own defaults where these parameters leave
+    /// them.
+    pub fn globalpose_config(&self, terrain: Terrain) -> GlobalPoseConfig {
+        let d = GlobalPoseConfig::default();
+        GlobalPoseConfig {
+            kp_rotation: self.kp_rotation.unwrap_or(d.kp_rotation),
+            kd_rotation: self.kd_rotation.unwrap_or(d.kd_rotation),
+            kp_position: self.kp_position.unwrap_or(d.kp_position),
+            kd_position: self.kd_position.unwrap_or(d.kd_position),
+            friction: self.friction.unwrap_or(d.friction),
+            terrain,
+            ..d
+        }
+    }
+}
 
 pub const SPEC: StageSpec = StageSpec {
     kind: "optimizer",
@@ -57,83 +116,21 @@ pub const SPEC: StageSpec = StageSpec {
             doc: "the contacts the method used, with per-point forces (globalpose: its own estimate)",
         },
     ],
-    params: &[
-        ParamSpec {
-            name: "method",
-            ty: ParamType::Choice(&METHODS),
-            required: false,
-            default: "integrate",
-            doc: "integrate (no physics), pip (CVPR 2022 QP) or globalpose (SIGGRAPH 2025 double tracking)",
-        },
-        STATURE_PARAM,
-        MASS_PARAM,
-        ParamSpec::float(
-            "kp_rotation",
-            0.0,
-            1e6,
-            "pip 2400, globalpose 3600",
-            "joint-rotation PD stiffness (1/s²)",
-        ),
-        ParamSpec::float(
-            "kd_rotation",
-            0.0,
-            1e4,
-            "60",
-            "joint-rotation PD damping (1/s)",
-        ),
-        ParamSpec::float(
-            "kp_position",
-            0.0,
-            1e6,
-            "3600",
-            "joint-position PD stiffness (1/s²)",
-        ),
-        ParamSpec::float(
-            "kd_position",
-            0.0,
-            1e4,
-            "60",
-            "joint-position PD damping (1/s)",
-        ),
-        ParamSpec::float(
-            "friction",
-            0.0,
-            5.0,
-            "pip 0.6, globalpose 0.7",
-            "friction coefficient μ of the contact cones",
-        ),
-        ParamSpec::float(
-            "sensor_bone_weight",
-            0.0,
-            1e3,
-            "1",
-            "pip: weight of the world-orientation PD on the six instrumented bones (0: PIP's own cost)",
-        ),
-        ParamSpec::float(
-            "limb_bone_weight",
-            0.0,
-            1e3,
-            "1",
-            "pip: weight of the same PD on the upper legs and upper arms, which the kinematics stage sets from the sensors below them (0: PIP's own cost)",
-        ),
-        ParamSpec {
-            name: "terrain",
-            ty: ParamType::Choice(&Terrain::NAMES),
-            required: false,
-            default: "flat",
-            doc: "integrate and globalpose: flat (stationary feet pulled to the floor from any height: no vertical drift) or proxy (GlobalPose's proxy surfaces: steps and seats, but a biased network can ratchet the root up)",
-        },
-    ],
+    params: OptimizerParams::SPECS,
 };
 
 /// Builds the method a stage's parameters ask for.
-fn build(stage: &str, params: &Params) -> anyhow::Result<(String, Box<dyn Method>, PhysicsBody)> {
-    let name = params.str("method").unwrap_or("integrate").to_owned();
+fn build(
+    stage: &str,
+    params: &OptimizerParams,
+) -> anyhow::Result<(String, Box<dyn Method>, PhysicsBody)> {
+    let name = params.method.clone();
     let physics = PhysicsBody::from_body(
-        subject_body(params).with_context(|| format!("stage '{stage}': body model"))?,
+        subject_body(params.stature_m, params.mass_kg)
+            .with_context(|| format!("stage '{stage}': body model"))?,
     );
     let for_stage = physics.clone();
-    let terrain_name = params.str("terrain").unwrap_or("flat");
+    let terrain_name = params.terrain.as_str();
     let Some(terrain) = Terrain::parse(terrain_name) else {
         bail!(
             "stage '{stage}': unknown terrain '{terrain_name}' ({})",
@@ -142,33 +139,8 @@ fn build(stage: &str, params: &Params) -> anyhow::Result<(String, Box<dyn Method
     };
     let method: Box<dyn Method> = match name.as_str() {
         "integrate" => Box::new(Integrate::with_terrain(physics, terrain)),
-        "pip" => {
-            let d = PipConfig::default();
-            let config = PipConfig {
-                kp_rotation: params.float("kp_rotation", d.kp_rotation),
-                kd_rotation: params.float("kd_rotation", d.kd_rotation),
-                kp_position: params.float("kp_position", d.kp_position),
-                kd_position: params.float("kd_position", d.kd_position),
-                friction: params.float("friction", d.friction),
-                coeff_sensor_bone: params.float("sensor_bone_weight", d.coeff_sensor_bone),
-                coeff_limb_bone: params.float("limb_bone_weight", d.coeff_limb_bone),
-                ..d
-            };
-            Box::new(Pip::new(physics, config)?)
-        }
-        "globalpose" => {
-            let d = GlobalPoseConfig::default();
-            let config = GlobalPoseConfig {
-                kp_rotation: params.float("kp_rotation", d.kp_rotation),
-                kd_rotation: params.float("kd_rotation", d.kd_rotation),
-                kp_position: params.float("kp_position", d.kp_position),
-                kd_position: params.float("kd_position", d.kd_position),
-                friction: params.float("friction", d.friction),
-                terrain,
-                ..d
-            };
-            Box::new(GlobalPose::new(physics, config)?)
-        }
+        "pip" => Box::new(Pip::new(physics, params.pip_config())?),
+        "globalpose" => Box::new(GlobalPose::new(physics, params.globalpose_config(terrain))?),
         other => bail!(
             "stage '{stage}': unknown method '{other}' ({})",
             METHODS.join(", ")
@@ -181,7 +153,8 @@ fn build(stage: &str, params: &Params) -> anyhow::Result<(String, Box<dyn Method
 pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
-    let (method_name, mut method, physics) = build(&stage, &Params(ctx.params()))?;
+    let (method_name, mut method, physics) =
+        build(&stage, &OptimizerParams::from_params(ctx.params()))?;
     let kin = ctx.input::<KinematicsFrame>("kin")?;
     let has_contacts = ctx.input_names().iter().any(|n| n == "contacts");
     let contacts_in = if has_contacts {
@@ -283,4 +256,44 @@ struct Counts {
     frames: u64,
     fallbacks: u64,
     undecodable: u64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_params_defaults_are_the_specs() {
+        imuflow_graph::params::check_defaults::<OptimizerParams>().unwrap();
+        let p = OptimizerParams::default();
+        assert_eq!(p.pip_config(), PipConfig::default());
+        assert_eq!(
+            p.globalpose_config(Terrain::parse(&p.terrain).unwrap()),
+            GlobalPoseConfig::default()
+        );
+    }
+
+    /// The texts of the defaults the methods keep: "pip A, globalpose B", or one value for both.
+    #[test]
+    fn the_method_defaults_texts_are_the_methods_defaults() {
+        let (pip, globalpose) = (PipConfig::default(), GlobalPoseConfig::default());
+        let read = |name: &str| {
+            let text = SPEC.param(name).unwrap().default;
+            let value = |s: &str| s.trim().parse::<f64>().unwrap();
+            match text.split_once(", globalpose ") {
+                Some((p, g)) => (value(p.strip_prefix("pip ").unwrap()), value(g)),
+                None => (value(text), value(text)),
+            }
+        };
+        let cases = [
+            ("kp_rotation", pip.kp_rotation, globalpose.kp_rotation),
+            ("kd_rotation", pip.kd_rotation, globalpose.kd_rotation),
+            ("kp_position", pip.kp_position, globalpose.kp_position),
+            ("kd_position", pip.kd_position, globalpose.kd_position),
+            ("friction", pip.friction, globalpose.friction),
+        ];
+        for (name, p, g) in cases {
+            assert_eq!(read(name), (p, g), "{name}");
+        }
+    }
 }

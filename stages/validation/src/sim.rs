@@ -19,6 +19,7 @@ use rapier3d::glamx::{Quat, Vec3};
 use rapier3d::prelude::*;
 
 use crate::model::{Shape, SimModel};
+use crate::stage::ValidationParams;
 
 /// Standard gravity along M's -y, m/s².
 const GRAVITY_MPS2: f64 = 9.81;
@@ -41,7 +42,8 @@ const MAX_CLEARANCE_BEND_RAD: f64 = 0.5;
 const FEET: [JointId; 2] = [JointId::LEFT_FOOT, JointId::RIGHT_FOOT];
 
 /// How the root is driven.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Mode {
     /// Root unactuated: only joint torques and ground contact move the body (the honest test).
     Torques,
@@ -62,7 +64,8 @@ impl Mode {
 }
 
 /// How the links are joined.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Joints {
     /// One rapier multibody in reduced coordinates: the joints cannot come apart, at the cost of
     /// a dense mass matrix recomputed every physics step.
@@ -80,6 +83,23 @@ impl Joints {
             "multibody" => Some(Joints::Multibody),
             "impulse" => Some(Joints::Impulse),
             _ => None,
+        }
+    }
+
+    /// The solver settings that suit these joints, (iterations, sweeps) per physics step
+    /// (measured on the test split's walks and runs; stages/validation/README.md, "Joints"):
+    /// - multibody: one solver iteration of four sweeps per physics step. Every iteration
+    ///   recomputes the multibody's dense mass matrix (most of the time), and with one sweep the
+    ///   stiff motors, coupled through that matrix, let a held T-pose fold at the knees within
+    ///   1.5 s; with four it stands to 5 mm.
+    /// - impulse: four iterations of twelve sweeps. Each joint is its own constraint, met
+    ///   only as far as the sweeps carry a correction along the chain: with one iteration of four
+    ///   sweeps the chain sagged (pose error on the sample's walk 10.7 against 5.0 cm) and fell four
+    ///   times as often. Sweeps are cheap here, there is no mass matrix to rebuild.
+    pub fn solver_settings(self) -> (usize, usize) {
+        match self {
+            Joints::Multibody => (1, 4),
+            Joints::Impulse => (4, 12),
         }
     }
 }
@@ -122,45 +142,21 @@ pub struct SimConfig {
 }
 
 impl Default for SimConfig {
+    /// The validation stage's defaults ([`ValidationParams`]).
     fn default() -> SimConfig {
-        SimConfig::for_joints(Joints::Impulse)
+        ValidationParams::default().sim_config()
     }
 }
 
 impl SimConfig {
-    /// The defaults, with the solver settings that suit `joints` (measured on the test split's
-    /// walks and runs; stages/validation/README.md, "Joints"):
-    /// - multibody: one solver iteration of four sweeps per physics step. Every iteration
-    ///   recomputes the multibody's dense mass matrix (most of the time), and with one sweep the
-    ///   stiff motors, coupled through that matrix, let a held T-pose fold at the knees within
-    ///   1.5 s; with four it stands to 5 mm.
-    /// - impulse: four iterations of twelve sweeps. Each joint is its own constraint, met
-    ///   only as far as the sweeps carry a correction along the chain: with one iteration of four
-    ///   sweeps the chain sagged (pose error on the sample's walk 10.7 against 5.0 cm) and fell four
-    ///   times as often. Sweeps are cheap here, there is no mass matrix to rebuild.
+    /// The defaults with `joints` and the solver settings that suit them
+    /// ([`Joints::solver_settings`]).
     pub fn for_joints(joints: Joints) -> SimConfig {
-        let (solver_iterations, solver_sweeps) = match joints {
-            Joints::Multibody => (1, 4),
-            Joints::Impulse => (4, 12),
-        };
-        SimConfig {
-            mode: Mode::Torques,
-            kp: 900.0,
-            kd: 60.0,
-            max_torque_nm_per_kg: 4.0,
-            balance_kp: 400.0,
-            balance_kd: 40.0,
-            placement_kp: 1.0,
-            placement_kv: 0.3,
-            residual_kp: 100.0,
-            residual_kd: 20.0,
-            clearance_gain: 4.0,
-            friction: 0.8,
-            substeps: 4,
-            solver_iterations,
-            solver_sweeps,
+        ValidationParams {
             joints,
+            ..ValidationParams::default()
         }
+        .sim_config()
     }
 }
 

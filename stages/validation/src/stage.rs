@@ -14,13 +14,102 @@ use imuflow_body::rotation::axis_angle_from_rotation;
 use imuflow_body::skeleton::JointId;
 use imuflow_contact::subject::{MASS_PARAM, STATURE_PARAM, subject_body};
 use imuflow_graph::frames::{ContactFrame, MotionFrame, NUM_DOFS, ValidationFrame, flags};
-use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
-use imuflow_graph::stage::Params;
+use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::{FrameType, StageContext};
 
-use crate::model::SimModel;
+use crate::model::{FOOT_PITCH_PARAM, SimModel};
 use crate::sim::{Joints, Mode, SimConfig};
 use crate::validator::{FallRule, Outcome, Validator};
+
+imuflow_graph::stage_params! {
+    /// The validation stage's parameters, and so [`SimConfig::default`] and [`FallRule::default`].
+    pub struct ValidationParams {
+        /// torques: root unactuated, the body must balance on its contacts; residual: a weak root
+        /// PD helps and its force is reported
+        mode: Mode = "torques", choice(&Mode::NAMES);
+        stature_m: f64 = use STATURE_PARAM;
+        mass_kg: f64 = use MASS_PARAM;
+        // 900: ω = 30 rad/s (about 4.8 Hz); 60: critically damped at that ω.
+        /// joint stiffness per unit driven inertia (1/s²)
+        kp: f64 = 900, float(0.0, 1e5);
+        /// joint damping per unit driven inertia (1/s)
+        kd: f64 = 60, float(0.1, 1e4);
+        // A strong adult's hip or knee: about 3-4 N·m/kg.
+        /// joint torque limit per kg of body mass (N·m/kg)
+        max_torque_nm_per_kg: f64 = 4, float(0.0, 100.0);
+        /// extra swing-knee bend per shank length the simulated swing foot hangs below the
+        /// estimate's (rad/rad)
+        clearance_gain: f64 = 4, float(0.0, 20.0);
+        /// pelvis-orientation feedback through the stance hips, per unit root inertia (1/s²)
+        balance_kp: f64 = 400, float(0.0, 1e5);
+        /// its damping (1/s)
+        balance_kd: f64 = 40, float(0.0, 1e4);
+        /// foot placement: swing foot shift per metre the simulated centre of mass is ahead of the
+        /// estimate's (relative to the stance foot)
+        placement_kp: f64 = 1, float(0.0, 10.0);
+        /// foot placement: swing foot shift per m/s the simulated centre of mass is faster (s)
+        placement_kv: f64 = 0.3, float(0.0, 10.0);
+        foot_pitch_deg: f64 = use FOOT_PITCH_PARAM;
+        /// residual mode: root PD stiffness per unit mass / root inertia (1/s²)
+        residual_kp: f64 = 100, float(0.0, 1e5);
+        /// residual mode: root PD damping (1/s)
+        residual_kd: f64 = 20, float(0.0, 1e4);
+        /// friction coefficient body-floor
+        friction: f64 = 0.8, float(0.0, 5.0);
+        /// physics steps per frame
+        substeps: usize = 4, int(1, 64);
+        /// how the simulated links are joined: a rigid body each, held by impulse joints (the
+        /// default: about 2.5x faster), or one rapier multibody in reduced coordinates (joints
+        /// exact, dense mass matrix)
+        joints: Joints = "impulse", choice(&Joints::NAMES);
+        /// rapier solver iterations per physics step (with a multibody each recomputes its mass
+        /// matrix)
+        solver_iterations: Option<usize> = computed("4 (impulse), 1 (multibody)"), int(1, 16);
+        /// Gauss-Seidel sweeps per solver iteration
+        solver_sweeps: Option<usize> = computed("12 (impulse), 4 (multibody)"), int(1, 64);
+        /// fallen when the simulated pelvis is below this fraction of the estimate's pelvis height
+        fall_height_fraction: f64 = 0.6, float(0.0, 1.0);
+        /// fallen when the simulated trunk tilts this far from the estimate's (degrees)
+        fall_tilt_deg: f64 = 45, float(0.0, 180.0);
+        /// re-anchor to the estimate (a resync, not a fall) past this horizontal root drift (m)
+        max_drift_m: f64 = 0.5, float(0.0, 100.0);
+    }
+}
+
+impl ValidationParams {
+    /// The simulation's settings; the solver's, where not set, those that suit the joints
+    /// ([`Joints::solver_settings`]).
+    pub fn sim_config(&self) -> SimConfig {
+        let (iterations, sweeps) = self.joints.solver_settings();
+        SimConfig {
+            mode: self.mode,
+            kp: self.kp,
+            kd: self.kd,
+            max_torque_nm_per_kg: self.max_torque_nm_per_kg,
+            balance_kp: self.balance_kp,
+            balance_kd: self.balance_kd,
+            placement_kp: self.placement_kp,
+            placement_kv: self.placement_kv,
+            residual_kp: self.residual_kp,
+            residual_kd: self.residual_kd,
+            clearance_gain: self.clearance_gain,
+            friction: self.friction,
+            substeps: self.substeps,
+            solver_iterations: self.solver_iterations.unwrap_or(iterations),
+            solver_sweeps: self.solver_sweeps.unwrap_or(sweeps),
+            joints: self.joints,
+        }
+    }
+
+    /// When the simulated body counts as fallen.
+    pub fn fall_rule(&self) -> FallRule {
+        FallRule {
+            pelvis_height_fraction: self.fall_height_fraction,
+            trunk_tilt_deg: self.fall_tilt_deg,
+            max_drift_m: self.max_drift_m,
+        }
+    }
+}
 
 pub const SPEC: StageSpec = StageSpec {
     kind: "validation",
@@ -54,195 +143,19 @@ pub const SPEC: StageSpec = StageSpec {
             doc: "the simulated body's pose (q, qdot; floor forces as ground_reaction_force_n)",
         },
     ],
-    params: &[
-        ParamSpec {
-            name: "mode",
-            ty: ParamType::Choice(&Mode::NAMES),
-            required: false,
-            default: "torques",
-            doc: "torques: root unactuated, the body must balance on its contacts; residual: a weak root PD helps and its force is reported",
-        },
-        STATURE_PARAM,
-        MASS_PARAM,
-        ParamSpec::float(
-            "kp",
-            0.0,
-            1e5,
-            "900",
-            "joint stiffness per unit driven inertia (1/s²)",
-        ),
-        ParamSpec::float(
-            "kd",
-            0.1,
-            1e4,
-            "60",
-            "joint damping per unit driven inertia (1/s)",
-        ),
-        ParamSpec::float(
-            "max_torque_nm_per_kg",
-            0.0,
-            100.0,
-            "4",
-            "joint torque limit per kg of body mass (N·m/kg)",
-        ),
-        ParamSpec::float(
-            "clearance_gain",
-            0.0,
-            20.0,
-            "4",
-            "extra swing-knee bend per shank length the simulated swing foot hangs below the estimate's (rad/rad)",
-        ),
-        ParamSpec::float(
-            "balance_kp",
-            0.0,
-            1e5,
-            "400",
-            "pelvis-orientation feedback through the stance hips, per unit root inertia (1/s²)",
-        ),
-        ParamSpec::float("balance_kd", 0.0, 1e4, "40", "its damping (1/s)"),
-        ParamSpec::float(
-            "placement_kp",
-            0.0,
-            10.0,
-            "1",
-            "foot placement: swing foot shift per metre the simulated centre of mass is ahead of the estimate's (relative to the stance foot)",
-        ),
-        ParamSpec::float(
-            "placement_kv",
-            0.0,
-            10.0,
-            "0.3",
-            "foot placement: swing foot shift per m/s the simulated centre of mass is faster (s)",
-        ),
-        ParamSpec::float(
-            "foot_pitch_deg",
-            -45.0,
-            45.0,
-            "0",
-            "ankle pitch (toe down, degrees) at which the soles are level: 0 for the nets' estimates, 9.3 for Bandai-retargeted truth",
-        ),
-        ParamSpec::float(
-            "residual_kp",
-            0.0,
-            1e5,
-            "100",
-            "residual mode: root PD stiffness per unit mass / root inertia (1/s²)",
-        ),
-        ParamSpec::float(
-            "residual_kd",
-            0.0,
-            1e4,
-            "20",
-            "residual mode: root PD damping (1/s)",
-        ),
-        ParamSpec::float(
-            "friction",
-            0.0,
-            5.0,
-            "0.8",
-            "friction coefficient body-floor",
-        ),
-        ParamSpec {
-            name: "substeps",
-            ty: ParamType::Int { min: 1, max: 64 },
-            required: false,
-            default: "4",
-            doc: "physics steps per frame",
-        },
-        ParamSpec {
-            name: "joints",
-            ty: ParamType::Choice(&Joints::NAMES),
-            required: false,
-            default: "impulse",
-            doc: "how the simulated links are joined: a rigid body each, held by impulse joints (the default: about 2.5x faster), or one rapier multibody in reduced coordinates (joints exact, dense mass matrix)",
-        },
-        ParamSpec {
-            name: "solver_iterations",
-            ty: ParamType::Int { min: 1, max: 16 },
-            required: false,
-            default: "4 (impulse), 1 (multibody)",
-            doc: "rapier solver iterations per physics step (with a multibody each recomputes its mass matrix)",
-        },
-        ParamSpec {
-            name: "solver_sweeps",
-            ty: ParamType::Int { min: 1, max: 64 },
-            required: false,
-            default: "12 (impulse), 4 (multibody)",
-            doc: "Gauss-Seidel sweeps per solver iteration",
-        },
-        ParamSpec::float(
-            "fall_height_fraction",
-            0.0,
-            1.0,
-            "0.6",
-            "fallen when the simulated pelvis is below this fraction of the estimate's pelvis height",
-        ),
-        ParamSpec::float(
-            "fall_tilt_deg",
-            0.0,
-            180.0,
-            "45",
-            "fallen when the simulated trunk tilts this far from the estimate's (degrees)",
-        ),
-        ParamSpec::float(
-            "max_drift_m",
-            0.0,
-            100.0,
-            "0.5",
-            "re-anchor to the estimate (a resync, not a fall) past this horizontal root drift (m)",
-        ),
-    ],
+    params: ValidationParams::SPECS,
 };
 
 /// The validator a stage's parameters ask for.
-pub fn build(stage: &str, params: &Params) -> anyhow::Result<Validator> {
-    let body = subject_body(params).with_context(|| format!("stage '{stage}': body model"))?;
-    let mode_name = params.str("mode").unwrap_or("torques");
-    let mode = Mode::parse(mode_name).with_context(|| {
-        format!(
-            "stage '{stage}': unknown mode '{mode_name}' ({})",
-            Mode::NAMES.join(", ")
-        )
-    })?;
-    let joints_name = params.str("joints").unwrap_or("impulse");
-    let joints = Joints::parse(joints_name).with_context(|| {
-        format!(
-            "stage '{stage}': unknown joints '{joints_name}' ({})",
-            Joints::NAMES.join(", ")
-        )
-    })?;
-    let d = SimConfig::for_joints(joints);
-    let config = SimConfig {
-        mode,
-        joints,
-        kp: params.float("kp", d.kp),
-        kd: params.float("kd", d.kd),
-        max_torque_nm_per_kg: params.float("max_torque_nm_per_kg", d.max_torque_nm_per_kg),
-        balance_kp: params.float("balance_kp", d.balance_kp),
-        balance_kd: params.float("balance_kd", d.balance_kd),
-        placement_kp: params.float("placement_kp", d.placement_kp),
-        placement_kv: params.float("placement_kv", d.placement_kv),
-        residual_kp: params.float("residual_kp", d.residual_kp),
-        residual_kd: params.float("residual_kd", d.residual_kd),
-        clearance_gain: params.float("clearance_gain", d.clearance_gain),
-        friction: params.float("friction", d.friction),
-        substeps: params.int("substeps", d.substeps as i64).max(1) as usize,
-        solver_iterations: params
-            .int("solver_iterations", d.solver_iterations as i64)
-            .max(1) as usize,
-        solver_sweeps: params.int("solver_sweeps", d.solver_sweeps as i64).max(1) as usize,
-    };
-    let f = FallRule::default();
-    let fall = FallRule {
-        pelvis_height_fraction: params.float("fall_height_fraction", f.pelvis_height_fraction),
-        trunk_tilt_deg: params.float("fall_tilt_deg", f.trunk_tilt_deg),
-        max_drift_m: params.float("max_drift_m", f.max_drift_m),
-    };
-    let model = SimModel::with_foot_pitch(
-        &body,
-        params.float("foot_pitch_deg", crate::model::DEFAULT_FOOT_PITCH_DEG),
-    );
-    Ok(Validator::new(model, config, fall))
+pub fn build(stage: &str, params: &ValidationParams) -> anyhow::Result<Validator> {
+    let body = subject_body(params.stature_m, params.mass_kg)
+        .with_context(|| format!("stage '{stage}': body model"))?;
+    let model = SimModel::with_foot_pitch(&body, params.foot_pitch_deg);
+    Ok(Validator::new(
+        model,
+        params.sim_config(),
+        params.fall_rule(),
+    ))
 }
 
 /// Seconds between two frames from their capture times, or the graph's nominal period when the
@@ -260,7 +173,7 @@ fn frame_dt(previous_ns: Option<u64>, capture_ns: u64, nominal_s: f64) -> f64 {
 pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
-    let mut validator = build(&stage, &Params(ctx.params()))?;
+    let mut validator = build(&stage, &ValidationParams::from_params(ctx.params()))?;
     let residual = validator.config().mode == Mode::Residual;
     let nominal_s = 1.0 / ctx.graph().rate_hz;
     let motion = ctx.input::<MotionFrame>("motion")?;
@@ -429,6 +342,38 @@ impl ContactAgreement {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_params_defaults_are_the_specs() {
+        imuflow_graph::params::check_defaults::<ValidationParams>().unwrap();
+    }
+
+    /// "4 (impulse), 1 (multibody)": what each joint kind's solver settings are.
+    #[test]
+    fn the_solver_defaults_texts_are_the_joints_settings() {
+        let read = |name: &str, joints: Joints| -> usize {
+            let text = SPEC.param(name).unwrap().default;
+            let wanted = format!("({})", Joints::NAMES[joints as usize]);
+            let part = text.split(", ").find(|p| p.ends_with(&wanted)).unwrap();
+            part.split_whitespace().next().unwrap().parse().unwrap()
+        };
+        for joints in [Joints::Multibody, Joints::Impulse] {
+            let (iterations, sweeps) = joints.solver_settings();
+            assert_eq!(read("solver_iterations", joints), iterations, "{joints:?}");
+            assert_eq!(read("solver_sweeps", joints), sweeps, "{joints:?}");
+            let config = ValidationParams {
+                joints,
+                ..ValidationParams::default()
+            }
+            .sim_config();
+            assert_eq!(config, SimConfig::for_joints(joints));
+            assert_eq!(
+                (config.solver_iterations, config.solver_sweeps),
+                (iterations, sweeps)
+            );
+        }
+        assert_eq!(SimConfig::default(), SimConfig::for_joints(Joints::Impulse));
+    }
 
     #[test]
     fn frame_dt_uses_capture_times_when_they_make_sense() {

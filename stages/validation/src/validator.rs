@@ -10,6 +10,7 @@ use nalgebra::Vector3;
 
 use crate::model::SimModel;
 use crate::sim::{FrameForces, SimConfig, SimState, Simulation, Target};
+use crate::stage::ValidationParams;
 use crate::support::{Support, SupportJudge, SupportState};
 
 /// A foot touches the floor when it carries at least this force, N. [inferred]
@@ -31,12 +32,9 @@ pub struct FallRule {
 }
 
 impl Default for FallRule {
+    /// The validation stage's defaults ([`ValidationParams`]).
     fn default() -> FallRule {
-        FallRule {
-            pelvis_height_fraction: 0.6,
-            trunk_tilt_deg: 45.0,
-            max_drift_m: 0.5,
-        }
+        ValidationParams::default().fall_rule()
     }
 }
 

@@ -15,11 +15,11 @@ use anyhow::{Context, bail};
 use clap::Subcommand;
 use imuflow_graph::frames::{FrameHeader, MotionFrame};
 use imuflow_graph::launch::{self, LaunchOptions};
+use imuflow_graph::spec::Registry;
 use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
 use imuflow_graph::stage::{Params, Step};
-use imuflow_graph::transport::now_ns;
-use imuflow_graph::spec::Registry;
 use imuflow_graph::transform::load_without;
+use imuflow_graph::transport::now_ns;
 use imuflow_graph::{FrameType, Graph, StageContext};
 
 #[derive(Subcommand)]

@@ -90,6 +90,7 @@ use imuflow_body::kinematics::FkData;
 use imuflow_body::{JointId, Pose};
 use imuflow_contact::ContactSet;
 use imuflow_contact::pip::{PipContactConfig, pip_contacts};
+use imuflow_graph::params::Param;
 use nalgebra::Vector3;
 
 use crate::estimate::{FEET, place_on_floor};
@@ -150,6 +151,19 @@ pub struct PipConfig {
     pub solver_max_iterations: u32,
 }
 
+/// The optimizer stage's `sensor_bone_weight`: the default of [`PipConfig::coeff_sensor_bone`].
+pub const SENSOR_BONE_WEIGHT_PARAM: Param<f64> = imuflow_graph::param! {
+    /// pip: weight of the world-orientation PD on the six instrumented bones (0: PIP's own cost)
+    sensor_bone_weight: f64 = 1, float(0.0, 1e3)
+};
+
+/// The optimizer stage's `limb_bone_weight`: the default of [`PipConfig::coeff_limb_bone`].
+pub const LIMB_BONE_WEIGHT_PARAM: Param<f64> = imuflow_graph::param! {
+    /// pip: weight of the same PD on the upper legs and upper arms, which the kinematics stage
+    /// sets from the sensors below them (0: PIP's own cost)
+    limb_bone_weight: f64 = 1, float(0.0, 1e3)
+};
+
 impl Default for PipConfig {
     fn default() -> PipConfig {
         PipConfig {
@@ -160,8 +174,8 @@ impl Default for PipConfig {
             friction: 0.6,
             dt: DT_S,
             coeff_joint_velocity: 1.0,
-            coeff_sensor_bone: 1.0,
-            coeff_limb_bone: 1.0,
+            coeff_sensor_bone: SENSOR_BONE_WEIGHT_PARAM.default,
+            coeff_limb_bone: LIMB_BONE_WEIGHT_PARAM.default,
             coeff_lambda: 10.0,
             lambda_min_height_m: 0.005,
             coeff_root_virtual: 0.1,

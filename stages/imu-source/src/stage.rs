@@ -1,0 +1,204 @@
+//! The `imu-source` stage process: reads its mode's parameters and runs that mode (see the crate
+//! docs).
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
+use imuflow_graph::{FrameType, Mode, StageContext};
+use imuflow_synth::prelude;
+
+use crate::{replay, synth, udp};
+
+imuflow_graph::stage_params! {
+    /// The imu-source's parameters; each doc names the modes that read it.
+    pub struct ImuSourceParams {
+        /// where the frames come from
+        mode: String = "synthesize", choice(&["synthesize", "replay", "udp"]);
+        /// synthesize: the .bvh motion; replay: the .mcap recording (required for both)
+        path: Option<PathBuf>, path;
+        /// synthesize: joint-mapping TOML of the BVH skeleton (default: built-in Bandai Namco)
+        mapping: Option<PathBuf>, path;
+        /// synthesize: subject stature, m (default: the body model's reference subject)
+        stature_m: Option<f64>, float(0.5, 2.5);
+        /// synthesize: subject mass, kg (default: the body model's reference subject)
+        mass_kg: Option<f64>, float(10.0, 300.0);
+        /// synthesize: add the reference sensor errors (mounting, noise, bias, heading drift)
+        augment: bool = false, bool;
+        /// synthesize: seed of the augmentation's random draws
+        seed: u64 = 0, int(0, i64::MAX);
+        /// synthesize: acceleration stencil (TransPose/PIP smoothed, or central differences)
+        stencil: String = "smoothed", choice(&["smoothed", "central"]);
+        /// synthesize: calibration poses before the clip: tpose (hold), walk (stand, one step
+        /// forward, stand), tpose+walk
+        prelude: String = "none", choice(&prelude::PreludeKind::NAMES);
+        prelude_stand_s: f64 = use prelude::STAND_PARAM;
+        step_m: f64 = use prelude::STEP_PARAM;
+        /// synthesize: sensor frame = bone frame, or each sensor mounted in a random orientation
+        /// (seeded by `seed`)
+        mounting: String = "bone", choice(&["bone", "random"]);
+        /// synthesize: inertial frame the orientations are reported in: model (I = M), z-up
+        /// (x forward, z up), z-down (x forward, z down)
+        frame: String = "model", choice(&imuflow_synth::InertialFrame::NAMES);
+        /// synthesize: direction the subject (facing +z in M) faces in I, right-handed about up
+        /// from the frame's forward axis
+        frame_heading_deg: f64 = 0, float(-360.0, 360.0);
+        /// synthesize: each sensor's inertial frame turned by a further heading offset uniform
+        /// in ±this (seeded by `seed`)
+        heading_offset_deg: f64 = 0, float(0.0, 180.0);
+        /// synthesize/replay: pace frames in real time (graph rate / recorded capture times)
+        realtime: Option<bool> = computed("false offline, true live"), bool;
+        /// replay: ImuFrame channel (default: the first imuflow.ImuFrame.v1 raw channel)
+        topic: Option<String>, string;
+        /// replay: MotionFrame channel for `truth` (default: the first imuflow.MotionFrame.v1
+        /// raw channel, if any)
+        truth_topic: Option<String>, string;
+        /// udp: local address to receive sensor packets on
+        bind: String = "127.0.0.1:8777", string;
+        /// udp: end the stream when no packet arrived for this long
+        timeout_ms: u64 = 2000, int(1, 3_600_000);
+        /// udp: end the stream after this many packets (0 = only on timeout or stop); replay:
+        /// after this many frames (0 = all)
+        frames: u64 = 0, int(0, 1 << 40);
+    }
+}
+
+pub const SPEC: StageSpec = StageSpec {
+    kind: "imu-source",
+    role: Role::Source,
+    summary: "six IMUs from a BVH motion (synthesized), an mcap recording (replayed) or UDP sensors",
+    inputs: InputsSpec::Fixed(&[]),
+    outputs: &[
+        PortSpec {
+            name: "imu",
+            frame: FrameType::Imu,
+            required: false,
+            doc: "six IMUs: orientation R_IS, specific force and angular rate in the sensor frame",
+        },
+        PortSpec {
+            name: "truth",
+            frame: FrameType::Motion,
+            required: false,
+            doc: "ground-truth pose of the same seq (synthesize; replay when recorded); physics fields zero",
+        },
+    ],
+    params: ImuSourceParams::SPECS,
+};
+
+/// Runs the imu-source as the current process's stage.
+pub fn run() -> anyhow::Result<()> {
+    let ctx = StageContext::from_env()?;
+    let stage = ctx.id().to_owned();
+    let params = ImuSourceParams::from_params(ctx.params());
+    let mode = params.mode.as_str();
+    let realtime = params.realtime.unwrap_or(ctx.mode() == Mode::Live);
+    match mode {
+        "synthesize" => {
+            let path = required_path(&params, &stage, mode)?;
+            let options = imuflow_synth::Options {
+                mapping: params.mapping.clone(),
+                stature_m: params.stature_m,
+                mass_kg: params.mass_kg,
+                augment: params.augment,
+                seed: params.seed,
+                central_stencil: params.stencil == "central",
+                prelude: prelude_options(&params, &stage)?,
+                sensors: sensor_setup(&params, &stage)?,
+            };
+            let rate_hz = ctx.graph().rate_hz;
+            let motion =
+                imuflow_synth::Motion::load(&path, &options, rate_hz).with_context(|| {
+                    format!(
+                        "stage '{stage}': cannot synthesize IMUs from '{}'",
+                        path.display()
+                    )
+                })?;
+            synth::run(ctx, &motion, realtime)
+        }
+        "replay" => {
+            let path = required_path(&params, &stage, mode)?;
+            let recording = imuflow_recording::Recording::load(
+                &path,
+                params.topic.as_deref().filter(|t| !t.is_empty()),
+                params.truth_topic.as_deref().filter(|t| !t.is_empty()),
+            )
+            .with_context(|| format!("stage '{stage}': cannot replay"))?;
+            replay::run(ctx, &recording, realtime, params.frames)
+        }
+        "udp" => {
+            let options = udp::Options {
+                bind: params.bind.clone(),
+                timeout: Duration::from_millis(params.timeout_ms),
+                frames: params.frames,
+            };
+            udp::run(ctx, &options)
+                .with_context(|| format!("stage '{stage}': udp source on '{}'", options.bind))
+        }
+        other => bail!("stage '{stage}': unknown mode '{other}' (synthesize, replay or udp)"),
+    }
+}
+
+fn prelude_options(
+    params: &ImuSourceParams,
+    stage: &str,
+) -> anyhow::Result<prelude::PreludeOptions> {
+    let name = params.prelude.as_str();
+    let Some(kind) = prelude::PreludeKind::parse(name) else {
+        bail!(
+            "stage '{stage}': unknown prelude '{name}' ({})",
+            prelude::PreludeKind::NAMES.join(", ")
+        );
+    };
+    Ok(prelude::PreludeOptions {
+        kind,
+        stand_s: params.prelude_stand_s,
+        step_m: params.step_m,
+        ..prelude::PreludeOptions::default()
+    })
+}
+
+fn sensor_setup(
+    params: &ImuSourceParams,
+    stage: &str,
+) -> anyhow::Result<imuflow_synth::SensorSetup> {
+    let name = params.frame.as_str();
+    let Some(frame) = imuflow_synth::InertialFrame::parse(name) else {
+        bail!(
+            "stage '{stage}': unknown frame '{name}' ({})",
+            imuflow_synth::InertialFrame::NAMES.join(", ")
+        );
+    };
+    Ok(imuflow_synth::SensorSetup {
+        random_mounting: params.mounting == "random",
+        frame,
+        frame_heading_deg: params.frame_heading_deg,
+        heading_offset_deg: params.heading_offset_deg,
+    })
+}
+
+fn required_path(params: &ImuSourceParams, stage: &str, mode: &str) -> anyhow::Result<PathBuf> {
+    match &params.path {
+        Some(p) if !p.as_os_str().is_empty() => Ok(p.clone()),
+        _ => bail!("stage '{stage}': mode '{mode}' needs param `path`"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_params_defaults_are_the_specs() {
+        imuflow_graph::params::check_defaults::<ImuSourceParams>().unwrap();
+    }
+
+    #[test]
+    fn the_prelude_defaults_are_the_synthesis_defaults() {
+        let (p, d) = (
+            ImuSourceParams::default(),
+            prelude::PreludeOptions::default(),
+        );
+        assert_eq!((p.prelude_stand_s, p.step_m), (d.stand_s, d.step_m));
+    }
+}
