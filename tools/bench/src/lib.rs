@@ -16,8 +16,8 @@ use clap::Subcommand;
 use imuflow_graph::frames::{FrameHeader, MotionFrame};
 use imuflow_graph::launch::{self, LaunchOptions};
 use imuflow_graph::spec::Registry;
-use imuflow_graph::spec::{InputsSpec, ParamSpec, ParamType, PortSpec, Role, StageSpec};
-use imuflow_graph::stage::{Params, Step};
+use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
+use imuflow_graph::stage::Step;
 use imuflow_graph::transform::load_without;
 use imuflow_graph::transport::now_ns;
 use imuflow_graph::{FrameType, Graph, StageContext};
@@ -107,6 +107,26 @@ pub enum BenchCommand {
     },
 }
 
+imuflow_graph::stage_params! {
+    /// The benchmark source's parameters.
+    pub struct BenchSourceParams {
+        /// frames to send
+        frames: u64 = 1000, int(1, 1 << 40);
+        /// send rate; 0 = as fast as possible
+        rate_hz: f64 = 0, float(0.0, 1e6);
+        /// wait this long before opening the output (a stage slow to set up)
+        setup_delay_ms: u64 = 0, int(0, 60_000);
+    }
+}
+
+imuflow_graph::stage_params! {
+    /// The benchmark relay's parameters.
+    pub struct BenchRelayParams {
+        /// wait this long after the start before reading (a stage slow to start, e.g. loading a model)
+        start_delay_ms: u64 = 0, int(0, 60_000);
+    }
+}
+
 pub const SOURCE_SPEC: StageSpec = StageSpec {
     kind: "bench-source",
     role: Role::Source,
@@ -118,35 +138,7 @@ pub const SOURCE_SPEC: StageSpec = StageSpec {
         required: false,
         doc: "MotionFrames with a counter payload",
     }],
-    params: &[
-        ParamSpec {
-            name: "frames",
-            ty: ParamType::Int {
-                min: 1,
-                max: 1 << 40,
-            },
-            required: false,
-            default: "1000",
-            doc: "frames to send",
-        },
-        ParamSpec {
-            name: "rate_hz",
-            ty: ParamType::Float { min: 0.0, max: 1e6 },
-            required: false,
-            default: "0",
-            doc: "send rate; 0 = as fast as possible",
-        },
-        ParamSpec {
-            name: "setup_delay_ms",
-            ty: ParamType::Int {
-                min: 0,
-                max: 60_000,
-            },
-            required: false,
-            default: "0",
-            doc: "wait this long before opening the output (a stage slow to set up)",
-        },
-    ],
+    params: BenchSourceParams::SPECS,
 };
 
 pub const RELAY_SPEC: StageSpec = StageSpec {
@@ -165,26 +157,17 @@ pub const RELAY_SPEC: StageSpec = StageSpec {
         required: false,
         doc: "the same frames",
     }],
-    params: &[ParamSpec {
-        name: "start_delay_ms",
-        ty: ParamType::Int {
-            min: 0,
-            max: 60_000,
-        },
-        required: false,
-        default: "0",
-        doc: "wait this long after the start before reading (a stage slow to start, e.g. loading a model)",
-    }],
+    params: BenchRelayParams::SPECS,
 };
 
 pub fn run_source() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
-    let params = Params(ctx.params());
-    let frames = params.int("frames", 1000).max(1) as u64;
-    let rate_hz = params.float("rate_hz", 0.0);
-    std::thread::sleep(Duration::from_millis(
-        params.int("setup_delay_ms", 0).max(0) as u64,
-    ));
+    let BenchSourceParams {
+        frames,
+        rate_hz,
+        setup_delay_ms,
+    } = BenchSourceParams::from_params(ctx.params());
+    std::thread::sleep(Duration::from_millis(setup_delay_ms));
     let mut out = ctx.output::<MotionFrame>("out")?;
     if ctx.ready()? {
         let start = Instant::now();
@@ -227,7 +210,7 @@ pub fn run_relay() -> anyhow::Result<()> {
     let input = ctx.input::<MotionFrame>("in")?;
     let mut out = ctx.output::<MotionFrame>("out")?;
     let start_delay =
-        Duration::from_millis(Params(ctx.params()).int("start_delay_ms", 0).max(0) as u64);
+        Duration::from_millis(BenchRelayParams::from_params(ctx.params()).start_delay_ms);
     if ctx.ready()? {
         std::thread::sleep(start_delay);
         while let Some(step) = ctx.next()? {
