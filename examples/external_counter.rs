@@ -24,7 +24,11 @@
 //! `args = ["--fail-from", "N"]` fails at the first frame N or later (again after a restart).
 //! `args = ["--exit-at", "N"]` makes it exit 0 after publishing frame N without ending its stream
 //! (a stage that quits early by mistake); `args = ["--flood-stderr", "K"]` writes K lines of
-//! log to stderr per frame (a stage that floods its log).
+//! log to stderr per frame (a stage that floods its log). `args = ["--mark-from", "N", "PATH"]`
+//! creates the file PATH once it has published a frame N or later: a test that must act on a run
+//! at a point of its stream (not after a time that a slow machine may not reach) waits for it.
+//! `args = ["--fail-before-ready"]` makes its first process (restart count 0) exit 3 before it
+//! reports ready: a stage that dies during the graph's start-up.
 
 use imuflow_graph::StageContext;
 use imuflow_graph::frames::{ImuFrame, MotionFrame, flags};
@@ -50,7 +54,22 @@ fn run() -> anyhow::Result<()> {
     let mut fail_from: Option<u64> = None;
     let mut flood_lines = 0usize;
     let mut bend_knee_deg = 0.0f32;
-    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let mut mark: Option<(u64, std::path::PathBuf)> = None;
+    if let Some(at) = args.iter().position(|a| a == "--fail-before-ready") {
+        args.remove(at);
+        if ctx.restarts() == 0 {
+            eprintln!("external_counter: failing before ready as asked");
+            std::process::exit(3);
+        }
+    }
+    if let Some(at) = args.iter().position(|a| a == "--mark-from") {
+        let [_, n, path] = args.get(at..at + 3).unwrap_or_default() else {
+            anyhow::bail!("--mark-from takes a frame number and a path");
+        };
+        mark = Some((n.parse()?, path.into()));
+        args.drain(at..at + 3);
+    }
     for pair in args.chunks(2) {
         match pair {
             [flag, n] if flag == "--fail-at" => fail_at = Some(n.parse()?),
@@ -60,7 +79,7 @@ fn run() -> anyhow::Result<()> {
             [flag, n] if flag == "--exit-at" => exit_at = Some(n.parse()?),
             [flag, k] if flag == "--flood-stderr" => flood_lines = k.parse()?,
             other => anyhow::bail!(
-                "unknown arguments {other:?} (expected --fail-at N, --fail-from N, --hang-at N, --exit-at N, --flood-stderr K, --bend-knee-deg D)"
+                "unknown arguments {other:?} (expected --fail-at N, --fail-from N, --hang-at N, --exit-at N, --flood-stderr K, --bend-knee-deg D, --mark-from N PATH, --fail-before-ready)"
             ),
         }
     }
@@ -90,6 +109,12 @@ fn run() -> anyhow::Result<()> {
                 m.q[1] = valid_imus;
                 m.q[2] = checksum as f32;
             })?;
+            if let Some((from, path)) = &mark
+                && step.seq >= *from
+            {
+                std::fs::write(path, step.seq.to_string())?;
+                mark = None;
+            }
             if hang_at == Some(step.seq) {
                 eprintln!("external_counter: hanging at frame {} as asked", step.seq);
                 loop {

@@ -87,6 +87,8 @@ params = {{ path = "{{dir}}/all.mcap" }}
 fn a_killed_validation_stage_leaves_the_capture_running_to_the_end() {
     let sb = Sandbox::new("kill-val");
     let sample = concat!(env!("CARGO_MANIFEST_DIR"), "/models/sample/walk.mcap");
+    let marker = example_exe("external_counter");
+    let marker = marker.display();
     let graph = sb.graph(
         "kill.toml",
         &format!(
@@ -100,6 +102,12 @@ params = {{ mode = "replay", path = "{sample}", realtime = true }}
 kind = "validation"
 inputs = {{ motion = "source.truth" }}
 on_failure = "stop-branch"
+# Says when the stream has passed frame 60 (the kill waits for it, not for a time).
+[stages.marker]
+exec = "{marker}"
+args = ["--mark-from", "60", "{{dir}}/marked"]
+inputs = {{ imu = "source.imu", prev = "marker.count", feedback = ["prev"] }}
+outputs = {{ count = "MotionFrame" }}
 [stages.record]
 kind = "recorder"
 inputs = {{ truth = "source.truth", sim = "val.sim", validation = "val.validation" }}
@@ -114,7 +122,14 @@ params = {{ path = "{{dir}}/kill.rrd" }}
     let child = sb.spawn(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     // Let the simulation run a while, then kill -9 it: no END_OF_STREAM, no clean-up of its own.
     let val = wait_for_stage(&sb, "val", Duration::from_secs(30)).expect("the val stage starts");
-    std::thread::sleep(Duration::from_millis(1500));
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    while !sb.path("marked").exists() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the stream never reached frame 60"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
     // SAFETY: kill(2) on a stage process of this test's own run.
     #[allow(unsafe_code)]
     unsafe {

@@ -109,6 +109,28 @@ fn a_crashed_live_stage_restarts_and_rejoins_the_running_graph() {
     assert_clean(&sb);
 }
 
+/// A stage with a restart policy that dies during the graph's start-up (before it reported ready)
+/// is started again and joins the start-up, and the run streams to its end. (It used to wait for
+/// the ready timeout and fail the run as "did not report ready".)
+#[test]
+fn a_stage_that_dies_during_start_up_is_restarted_into_the_start() {
+    let sb = Sandbox::new("restart-start-up");
+    let file = graph(&sb, r#"["--fail-before-ready"]"#, "{ max = 1 }");
+    let started = std::time::Instant::now();
+    let out = sb.run(&["run", file.to_str().expect("utf8"), "--no-progress"]);
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
+    assert!(stdout.contains("restarted 'counter' 1 time(s)"), "{stdout}");
+    // Well within the ready timeout (30 s) it would otherwise have waited out.
+    assert!(started.elapsed() < std::time::Duration::from_secs(25));
+    let headers = headers(&sb);
+    // Every frame came from the restarted process, from the first to the last.
+    assert_eq!(headers.first().map(|h| h.seq), Some(0));
+    assert_eq!(headers.last().map(|h| h.seq), Some(239));
+    assert!(headers.iter().all(|h| h.restarts == 1), "{headers:?}");
+    assert_clean(&sb);
+}
+
 #[test]
 fn a_stage_failing_more_often_than_its_policy_allows_stops_the_run() {
     let sb = Sandbox::new("restart-spent");
@@ -221,6 +243,8 @@ fn a_restarted_calibration_reloads_its_calibration() {
     use common::{wait_for_stage, wait_with_timeout};
     use imuflow_graph::frames::BodyImuFrame;
     use std::time::Duration;
+    /// 5.5 s into the sample: past the T-pose hold and its calibration.
+    const KILL_FROM: u64 = 330;
     let sb = Sandbox::new("restart-calib");
     let sample = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/sample/walk.mcap");
     let file = sb.graph(
@@ -231,24 +255,39 @@ name = "restart-calibration"
 mode = "live"
 [stages.source]
 kind = "imu-source"
-params = {{ mode = "replay", path = "{}", frames = 540 }}
+params = {{ mode = "replay", path = "{}", frames = 720 }}
 [stages.calib]
 kind = "calibration"
 inputs = {{ imu = "source.imu" }}
 params = {{ method = "tpose", frame = "z-up", heading_deg = 30.0 }}
 restart = {{ max = 1, backoff_ms = 50 }}
+[stages.marker]
+exec = "{}"
+args = ["--mark-from", "{KILL_FROM}", "{{dir}}/marked"]
+inputs = {{ imu = "source.imu", prev = "marker.count", feedback = ["prev"] }}
+outputs = {{ count = "MotionFrame" }}
 [stages.all]
 kind = "recorder"
 inputs = {{ body = "calib.body_imu" }}
 params = {{ path = "{{dir}}/all.mcap" }}
 "#,
-            sample.display()
+            sample.display(),
+            example_exe("external_counter").display()
         ),
     );
     let child = sb.spawn(&["run", file.to_str().expect("utf8"), "--no-progress"]);
     let pid = wait_for_stage(&sb, "calib", Duration::from_secs(10)).expect("the calibration stage");
-    // 6 s in: the T-pose hold is over and calibrated, the subject is walking.
-    std::thread::sleep(Duration::from_secs(6));
+    // The T-pose hold is over and calibrated, the subject is walking: the kill waits for the
+    // stream to pass that frame (a marker stage beside the graph says so), not for a time a
+    // loaded machine's start-up may take.
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    while !sb.path("marked").exists() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the stream never reached frame {KILL_FROM}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
     // SAFETY: kill(2) of a process this test's graph started.
     unsafe {
         libc::kill(pid, libc::SIGKILL);

@@ -46,6 +46,23 @@ impl Supervisor<'_> {
         Ok(())
     }
 
+    /// Walks stages restarted during start-up (before the first `go`) through the start-up
+    /// handshake: before the `connect` went out to all, a restarted stage is one more to wait for;
+    /// after, it is told to connect once it is ready. Its `go` comes with everyone's.
+    pub(super) fn join_start(&self, stages: &mut [Running], connect_sent: bool) {
+        for s in stages.iter_mut() {
+            if s.rejoining != Some(Rejoin::Starting) {
+                continue;
+            }
+            if !connect_sent {
+                s.rejoining = None;
+            } else if s.ready {
+                s.send("connect");
+                s.rejoining = None;
+            }
+        }
+    }
+
     /// Walks restarted stages through their handshake on their own: once ready they connect, once
     /// connected they go (the rest of the graph is running already), told which of their
     /// producers have finished meanwhile (their END_OF_STREAM went out before the new process

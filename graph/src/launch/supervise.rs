@@ -78,6 +78,10 @@ impl Supervisor<'_> {
                 stop_all(stages);
                 return Ok((Duration::ZERO, true));
             }
+            // A stage with a restart policy that died before the graph started is started again
+            // and joins the start-up handshake (it used to wait for the ready timeout instead).
+            self.restart_due_stages(stages)?;
+            self.join_start(stages, connect_sent);
             if !connect_sent
                 && stages
                     .iter()
