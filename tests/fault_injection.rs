@@ -159,17 +159,27 @@ fn a_killed_stage_with_a_restart_policy_rejoins_the_live_pip_graph() {
         let extra = [
             "mode=live",
             "stages.source.params.realtime=true",
+            // Start-up (nine processes, the networks' weights) under a heavy load can outlast
+            // the default 30 s; this test is about the restart, not the start.
+            "ready_timeout_s=120",
             frames.as_str(),
             restart.as_str(),
             marker.as_str(),
         ];
         let args = sample_run_args("pip", &mcap, &sb.path("run.rrd"), &extra);
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
-        let child = sb.spawn(&args);
+        let mut child = sb.spawn(&args);
         let pid = wait_for_stage(&sb, stage, Duration::from_secs(60))
             .unwrap_or_else(|| panic!("stage '{stage}' starts"));
         let deadline = std::time::Instant::now() + Duration::from_secs(120);
         while !marked.exists() {
+            if let Ok(Some(status)) = child.try_wait() {
+                let out = wait_with_timeout(child, Duration::from_secs(10));
+                panic!(
+                    "'{stage}': the run ended ({status}) before frame {KILL_FROM}\n{}",
+                    text(&out.stderr)
+                );
+            }
             assert!(
                 std::time::Instant::now() < deadline,
                 "'{stage}': the stream never reached frame {KILL_FROM}"

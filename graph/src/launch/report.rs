@@ -299,7 +299,7 @@ branch of 'view' stopped (view failed): view";
                 ),
                 (
                     "src".to_owned(),
-                    ("test-source".to_owned(), summary(0, 0.0, 0.0)),
+                    ("synth-frames".to_owned(), summary(0, 0.0, 0.0)),
                 ),
             ]
             .into(),
@@ -312,7 +312,7 @@ branch of 'view' stopped (view failed): view";
         let expected = "\
 graph 'tiny' finished in 0.25 s after a start-up of 0.04 s (run ff00)
 stage          kind           frames in       out  dropped    mean µs     p99 µs  busy %   in-lat p50   in-lat p99
-src            test-source            0         0        3        0.0        0.0     0.0         41.2       1234.5
+src            synth-frames           0         0        3        0.0        0.0     0.0         41.2       1234.5
 rec            file-out              10         5        3        2.0        4.0    25.0         41.2       1234.5";
         assert_eq!(report.to_string(), expected);
     }
