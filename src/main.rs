@@ -2,6 +2,7 @@
 
 mod compare;
 mod eval_cmd;
+mod export_cmd;
 mod kinematics_cmd;
 mod registry;
 
@@ -77,6 +78,8 @@ enum Command {
     },
     /// Remove shared-memory files left by imuflow processes that died (a crash, kill -9).
     Clean,
+    /// Write a recording's motion (a MotionFrame channel) as BVH or AMASS-style npz.
+    Export(export_cmd::ExportArgs),
     /// Benchmarks.
     #[command(subcommand)]
     Bench(imuflow_bench::BenchCommand),
@@ -306,6 +309,7 @@ fn main() -> ExitCode {
         }
         Command::Clean => clean(),
         Command::Compare(args) => compare::run(args),
+        Command::Export(args) => export_cmd::run(args),
         Command::EvalPhysics(args) => exit_code(eval_cmd::eval_physics(args)),
         Command::Body(BodyCommand::ExportUrdf {
             out,
