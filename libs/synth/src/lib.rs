@@ -1,5 +1,6 @@
-//! Synthetic IMU sessions: a motion (BVH, npz or a built-in clip) with an optional calibration
-//! prelude, sensors worn on the body in a chosen inertial frame, and the frames they would report.
+//! Synthetic IMU sessions: a motion (a BVH file, or a clip already on the body model) with an
+//! optional calibration prelude, sensors worn on the body in a chosen inertial frame, and the
+//! frames they would report.
 //! A library with no process: the imu-source stage's `synthesize` mode publishes these frames, and
 //! tests and tools use them as inputs with a known truth.
 //!
