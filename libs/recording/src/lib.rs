@@ -44,14 +44,16 @@ pub struct Recording {
     pub imu_frames: u64,
 }
 
-type Channel = Arc<mcap::Channel<'static>>;
+/// A channel of a recording, with its schema.
+pub type Channel = Arc<mcap::Channel<'static>>;
 
-fn schema_name<'a>(channel: &'a mcap::Channel<'_>) -> &'a str {
+/// The name of `channel`'s schema (imuflow's raw channels: the versioned frame type), or "".
+pub fn schema_name<'a>(channel: &'a mcap::Channel<'_>) -> &'a str {
     channel.schema.as_ref().map_or("", |s| s.name.as_str())
 }
 
 /// Whether `channel` holds raw frames of type `T`.
-fn carries<T: Frame>(channel: &mcap::Channel<'_>) -> bool {
+pub fn carries<T: Frame>(channel: &mcap::Channel<'_>) -> bool {
     channel.message_encoding == RAW_ENCODING && schema_name(channel) == T::layout().type_name
 }
 
@@ -86,7 +88,8 @@ fn pick<T: Frame>(
     Ok(Some(channel.clone()))
 }
 
-fn decode<T: Frame>(data: &[u8], topic: &str, index: u64) -> anyhow::Result<T> {
+/// Message `index` of `topic` as a frame of type `T`; an error names both and the sizes.
+pub fn decode<T: Frame>(data: &[u8], topic: &str, index: u64) -> anyhow::Result<T> {
     frame_from_bytes::<T>(data).ok_or_else(|| {
         anyhow!(
             "topic '{topic}' message {index}: {} bytes, but a {} is {} bytes",
@@ -162,7 +165,7 @@ impl Recording {
 }
 
 /// The file's channels by id: from the summary when the file has one, else from its messages.
-fn channels(bytes: &[u8]) -> anyhow::Result<BTreeMap<u16, Channel>> {
+pub fn channels(bytes: &[u8]) -> anyhow::Result<BTreeMap<u16, Channel>> {
     let summary = match mcap::Summary::read(bytes) {
         Ok(summary) => summary,
         // No footer (a recorder killed before it finished): read the records themselves.

@@ -12,16 +12,13 @@
 //! which recorded frame the export starts at. Nothing is written unless the whole export succeeds:
 //! the file is written beside its destination and renamed into place.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use imuflow_body::rotation::rotation_from_quat_wxyz;
-use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
-use imuflow_graph::frames::{Frame, MotionFrame, flags, frame_from_bytes};
-use imuflow_motion::npz::{AmassOptions, amass_to_writer};
+use imuflow_body::{BodyModel, BodyParams, Pose};
+use imuflow_graph::frames::{MotionFrame, flags};
+use imuflow_motion::npz::{AmassOptions, write_amass_npz};
 use imuflow_motion::retarget::{LengthUnit, MotionClip, bvh_from_clip};
-use imuflow_recording::for_each_record;
-use nalgebra::{Rotation3, Vector3};
+use imuflow_recording::{carries, decode, for_each_record, schema_name};
 
 /// The file formats `imuflow export` writes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -145,11 +142,12 @@ pub fn export(options: &ExportOptions) -> Result<Exported, ExportError> {
     let first_seq = first.header.seq;
     let mut poses = Vec::with_capacity(kept.len());
     for (index, frame) in kept.iter().enumerate() {
-        poses.push(pose_of(frame).map_err(|message| ExportError::BadFrame {
+        let pose = Pose::from_wire(&frame.local_pose_wxyz, &frame.root_position_m);
+        poses.push(pose.map_err(|e| ExportError::BadFrame {
             file: file.clone(),
             channel: options.channel.clone(),
             index,
-            message,
+            message: e.to_string(),
         })?);
     }
     let clip = MotionClip {
@@ -159,19 +157,7 @@ pub fn export(options: &ExportOptions) -> Result<Exported, ExportError> {
     write_atomically(&options.out, |path| match options.format {
         Format::Bvh => write_bvh(path, &clip, options),
         Format::Npz => {
-            let f = std::fs::File::create(path).map_err(|e| e.to_string())?;
-            let name = options.out.display().to_string();
-            amass_to_writer(
-                std::io::BufWriter::new(f),
-                &clip,
-                &AmassOptions::default(),
-                &name,
-            )
-            .and_then(|mut w| {
-                std::io::Write::flush(&mut w)
-                    .map_err(|source| imuflow_motion::npz::NpzError::Io { file: name, source })
-            })
-            .map_err(|e| e.to_string())
+            write_amass_npz(path, &clip, &AmassOptions::default()).map_err(|e| e.to_string())
         }
     })?;
     Ok(Exported {
@@ -203,31 +189,52 @@ fn read_channel(path: &Path, channel: &str) -> Result<RecordedChannel, ExportErr
         file: file.clone(),
         source,
     })?;
-    let motion_type = MotionFrame::layout().type_name;
-    // channel id -> (topic, schema name)
-    let mut channels: BTreeMap<u16, (String, String)> = BTreeMap::new();
-    let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
-    let mut messages: Vec<Vec<u8>> = Vec::new();
+    let not_a_recording = |e: anyhow::Error| ExportError::NotARecording {
+        file: file.clone(),
+        message: format!("{e:#}"),
+    };
+    let channels = imuflow_recording::channels(&bytes).map_err(not_a_recording)?;
+    let available = {
+        let motion: Vec<&str> = channels
+            .values()
+            .filter(|c| carries::<MotionFrame>(c))
+            .map(|c| c.topic.as_str())
+            .collect();
+        if motion.is_empty() {
+            "none".to_owned()
+        } else {
+            motion.join(", ")
+        }
+    };
+    let wanted = match channels.values().find(|c| c.topic == channel) {
+        None => {
+            return Err(ExportError::NoChannel {
+                file,
+                channel: channel.to_owned(),
+                available,
+            });
+        }
+        Some(c) if !carries::<MotionFrame>(c) => {
+            let schema = schema_name(c);
+            return Err(ExportError::NotMotion {
+                file,
+                channel: channel.to_owned(),
+                schema: if schema.is_empty() {
+                    "no schema".into()
+                } else {
+                    schema.to_owned()
+                },
+                available,
+            });
+        }
+        Some(c) => c.id,
+    };
+    let mut frames = Vec::new();
     let mut rate_hz = DEFAULT_RATE_HZ;
-    let mut wanted: Option<u16> = None;
-    let mut records = 0usize;
     for_each_record(&bytes, |_, record| {
-        records += 1;
         match record {
-            mcap::records::Record::Schema { header, .. } => {
-                schemas.insert(header.id, header.name);
-            }
-            mcap::records::Record::Channel(c) => {
-                let schema = schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                if c.topic == channel && schema == motion_type {
-                    wanted = Some(c.id);
-                }
-                channels.insert(c.id, (c.topic.clone(), schema));
-            }
-            mcap::records::Record::Message { header, data }
-                if Some(header.channel_id) == wanted =>
-            {
-                messages.push(data.into_owned());
+            mcap::records::Record::Message { header, data } if header.channel_id == wanted => {
+                frames.push(decode::<MotionFrame>(&data, channel, frames.len() as u64)?);
             }
             mcap::records::Record::Metadata(m) => {
                 if let Some(rate) = m
@@ -244,83 +251,8 @@ fn read_channel(path: &Path, channel: &str) -> Result<RecordedChannel, ExportErr
         }
         Ok(())
     })
-    .map_err(|e| ExportError::NotARecording {
-        file: file.clone(),
-        message: format!("{e:#}"),
-    })?;
-    if records == 0 {
-        return Err(ExportError::NotARecording {
-            file,
-            message: "no mcap record in it".into(),
-        });
-    }
-    let available = {
-        let motion: Vec<&str> = channels
-            .values()
-            .filter(|(_, schema)| *schema == motion_type)
-            .map(|(topic, _)| topic.as_str())
-            .collect();
-        if motion.is_empty() {
-            "none".to_owned()
-        } else {
-            motion.join(", ")
-        }
-    };
-    if wanted.is_none() {
-        return Err(
-            match channels.values().find(|(topic, _)| topic == channel) {
-                Some((_, schema)) => ExportError::NotMotion {
-                    file,
-                    channel: channel.to_owned(),
-                    schema: if schema.is_empty() {
-                        "no schema".into()
-                    } else {
-                        schema.clone()
-                    },
-                    available,
-                },
-                None => ExportError::NoChannel {
-                    file,
-                    channel: channel.to_owned(),
-                    available,
-                },
-            },
-        );
-    }
-    let mut frames = Vec::with_capacity(messages.len());
-    for (index, data) in messages.iter().enumerate() {
-        frames.push(frame_from_bytes::<MotionFrame>(data).ok_or_else(|| {
-            ExportError::BadFrame {
-                file: file.clone(),
-                channel: channel.to_owned(),
-                index,
-                message: format!(
-                    "{} bytes, a MotionFrame has {}",
-                    data.len(),
-                    std::mem::size_of::<MotionFrame>()
-                ),
-            }
-        })?);
-    }
+    .map_err(not_a_recording)?;
     Ok(RecordedChannel { frames, rate_hz })
-}
-
-/// A MotionFrame's pose: local rotations (unit quaternions) and the root position.
-fn pose_of(frame: &MotionFrame) -> Result<Pose, String> {
-    let mut parent_from_joint = [Rotation3::identity(); NUM_JOINTS];
-    for (j, q) in frame.local_pose_wxyz.iter().enumerate().take(NUM_JOINTS) {
-        let q = q.map(f64::from);
-        parent_from_joint[j] = rotation_from_quat_wxyz(&q)
-            .ok_or_else(|| format!("joint {j}: not a rotation quaternion {q:?}"))?;
-    }
-    let p = frame.root_position_m.map(f64::from);
-    if !p.iter().all(|v| v.is_finite()) {
-        return Err(format!("root position {p:?} is not finite"));
-    }
-    Ok(Pose {
-        parent_from_joint,
-        root_in_world_m: Vector3::new(p[0], p[1], p[2]),
-    })
 }
 
 fn write_bvh(path: &Path, clip: &MotionClip, options: &ExportOptions) -> Result<(), String> {
@@ -333,30 +265,28 @@ fn write_bvh(path: &Path, clip: &MotionClip, options: &ExportOptions) -> Result<
     std::fs::write(path, bvh.to_bvh_string()).map_err(|e| e.to_string())
 }
 
-/// Writes through `write` into a file beside `out` and renames it into place, so a failed export
-/// leaves nothing behind (and an existing file untouched).
+/// Writes through `write` into a temporary file beside `out` and renames it into place, so a failed
+/// export leaves nothing behind (the temporary file is removed when dropped) and an existing file
+/// untouched.
 fn write_atomically(
     out: &Path,
     write: impl FnOnce(&Path) -> Result<(), String>,
 ) -> Result<(), ExportError> {
-    let file = out.display().to_string();
     let fail = |message: String| ExportError::Write {
-        file: file.clone(),
+        file: out.display().to_string(),
         message,
     };
-    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| fail(e.to_string()))?;
-    }
-    let name = out
-        .file_name()
-        .ok_or_else(|| fail("not a file name".into()))?
-        .to_string_lossy();
-    let partial = out.with_file_name(format!(".{name}.partial"));
-    let result =
-        write(&partial).and_then(|()| std::fs::rename(&partial, out).map_err(|e| e.to_string()));
-    if let Err(message) = result {
-        let _ = std::fs::remove_file(&partial);
-        return Err(fail(message));
-    }
+    let dir = match out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        Some(dir) => {
+            std::fs::create_dir_all(dir).map_err(|e| fail(e.to_string()))?;
+            dir
+        }
+        None => Path::new("."),
+    };
+    let partial = tempfile::NamedTempFile::new_in(dir).map_err(|e| fail(e.to_string()))?;
+    write(partial.path()).map_err(fail)?;
+    partial
+        .persist(out)
+        .map_err(|e| fail(e.error.to_string()))?;
     Ok(())
 }
