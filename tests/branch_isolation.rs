@@ -6,7 +6,7 @@ mod common;
 use std::time::Duration;
 
 use common::{
-    Sandbox, assert_clean, count, example_exe, mcap_messages, text, wait_for_stage,
+    Sandbox, assert_clean, count, example_exe, mcap_messages, text, wait_for_mark, wait_for_stage,
     wait_with_timeout,
 };
 use imuflow_graph::frames::{MotionFrame, frame_from_bytes};
@@ -119,17 +119,10 @@ params = {{ path = "{{dir}}/kill.rrd" }}
 "#
         ),
     );
-    let child = sb.spawn(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    let mut child = sb.spawn(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     // Let the simulation run a while, then kill -9 it: no END_OF_STREAM, no clean-up of its own.
     let val = wait_for_stage(&sb, "val", Duration::from_secs(30)).expect("the val stage starts");
-    let deadline = std::time::Instant::now() + Duration::from_secs(120);
-    while !sb.path("marked").exists() {
-        assert!(
-            std::time::Instant::now() < deadline,
-            "the stream never reached frame 60"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_for_mark(&mut child, &sb.path("marked"), 60, "");
     // SAFETY: kill(2) on a stage process of this test's own run.
     #[allow(unsafe_code)]
     unsafe {

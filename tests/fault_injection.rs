@@ -17,7 +17,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use common::{
-    Sandbox, assert_clean, count, example_exe, mcap_messages, sample_run_args, text,
+    Sandbox, assert_clean, count, example_exe, mcap_messages, sample_run_args, text, wait_for_mark,
     wait_for_stage, wait_with_timeout,
 };
 use imuflow_recording::for_each_record;
@@ -171,21 +171,7 @@ fn a_killed_stage_with_a_restart_policy_rejoins_the_live_pip_graph() {
         let mut child = sb.spawn(&args);
         let pid = wait_for_stage(&sb, stage, Duration::from_secs(60))
             .unwrap_or_else(|| panic!("stage '{stage}' starts"));
-        let deadline = std::time::Instant::now() + Duration::from_secs(120);
-        while !marked.exists() {
-            if let Ok(Some(status)) = child.try_wait() {
-                let out = wait_with_timeout(child, Duration::from_secs(10));
-                panic!(
-                    "'{stage}': the run ended ({status}) before frame {KILL_FROM}\n{}",
-                    text(&out.stderr)
-                );
-            }
-            assert!(
-                std::time::Instant::now() < deadline,
-                "'{stage}': the stream never reached frame {KILL_FROM}"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        wait_for_mark(&mut child, &marked, KILL_FROM, &format!("'{stage}': "));
         // SAFETY: kill(2) on a stage process of this test's own run.
         #[allow(unsafe_code)]
         let killed = unsafe { libc::kill(pid, libc::SIGKILL) } == 0;

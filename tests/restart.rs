@@ -240,7 +240,7 @@ params = { path = "{dir}/x.mcap" }
 /// again from the restart on (without the reload they would stay CALIBRATING: the T-pose is over).
 #[test]
 fn a_restarted_calibration_reloads_its_calibration() {
-    use common::{wait_for_stage, wait_with_timeout};
+    use common::{wait_for_mark, wait_for_stage, wait_with_timeout};
     use imuflow_graph::frames::BodyImuFrame;
     use std::time::Duration;
     /// 5.5 s into the sample: past the T-pose hold and its calibration.
@@ -275,19 +275,10 @@ params = {{ path = "{{dir}}/all.mcap" }}
             example_exe("external_counter").display()
         ),
     );
-    let child = sb.spawn(&["run", file.to_str().expect("utf8"), "--no-progress"]);
+    let mut child = sb.spawn(&["run", file.to_str().expect("utf8"), "--no-progress"]);
     let pid = wait_for_stage(&sb, "calib", Duration::from_secs(10)).expect("the calibration stage");
-    // The T-pose hold is over and calibrated, the subject is walking: the kill waits for the
-    // stream to pass that frame (a marker stage beside the graph says so), not for a time a
-    // loaded machine's start-up may take.
-    let deadline = std::time::Instant::now() + Duration::from_secs(120);
-    while !sb.path("marked").exists() {
-        assert!(
-            std::time::Instant::now() < deadline,
-            "the stream never reached frame {KILL_FROM}"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    // The T-pose hold is over and calibrated, the subject is walking.
+    wait_for_mark(&mut child, &sb.path("marked"), KILL_FROM, "");
     // SAFETY: kill(2) of a process this test's graph started.
     unsafe {
         libc::kill(pid, libc::SIGKILL);

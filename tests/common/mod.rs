@@ -241,3 +241,26 @@ pub fn free_udp_port() -> u16 {
         .expect("free port")
         .port()
 }
+
+/// Waits until the run `child` streams past `frame`, as a marker stage beside its graph
+/// (examples/external_counter.rs `--mark-from FRAME MARKED`) says by creating `marked`: tests act
+/// on a run at a point of its stream, not after a time a loaded machine's start-up may outlast. A
+/// run that ends first fails the test with its stderr; so does one that gets no further in two
+/// minutes. `label` starts the failure's message (e.g. the stage the test is about).
+pub fn wait_for_mark(child: &mut std::process::Child, marked: &Path, frame: u64, label: &str) {
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while !marked.exists() {
+        if let Ok(Some(status)) = child.try_wait() {
+            let mut stderr = String::new();
+            if let Some(mut pipe) = child.stderr.take() {
+                let _ = std::io::Read::read_to_string(&mut pipe, &mut stderr);
+            }
+            panic!("{label}the run ended ({status}) before frame {frame}\n{stderr}");
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{label}the stream never reached frame {frame}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
