@@ -293,6 +293,19 @@ macro_rules! stage_params {
         $crate::stage_params!(@munch [$(#[$meta])* $vis struct $name] [] $($fields)*);
     };
 
+    // A field's ParamSpec: its name, kind, docs, whether required, and the default as stated.
+    (@spec $field:ident [$($doc:literal)*] $kind:ident $(( $($arg:expr),* ))?,
+        required: $required:expr, default: $text:expr
+    ) => {
+        $crate::spec::ParamSpec {
+            name: stringify!($field),
+            ty: $crate::__param_kind!(ty $kind $(($($arg),*))?),
+            required: $required,
+            default: $text,
+            doc: concat!($($doc),*).trim_ascii_start(),
+        }
+    };
+
     // `name: T = use PARAM;`
     (@munch $head:tt [$($acc:tt)*]
         $(#[doc = $doc:literal])* $field:ident : $ty:ty = use $param:path ; $($rest:tt)*
@@ -317,13 +330,8 @@ macro_rules! stage_params {
     ) => {
         $crate::stage_params!(@munch $head [$($acc)* {
             [$($doc)*] $field : $ty,
-            spec: $crate::spec::ParamSpec {
-                name: stringify!($field),
-                ty: $crate::__param_kind!(ty $kind $(($($arg),*))?),
-                required: true,
-                default: "",
-                doc: concat!($($doc),*).trim_ascii_start(),
-            },
+            spec: $crate::stage_params!(@spec $field [$($doc)*] $kind $(($($arg),*))?,
+                required: true, default: ""),
             check: true,
             why: "",
             stated: ::core::option::Option::None,
@@ -338,13 +346,8 @@ macro_rules! stage_params {
     ) => {
         $crate::stage_params!(@munch $head [$($acc)* {
             [$($doc)*] $field : $ty,
-            spec: $crate::spec::ParamSpec {
-                name: stringify!($field),
-                ty: $crate::__param_kind!(ty $kind $(($($arg),*))?),
-                required: false,
-                default: $text,
-                doc: concat!($($doc),*).trim_ascii_start(),
-            },
+            spec: $crate::stage_params!(@spec $field [$($doc)*] $kind $(($($arg),*))?,
+                required: false, default: $text),
             check: !$crate::params::str_eq($text, ""),
             why: "the computed default has no text",
             stated: ::core::option::Option::None,
@@ -359,13 +362,8 @@ macro_rules! stage_params {
     ) => {
         $crate::stage_params!(@munch $head [$($acc)* {
             [$($doc)*] $field : $ty,
-            spec: $crate::spec::ParamSpec {
-                name: stringify!($field),
-                ty: $crate::__param_kind!(ty $kind $(($($arg),*))?),
-                required: false,
-                default: $crate::__param_kind!(text $kind $lit),
-                doc: concat!($($doc),*).trim_ascii_start(),
-            },
+            spec: $crate::stage_params!(@spec $field [$($doc)*] $kind $(($($arg),*))?,
+                required: false, default: $crate::__param_kind!(text $kind $lit)),
             check: $crate::__param_kind!(literal $kind $lit)
                 .fits(&$crate::__param_kind!(ty $kind $(($($arg),*))?)),
             why: "the default is outside its range or choices",
@@ -386,13 +384,8 @@ macro_rules! stage_params {
     ) => {
         $crate::stage_params!(@munch $head [$($acc)* {
             [$($doc)*] $field : $ty,
-            spec: $crate::spec::ParamSpec {
-                name: stringify!($field),
-                ty: $crate::__param_kind!(ty $kind $(($($arg),*))?),
-                required: false,
-                default: "",
-                doc: concat!($($doc),*).trim_ascii_start(),
-            },
+            spec: $crate::stage_params!(@spec $field [$($doc)*] $kind $(($($arg),*))?,
+                required: false, default: ""),
             check: true,
             why: "",
             stated: ::core::option::Option::None,
