@@ -371,19 +371,15 @@ fn run_clip(
         registry,
         launch: &launch_options,
     };
-    let result = match run_combined(&run, |_, _| {}) {
+    let record = match run_combined(&run, |_, _| {}) {
         // The clip's file could not become the source: the clip's fault, the batch goes on.
-        Err(RunError::Input(e)) => return Ok(Some(failed(e))),
-        Err(e @ RunError::Launch(_)) => Err(e),
+        Err(RunError::Input(e)) => Some(failed(e)),
+        // Stopped by the user: whatever the run says, the clip is not done (a resume runs it).
+        _ if stop.load(Ordering::Relaxed) => None,
+        Err(RunError::Launch(e)) => Some(failed(e)),
         // The variants were checked before the batch started: a refusal now is not the clip's
         // fault, and neither is an invalid combination or an unwritable folder.
         Err(e) => return Err(e.into()),
-        Ok(ran) => Ok(ran),
-    };
-    let record = match result {
-        // Stopped by the user: whatever the run says, the clip is not done (a resume runs it).
-        _ if stop.load(Ordering::Relaxed) => None,
-        Err(e) => Some(failed(e.to_string())),
         Ok(ran) if ran.report.interrupted => None,
         Ok(ran) => Some(match ran.report.failed_branches.first() {
             Some(branch) => failed(format!("variant branch stopped: {branch}")),
