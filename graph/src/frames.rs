@@ -102,6 +102,7 @@ impl FrameHeader {
     Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
 )]
 pub enum FrameType {
+    RawImu,
     Imu,
     BodyImu,
     Kinematics,
@@ -112,7 +113,8 @@ pub enum FrameType {
 
 impl FrameType {
     /// Every frame type, in declaration order.
-    pub const ALL: [FrameType; 6] = [
+    pub const ALL: [FrameType; 7] = [
+        FrameType::RawImu,
         FrameType::Imu,
         FrameType::BodyImu,
         FrameType::Kinematics,
@@ -134,6 +136,7 @@ impl FrameType {
     /// The byte layout of this frame type.
     pub fn layout(self) -> &'static FrameLayout {
         match self {
+            FrameType::RawImu => RawImuFrame::layout(),
             FrameType::Imu => ImuFrame::layout(),
             FrameType::BodyImu => BodyImuFrame::layout(),
             FrameType::Kinematics => KinematicsFrame::layout(),
@@ -324,6 +327,34 @@ macro_rules! frame {
 }
 
 frame! {
+    /// Raw inertial samples as real sensors deliver them, before fusion: up to one new sample per
+    /// sensor, each stamped by its own clock. Sensors may run at different rates, so a frame holds
+    /// whichever sensors had a new sample (`valid_mask`); the fusion stage aligns them by
+    /// timestamp and resamples to the graph's rate. Sensors that fuse on board (trackers, vendor
+    /// exports) also deliver their orientation (`orientation_mask`).
+    RawImuFrame, "imuflow.RawImuFrame.v1", FrameType::RawImu, {
+        /// Sample time per sensor, ns, on that sensor's own clock (offset, drift and jitter included); valid where `valid_mask` has the bit.
+        sample_time_ns: [u64; NUM_IMUS],
+        /// Accelerometer: specific force (includes -gravity) in the sensor frame S, m/s².
+        accelerometer_mps2: [[f32; 3]; NUM_IMUS],
+        /// Gyroscope: angular rate in the sensor frame S, rad/s.
+        gyroscope_radps: [[f32; 3]; NUM_IMUS],
+        /// Magnetometer: magnetic field in the sensor frame S, µT; valid where `magnetometer_mask` has the bit.
+        magnetometer_ut: [[f32; 3]; NUM_IMUS],
+        /// Orientation the sensor fused on board, R_IS as a unit quaternion [w, x, y, z]; valid where `orientation_mask` has the bit.
+        orientation_wxyz: [[f32; 4]; NUM_IMUS],
+        /// Bit i set when sensor i has a new sample in this frame (accelerometer and gyroscope).
+        valid_mask: u32,
+        /// Bit i set when sensor i's sample has a magnetometer reading.
+        magnetometer_mask: u32,
+        /// Bit i set when sensor i's sample has an on-board orientation.
+        orientation_mask: u32,
+        /// Reserved, zero.
+        reserved: u32,
+    }
+}
+
+frame! {
     /// What six real IMUs deliver: orientation, specific force and angular rate, per sensor.
     ImuFrame, "imuflow.ImuFrame.v1", FrameType::Imu, {
         /// R_IS per sensor as a unit quaternion [w, x, y, z]: sensor frame S to the sensor's own inertial frame I.
@@ -469,6 +500,7 @@ pub fn frame_from_bytes<T: Frame>(bytes: &[u8]) -> Option<T> {
 
 // Sizes are part of the contract: a change here is a wire change and needs a version bump.
 const _: () = assert!(std::mem::size_of::<FrameHeader>() == 32);
+const _: () = assert!(std::mem::size_of::<RawImuFrame>() == 32 + 48 + 72 * 3 + 96 + 16);
 const _: () = assert!(std::mem::size_of::<ImuFrame>() == 32 + 96 + 72 + 72 + 8);
 const _: () = assert!(std::mem::size_of::<BodyImuFrame>() == 32 + 96 + 72 + 72 + 24 + 8);
 const _: () =

@@ -14,7 +14,7 @@ use iceoryx2::port::backpressure_strategy::BackpressureStrategy;
 use iceoryx2::prelude::*;
 
 use crate::frames::{
-    BodyImuFrame, ContactFrame, Frame, FrameHeader, FrameType, ImuFrame, KinematicsFrame,
+    BodyImuFrame, ContactFrame, Frame, FrameHeader, FrameType, ImuFrame, KinematicsFrame, RawImuFrame,
     MotionFrame, ValidationFrame, flags,
 };
 use crate::graph::Mode;
@@ -559,6 +559,9 @@ pub fn open_subscriber(
     readers: usize,
 ) -> Result<Box<dyn ErasedSubscriber>, TransportError> {
     match frame {
+        FrameType::RawImu => {
+            open_typed::<RawImuFrame>(node, run_id, from_stage, from_port, mode, readers)
+        }
         FrameType::Imu => {
             open_typed::<ImuFrame>(node, run_id, from_stage, from_port, mode, readers)
         }
@@ -593,6 +596,7 @@ pub fn initial_feedback_frame(frame: FrameType) -> Box<dyn HeldFrame> {
         Box::new(LocalFrame(f))
     }
     match frame {
+        FrameType::RawImu => make::<RawImuFrame>(),
         FrameType::Imu => make::<ImuFrame>(),
         FrameType::BodyImu => make::<BodyImuFrame>(),
         FrameType::Kinematics => make::<KinematicsFrame>(),

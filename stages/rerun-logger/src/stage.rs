@@ -217,6 +217,8 @@ fn log_frames(
         plots.now = time;
         plots.flag_transition(rec, name, header.seq, header.has(flags::INVALID))?;
         match frame {
+            // Raw samples have no pose to draw; their small fields are plotted below.
+            FrameType::RawImu => {}
             FrameType::Imu => {
                 if let Some(f) = frame_ref::<ImuFrame>(held) {
                     log_sensors(
