@@ -30,11 +30,13 @@ pub enum PreludeKind {
     Walk,
     /// T-pose hold, N-pose stand, one step forward, stand, then the clip.
     TposeWalk,
+    /// N-pose stand, then the clip: a natural recording's start, with no scripted step.
+    Stand,
 }
 
 impl PreludeKind {
     /// Names as in the stage's `prelude` parameter.
-    pub const NAMES: [&'static str; 4] = ["none", "tpose", "walk", "tpose+walk"];
+    pub const NAMES: [&'static str; 5] = ["none", "tpose", "walk", "tpose+walk", "stand"];
 
     pub fn parse(name: &str) -> Option<PreludeKind> {
         match name {
@@ -42,6 +44,7 @@ impl PreludeKind {
             "tpose" => Some(PreludeKind::Tpose),
             "walk" => Some(PreludeKind::Walk),
             "tpose+walk" => Some(PreludeKind::TposeWalk),
+            "stand" => Some(PreludeKind::Stand),
             _ => None,
         }
     }

@@ -3,7 +3,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use imuflow_graph::frames::{ImuFrame, MotionFrame};
+use imuflow_graph::frames::{ImuFrame, MotionFrame, RawImuFrame};
 use imuflow_graph::stage::Step;
 use imuflow_graph::transport::Output;
 use imuflow_graph::{Mode, StageContext};
@@ -16,6 +16,7 @@ pub(crate) struct Publisher {
     pub ctx: StageContext,
     pub imu: Output<ImuFrame>,
     pub truth: Output<MotionFrame>,
+    pub raw: Output<RawImuFrame>,
     start: Instant,
     /// Live graphs: the Unix-epoch time of `start`, the clock capture times are stamped on.
     live_start_ns: Option<u64>,
@@ -29,10 +30,12 @@ impl Publisher {
     pub fn start(ctx: StageContext, total: u64) -> anyhow::Result<Option<Self>> {
         let imu = ctx.output::<ImuFrame>("imu")?;
         let truth = ctx.output::<MotionFrame>("truth")?;
+        let raw = ctx.output::<RawImuFrame>("raw")?;
         let mut p = Publisher {
             ctx,
             imu,
             truth,
+            raw,
             start: Instant::now(),
             live_start_ns: None,
             total,
@@ -71,6 +74,24 @@ impl Publisher {
         self.imu
             .publish(header, |f| *f = *frame)
             .with_context(|| format!("publishing imu frame {}", header.seq))?;
+        self.count_step(header, started)
+    }
+
+    /// Publishes one raw-sample frame (its header's seq, capture time and flags), counted as the
+    /// source's step like an IMU frame.
+    pub fn publish_raw(&mut self, frame: &RawImuFrame, started: Instant) -> anyhow::Result<()> {
+        let header = frame.header;
+        self.raw
+            .publish(header, |f| *f = *frame)
+            .with_context(|| format!("publishing raw frame {}", header.seq))?;
+        self.count_step(header, started)
+    }
+
+    fn count_step(
+        &mut self,
+        header: imuflow_graph::frames::FrameHeader,
+        started: Instant,
+    ) -> anyhow::Result<()> {
         self.ctx.record_source_step(
             Step {
                 seq: header.seq,
@@ -94,15 +115,16 @@ impl Publisher {
         Ok(())
     }
 
-    /// END_OF_STREAM on both outputs and the summary to the launcher.
+    /// END_OF_STREAM on every output and the summary to the launcher.
     pub fn finish(self) -> anyhow::Result<()> {
         let Publisher {
             ctx,
             mut imu,
             mut truth,
+            mut raw,
             ..
         } = self;
-        ctx.finish(&mut [&mut imu, &mut truth])?;
+        ctx.finish(&mut [&mut imu, &mut truth, &mut raw])?;
         Ok(())
     }
 }

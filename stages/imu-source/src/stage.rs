@@ -15,8 +15,9 @@ imuflow_graph::stage_params! {
     /// The imu-source's parameters; each doc names the modes that read it.
     pub struct ImuSourceParams {
         /// where the frames come from
-        mode: String = "synthesize", choice(&["synthesize", "replay", "udp"]);
-        /// synthesize: the .bvh motion; replay: the .mcap recording (required for both)
+        mode: String = "synthesize", choice(&["synthesize", "replay", "udp", "file", "slimevr"]);
+        /// synthesize: the .bvh motion; replay: the .mcap recording; file: the recording (a CSV/TSV
+        /// file or a folder of one file per sensor, or an .mvnx file) (required for these)
         path: Option<PathBuf>, path;
         /// synthesize: joint-mapping TOML of the BVH skeleton (default: built-in Bandai Namco)
         mapping: Option<PathBuf>, path;
@@ -31,7 +32,7 @@ imuflow_graph::stage_params! {
         /// synthesize: acceleration stencil (TransPose/PIP smoothed, or central differences)
         stencil: String = "smoothed", choice(&["smoothed", "central"]);
         /// synthesize: calibration poses before the clip: tpose (hold), walk (stand, one step
-        /// forward, stand), tpose+walk
+        /// forward, stand), tpose+walk, stand (N-pose stand, then the clip: a natural start)
         prelude: String = "none", choice(&prelude::PreludeKind::NAMES);
         prelude_stand_s: f64 = use prelude::STAND_PARAM;
         step_m: f64 = use prelude::STEP_PARAM;
@@ -47,16 +48,42 @@ imuflow_graph::stage_params! {
         /// synthesize: each sensor's inertial frame turned by a further heading offset uniform
         /// in ±this (seeded by `seed`)
         heading_offset_deg: f64 = 0, float(0.0, 180.0);
-        /// synthesize/replay: pace frames in real time (graph rate / recorded capture times)
+        /// synthesize: publish raw sensor samples on `raw` (accelerometer, gyroscope, magnetometer
+        /// at `raw_rate_hz`, each sensor on its own clock) instead of oriented IMUs on `imu`; the
+        /// `fusion` stage turns them into IMU frames
+        raw: bool = false, bool;
+        /// synthesize (raw): sensor sample rate, Hz
+        raw_rate_hz: f64 = 200, float(10.0, 2000.0);
+        /// synthesize (raw): scale of the accelerometer/gyroscope noise and bias model (0: ideal
+        /// sensors, 1: consumer-grade MEMS)
+        raw_noise: f64 = 0, float(0.0, 10.0);
+        /// synthesize (raw): magnetometer: none, clean (earth field only) or disturbed (plus
+        /// local disturbances near the floor and ferrous objects)
+        raw_magnetometer: String = "clean", choice(&["none", "clean", "disturbed"]);
+        /// synthesize (raw): each sensor's clock offset uniform in ±this, ms (seeded)
+        raw_clock_offset_ms: f64 = 0, float(0.0, 1.0e6);
+        /// synthesize (raw): each sensor's clock drift uniform in ±this, parts per million (seeded)
+        raw_clock_drift_ppm: f64 = 0, float(0.0, 1.0e4);
+        /// synthesize (raw): delivery jitter of each sample (uniform 0..this), ms
+        raw_jitter_ms: f64 = 0, float(0.0, 1000.0);
+        /// synthesize (raw): probability that a sample is lost (seeded)
+        raw_loss: f64 = 0, float(0.0, 0.9);
+        /// file: recording format: by extension (auto), csv (CSV/TSV described by `layout`) or mvnx
+        format: String = "auto", choice(&["auto", "csv", "mvnx"]);
+        /// file (csv): TOML that describes the columns, units and sensor files
+        layout: Option<PathBuf>, path;
+        /// slimevr: TOML mapping trackers (MAC address or tracker id) to the six sites
+        trackers: Option<PathBuf>, path;
+        /// synthesize/replay/file: pace frames in real time (graph rate / recorded capture times)
         realtime: Option<bool> = computed("false offline, true live"), bool;
         /// replay: ImuFrame channel (default: the first imuflow.ImuFrame.v1 raw channel)
         topic: Option<String>, string;
         /// replay: MotionFrame channel for `truth` (default: the first imuflow.MotionFrame.v1
         /// raw channel, if any)
         truth_topic: Option<String>, string;
-        /// udp: local address to receive sensor packets on
-        bind: String = "127.0.0.1:8777", string;
-        /// udp: end the stream when no packet arrived for this long
+        /// udp, slimevr: local address to receive sensor packets on
+        bind: Option<String> = computed("udp 127.0.0.1:8777, slimevr 0.0.0.0:6969"), string;
+        /// udp, slimevr: end the stream when no packet arrived for this long
         timeout_ms: u64 = 2000, int(1, 3_600_000);
         /// udp: end the stream after this many packets (0 = only on timeout or stop); replay:
         /// after this many frames (0 = all)
@@ -67,7 +94,7 @@ imuflow_graph::stage_params! {
 pub const SPEC: StageSpec = StageSpec {
     kind: "imu-source",
     role: Role::Source,
-    summary: "six IMUs from a BVH motion (synthesized), an mcap recording (replayed) or UDP sensors",
+    summary: "six IMUs from a BVH motion (synthesized), an mcap recording (replayed), UDP sensors, sensor files (CSV/TSV, MVNX) or SlimeVR trackers",
     inputs: InputsSpec::Fixed(&[]),
     outputs: &[
         PortSpec {
@@ -81,6 +108,12 @@ pub const SPEC: StageSpec = StageSpec {
             frame: FrameType::Motion,
             required: false,
             doc: "ground-truth pose of the same seq (synthesize; replay when recorded); physics fields zero",
+        },
+        PortSpec {
+            name: "raw",
+            frame: FrameType::RawImu,
+            required: false,
+            doc: "raw sensor samples on each sensor's clock (synthesize with raw, file, slimevr); the fusion stage makes IMU frames of them",
         },
     ],
     params: ImuSourceParams::SPECS,
@@ -128,14 +161,16 @@ pub fn run() -> anyhow::Result<()> {
         }
         "udp" => {
             let options = udp::Options {
-                bind: params.bind.clone(),
+                bind: params.bind.clone().unwrap_or_else(|| "127.0.0.1:8777".to_owned()),
                 timeout: Duration::from_millis(params.timeout_ms),
                 frames: params.frames,
             };
             udp::run(ctx, &options)
                 .with_context(|| format!("stage '{stage}': udp source on '{}'", options.bind))
         }
-        other => bail!("stage '{stage}': unknown mode '{other}' (synthesize, replay or udp)"),
+        other => bail!(
+            "stage '{stage}': unknown mode '{other}' (synthesize, replay, udp, file or slimevr)"
+        ),
     }
 }
 

@@ -1,0 +1,1 @@
+//! The `fusion` stage: raw sensor samples (`RawImuFrame`) to oriented IMU frames (`ImuFrame`).
