@@ -26,7 +26,10 @@ use crate::segments::{Hold, Segmenter};
 use crate::stage::CalibrationParams;
 use crate::stillness::{StillnessConfig, StillnessDetector};
 use crate::tpose::{TposeConfig, calibrate_tpose};
-use crate::walking::{StepWindows, WalkingConfig, calibrate_walking, measure_step};
+use crate::walking::{
+    StepWindows, WalkStartConfig, WalkStartWindows, WalkingConfig, calibrate_walk_start,
+    calibrate_walking, measure_step,
+};
 use crate::{NUM_IMUS, sensor_name};
 
 /// Everything a session needs; [`CalibratorConfig::default`] holds the stage's defaults (its
@@ -61,6 +64,18 @@ pub struct CalibratorConfig {
     pub min_step_m: f64,
     pub max_step_m: f64,
     pub max_step_mismatch_m: f64,
+    /// `walking`: also calibrate from a stand followed by walking, with no stand after.
+    pub walk_start: bool,
+    /// A still run this long counts as the stand before walking (s).
+    pub walk_stand_s: f64,
+    /// Walking integrated after that stand (s).
+    pub walk_s: f64,
+    /// Direction of that walk relative to facing (rad, right-handed about up: 0 forward).
+    pub walk_direction_rad: f64,
+    pub min_walk_m: f64,
+    pub max_walk_mismatch_m: f64,
+    pub max_walk_vertical_m: f64,
+    pub max_walk_turn_deg: f64,
 }
 
 impl Default for CalibratorConfig {
@@ -88,6 +103,17 @@ impl CalibratorConfig {
             pose: self.pose,
             accel_offset: self.accel_offset,
             max_gravity_deg: self.max_gravity_deg,
+        }
+    }
+
+    fn walk_start_config(&self) -> WalkStartConfig {
+        WalkStartConfig {
+            walking: self.walking(),
+            walk_direction_rad: self.walk_direction_rad,
+            min_walk_m: self.min_walk_m,
+            max_walk_mismatch_m: self.max_walk_mismatch_m,
+            max_walk_vertical_m: self.max_walk_vertical_m,
+            max_walk_turn_deg: self.max_walk_turn_deg,
         }
     }
 
@@ -157,6 +183,33 @@ impl Clock {
     }
 }
 
+/// Follows still runs for the natural start: remembers the last one that lasted a stand's length
+/// and ended, and forgets it when a new one of that length begins (the subject stopped again).
+#[derive(Debug, Default)]
+struct WalkStartTracker {
+    run_start: Option<u64>,
+    stand: Option<Range<u64>>,
+}
+
+impl WalkStartTracker {
+    /// Takes frame `index`'s stillness; the stand the motion at `index` follows, if any.
+    fn push(&mut self, index: u64, still: bool, stand_frames: u64) -> Option<Range<u64>> {
+        if still {
+            let start = *self.run_start.get_or_insert(index);
+            if index + 1 - start >= stand_frames {
+                self.stand = None;
+            }
+            return None;
+        }
+        if let Some(start) = self.run_start.take()
+            && index - start >= stand_frames
+        {
+            self.stand = Some(start..index);
+        }
+        self.stand.clone()
+    }
+}
+
 /// One calibration session.
 #[derive(Debug)]
 pub struct Calibrator {
@@ -164,6 +217,8 @@ pub struct Calibrator {
     calibration: Option<Calibration>,
     detector: StillnessDetector,
     segmenter: Segmenter,
+    /// The natural start (`walk_start`): still runs of at least `walk_stand_s`.
+    walk_start: WalkStartTracker,
     clock: Clock,
     /// The recent samples; `buffer[0]` is frame `frames - buffer.len()`.
     buffer: VecDeque<Sample>,
@@ -178,12 +233,17 @@ impl Calibrator {
     /// A session that calibrates from the data (`method = none`: calibrated from the start).
     pub fn new(config: CalibratorConfig) -> Calibrator {
         let calibration = (config.method == Method::None).then(Calibration::identity);
-        let capacity = (config.margin_frames()
+        let step_capacity = config.margin_frames()
             + config.frames(config.average_s)
             + config.frames(config.max_step_s)
             + config.frames(config.hold_s)
             + config.frames(config.still_window_s)
-            + 2) as usize;
+            + 2;
+        let walk_capacity = config.margin_frames()
+            + config.frames(config.average_s)
+            + config.frames(config.walk_s)
+            + 2;
+        let capacity = step_capacity.max(walk_capacity) as usize;
         Calibrator {
             config,
             calibration,
@@ -193,6 +253,7 @@ impl Calibrator {
                 max_accel_std_mps2: config.still_accel_std_mps2,
             }),
             segmenter: Segmenter::new(config.frames(config.hold_s)),
+            walk_start: WalkStartTracker::default(),
             clock: Clock {
                 nominal_dt_s: 1.0 / config.nominal_rate_hz,
                 last: None,
@@ -231,10 +292,13 @@ impl Calibrator {
             self.buffer.pop_front();
         }
         self.buffer.push_back(sample);
-        let event = self
+        let mut event = self
             .segmenter
             .push(index, still)
             .and_then(|hold| self.on_hold(&hold, sample.seq));
+        if event.is_none() {
+            event = self.on_walk(index, still, sample.seq);
+        }
         self.write_output(frame, &sample, out);
         event
     }
@@ -344,6 +408,36 @@ impl Calibrator {
                 Event::Rejected { seq, reason }
             }
         }
+    }
+
+    /// The natural start: a stand of at least `walk_stand_s`, then `walk_s` of motion with no
+    /// stand of that length in between, is one attempt (once per stand).
+    fn on_walk(&mut self, index: u64, still: bool, seq: u64) -> Option<Event> {
+        let config = self.config;
+        let stand_frames = config.frames(config.walk_stand_s);
+        let stand = self.walk_start.push(index, still, stand_frames)?;
+        if config.method != Method::Walking || !config.walk_start || self.calibration.is_some() {
+            return None;
+        }
+        if index + 1 - stand.end != config.frames(config.walk_s) {
+            return None;
+        }
+        self.buffer.make_contiguous();
+        // The stand's end is where the stillness test saw motion start; its window lags, so skip
+        // that much of the stand's end for the averages, and integrate from a margin before it.
+        let skip = config.frames(config.still_window_s);
+        let stand_window = self.average_window(&stand, skip);
+        let walk_window = stand
+            .end
+            .saturating_sub(config.margin_frames())
+            .max(stand.start)..index + 1;
+        let windows = WalkStartWindows {
+            stand: self.slice(stand_window),
+            walk: self.slice(walk_window),
+        };
+        let result =
+            calibrate_walk_start(&windows, &config.walk_start_config()).map(|e| e.calibration);
+        Some(self.accept(result, seq))
     }
 
     /// The three windows of a stand–motion–stand (`None` for a first stand).

@@ -30,8 +30,8 @@ pub enum Rejection {
         max_deg: f64,
     },
     #[error(
-        "sensor {sensor} moved {vertical_m:.2} m vertically during the step (at most {max_m} m): \
-         step on flat ground"
+        "sensor {sensor} moved {vertical_m:.2} m vertically during the step or walk (at most \
+         {max_m} m): calibrate on flat ground"
     )]
     NotLevel {
         sensor: &'static str,
@@ -62,6 +62,25 @@ pub enum Rejection {
          step"
     )]
     MotionTooLong { secs: f64, max_s: f64 },
+    #[error(
+        "the pelvis moved {length_m:.2} m in the walk after the stand (at least {min_m} m): walk \
+         on after standing still"
+    )]
+    WalkTooShort { length_m: f64, min_m: f64 },
+    #[error(
+        "the walk after the stand turned {turn_deg:.0}° (at most {max_deg}°): walk straight for \
+         the first few seconds"
+    )]
+    WalkTurned { turn_deg: f64, max_deg: f64 },
+    #[error(
+        "sensor {sensor}'s path differs from the pelvis's by {rms_m:.2} m RMS once turned onto \
+         it (at most {max_m} m): is it worn on the body, and did the walk start from standing?"
+    )]
+    WalkMismatch {
+        sensor: &'static str,
+        rms_m: f64,
+        max_m: f64,
+    },
 }
 
 /// Reading or writing a calibration file.

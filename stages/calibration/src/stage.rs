@@ -65,6 +65,24 @@ imuflow_graph::stage_params! {
         max_step_m: f64 = 1.5, float(0.0, 10.0);
         /// walking: largest difference of a sensor's step length from the pelvis's, m
         max_step_mismatch_m: f64 = 0.15, float(0.0, 10.0);
+        /// walking: also calibrate from a stand followed by natural walking (no step, no stand
+        /// after); the heading corrections come from the walk
+        walk_start: bool = true, bool;
+        /// walking (natural start): a still period this long counts as the stand before walking, s
+        walk_stand_s: f64 = 0.75, float(0.2, 60.0);
+        /// walking (natural start): walking integrated after the stand, s
+        walk_s: f64 = 3.0, float(0.5, 30.0);
+        /// walking (natural start): direction of that walk relative to the way the subject faces,
+        /// right-handed about up: 0 forward, 90 left, -90 right, 180 backwards
+        walk_direction_deg: f64 = 0, float(-360.0, 360.0);
+        /// walking (natural start): shortest pelvis displacement over the walk, m
+        min_walk_m: f64 = 1.0, float(0.0, 100.0);
+        /// walking (natural start): largest RMS distance of a sensor's path from the pelvis's, m
+        max_walk_mismatch_m: f64 = 0.5, float(0.0, 100.0);
+        /// walking (natural start): largest vertical displacement of a sensor over the walk, m
+        max_walk_vertical_m: f64 = 0.3, float(0.0, 100.0);
+        /// walking (natural start): largest turn of the walking direction, deg
+        max_walk_turn_deg: f64 = 25, float(0.0, 180.0);
     }
 }
 
@@ -103,6 +121,14 @@ impl CalibrationParams {
             min_step_m: self.min_step_m,
             max_step_m: self.max_step_m,
             max_step_mismatch_m: self.max_step_mismatch_m,
+            walk_start: self.walk_start,
+            walk_stand_s: self.walk_stand_s,
+            walk_s: self.walk_s,
+            walk_direction_rad: self.walk_direction_deg.to_radians(),
+            min_walk_m: self.min_walk_m,
+            max_walk_mismatch_m: self.max_walk_mismatch_m,
+            max_walk_vertical_m: self.max_walk_vertical_m,
+            max_walk_turn_deg: self.max_walk_turn_deg,
         }
     }
 }

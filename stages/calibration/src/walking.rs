@@ -266,3 +266,204 @@ fn check_lengths(
     }
     Ok(())
 }
+
+/// What a calibration from a natural start needs beyond [`WalkingConfig`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WalkStartConfig {
+    /// The stand's pose, frame convention, offset and gravity check.
+    pub walking: WalkingConfig,
+    /// Direction of the walk relative to the way the subject faces, right-handed about up (rad):
+    /// 0 forward, π/2 to the left, π backwards.
+    pub walk_direction_rad: f64,
+    /// Shortest pelvis displacement over the integrated walk (m).
+    pub min_walk_m: f64,
+    /// Largest RMS distance between a sensor's path, turned by its heading correction, and the
+    /// pelvis's (m).
+    pub max_walk_mismatch_m: f64,
+    /// Largest vertical displacement of any sensor at the end of the walk (m).
+    pub max_walk_vertical_m: f64,
+    /// Largest change of the pelvis's walking direction over the walk (deg).
+    pub max_walk_turn_deg: f64,
+}
+
+/// The samples of a natural start: standing still, then walking, with no stand after.
+#[derive(Clone, Copy, Debug)]
+pub struct WalkStartWindows<'a> {
+    /// Still samples at the end of the stand (averaged).
+    pub stand: &'a [Sample],
+    /// The samples integrated: from inside the stand (at rest) into the walk.
+    pub walk: &'a [Sample],
+}
+
+/// Calibrates from a stand followed by walking, or says why not.
+///
+/// Every sensor integrates its free acceleration in its own inertial frame from rest (Eq. 17–18);
+/// without a stand after, there is no zero-velocity update, so the window is kept short (a few
+/// seconds) and the accelerometer offset measured while standing is removed. Over a walk every
+/// body point travels with the body: a sensor's horizontal path differs from the pelvis's by the
+/// limb's swing (bounded) and a turn about up (its heading error). The heading correction ψ_k is
+/// the rotation about up that best aligns the two paths over the whole window (least squares,
+/// the 2-D Procrustes solution `atan2(Σ (p_k × p_pelvis)·up, Σ p_k·p_pelvis)`), the walk's
+/// direction gives forward (Eq. 23, turned by `walk_direction_rad`), and the stand gives `R_SB`
+/// (Eq. 24).
+pub fn calibrate_walk_start(
+    windows: &WalkStartWindows<'_>,
+    config: &WalkStartConfig,
+) -> Result<WalkingEstimate, Rejection> {
+    let walking = &config.walking;
+    let stand = valid(windows.stand, "stand before walking")?;
+    let walk = valid(windows.walk, "walk")?;
+    check_gravity(stand, walking.frame, walking.max_gravity_deg)?;
+    let up = walking.frame.up_in_inertial();
+    let gravity = -up.into_inner() * imuflow_body::GRAVITY_IN_MODEL_MPS2.norm();
+
+    let mut g = StepGeometry {
+        stand_before: [Rotation3::identity(); NUM_IMUS],
+        stand_after: [Rotation3::identity(); NUM_IMUS],
+        displacement_m: [Vector3::zeros(); NUM_IMUS],
+        vertical_m: [0.0; NUM_IMUS],
+        offset_in_inertial_mps2: [Vector3::zeros(); NUM_IMUS],
+        heading_to_pelvis_rad: [0.0; NUM_IMUS],
+    };
+    let mut paths: Vec<Vec<Vector3<f64>>> = Vec::with_capacity(NUM_IMUS);
+    for k in 0..NUM_IMUS {
+        g.stand_before[k] = stand_orientation(stand, k)?;
+        g.stand_after[k] = g.stand_before[k];
+        if walking.accel_offset {
+            g.offset_in_inertial_mps2[k] = mean_free_acceleration(stand.iter(), k, &gravity);
+        }
+        let path = integrate_path(walk, k, &(gravity - g.offset_in_inertial_mps2[k]));
+        let end = path.last().copied().unwrap_or_else(Vector3::zeros);
+        g.vertical_m[k] = end.dot(&up);
+        if g.vertical_m[k].abs() > config.max_walk_vertical_m {
+            return Err(Rejection::NotLevel {
+                sensor: sensor_name(k),
+                vertical_m: g.vertical_m[k],
+                max_m: config.max_walk_vertical_m,
+            });
+        }
+        g.displacement_m[k] = horizontal(&end, &up);
+        paths.push(path.iter().map(|p| horizontal(p, &up)).collect());
+    }
+    let pelvis = &paths[PELVIS];
+    check_walk(pelvis, &up, config)?;
+    for (k, path) in paths.iter().enumerate() {
+        let psi = align_about(&up, path, pelvis);
+        let rms_m = path_mismatch_m(&up, psi, path, pelvis);
+        if rms_m > config.max_walk_mismatch_m {
+            return Err(Rejection::WalkMismatch {
+                sensor: sensor_name(k),
+                rms_m,
+                max_m: config.max_walk_mismatch_m,
+            });
+        }
+        g.heading_to_pelvis_rad[k] = psi;
+    }
+    g.heading_to_pelvis_rad[PELVIS] = 0.0;
+
+    // Forward is the walk's direction turned back by the walk's direction relative to facing.
+    let walked =
+        Rotation3::from_axis_angle(&up, -config.walk_direction_rad) * g.displacement_m[PELVIS];
+    let model_from_inertial = model_from_inertial(&up, &walked);
+    let reference = walking.pose.bone_orientations();
+    let mut sensors = [SensorCalibration::IDENTITY; NUM_IMUS];
+    for (k, cal) in sensors.iter_mut().enumerate() {
+        cal.heading_correction_rad = g.heading_to_pelvis_rad[k];
+        let sensor_model_from_inertial = imuflow_body::rotation::Axis::Y
+            .rotation(cal.heading_correction_rad)
+            * model_from_inertial;
+        // Eq. 24 on the stand.
+        cal.sensor_from_bone =
+            (sensor_model_from_inertial * g.stand_before[k]).transpose() * reference[k];
+        if walking.accel_offset {
+            cal.accel_offset_in_model_mps2 =
+                sensor_model_from_inertial * g.offset_in_inertial_mps2[k];
+        }
+    }
+    Ok(WalkingEstimate {
+        calibration: Calibration {
+            method: Method::Walking,
+            model_from_inertial,
+            sensors,
+        },
+        geometry: g,
+    })
+}
+
+/// Positions of sensor `k` from rest by double integration of its free acceleration (Eq. 17–18),
+/// one per sample. `gravity` is g_I minus the accelerometer offset.
+fn integrate_path(samples: &[Sample], k: usize, gravity: &Vector3<f64>) -> Vec<Vector3<f64>> {
+    let (mut p, mut v) = (Vector3::zeros(), Vector3::zeros());
+    let mut path = Vec::with_capacity(samples.len());
+    path.push(p);
+    for pair in samples.windows(2) {
+        let dt = pair[1].time_s - pair[0].time_s;
+        let a = pair[0].sensors[k].free_acceleration_in_inertial(gravity);
+        p += v * dt + a * (0.5 * dt * dt);
+        v += a * dt;
+        path.push(p);
+    }
+    path
+}
+
+/// The rotation about `up` (rad) that best turns `path` onto `target` in the least-squares sense,
+/// allowing a constant offset between them (both paths centred first): a limb that holds itself
+/// differently while walking than while standing (forearms forward, a wider stance) is shifted,
+/// not turned.
+fn align_about(up: &Unit<Vector3<f64>>, path: &[Vector3<f64>], target: &[Vector3<f64>]) -> f64 {
+    let (path_mean, target_mean) = (mean(path), mean(target));
+    let (sin, cos) = path.iter().zip(target).fold((0.0, 0.0), |(s, c), (p, t)| {
+        let (p, t) = (p - path_mean, t - target_mean);
+        (s + p.cross(&t).dot(up), c + p.dot(&t))
+    });
+    sin.atan2(cos)
+}
+
+/// RMS distance (m) between `path` turned by `psi` about `up` and `target`, both centred.
+fn path_mismatch_m(
+    up: &Unit<Vector3<f64>>,
+    psi: f64,
+    path: &[Vector3<f64>],
+    target: &[Vector3<f64>],
+) -> f64 {
+    let turn = Rotation3::from_axis_angle(up, psi);
+    let (path_mean, target_mean) = (mean(path), mean(target));
+    let sum: f64 = path
+        .iter()
+        .zip(target)
+        .map(|(p, t)| (turn * (p - path_mean) - (t - target_mean)).norm_squared())
+        .sum();
+    (sum / path.len().max(1) as f64).sqrt()
+}
+
+fn mean(points: &[Vector3<f64>]) -> Vector3<f64> {
+    points.iter().sum::<Vector3<f64>>() / points.len().max(1) as f64
+}
+
+/// The pelvis walked far enough and straight enough for its path to define a direction.
+fn check_walk(
+    pelvis: &[Vector3<f64>],
+    up: &Unit<Vector3<f64>>,
+    config: &WalkStartConfig,
+) -> Result<(), Rejection> {
+    let end = pelvis.last().copied().unwrap_or_else(Vector3::zeros);
+    let length_m = end.norm();
+    if length_m < config.min_walk_m {
+        return Err(Rejection::WalkTooShort {
+            length_m,
+            min_m: config.min_walk_m,
+        });
+    }
+    // The second half of the walk should go the same way as the whole of it.
+    let middle = pelvis[pelvis.len() / 2];
+    let turn_deg = signed_angle_about(up, &end, &(end - middle))
+        .abs()
+        .to_degrees();
+    if turn_deg > config.max_walk_turn_deg {
+        return Err(Rejection::WalkTurned {
+            turn_deg,
+            max_deg: config.max_walk_turn_deg,
+        });
+    }
+    Ok(())
+}

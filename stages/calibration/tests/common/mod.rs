@@ -233,3 +233,31 @@ pub fn short_clip() -> MotionClip {
 pub fn first_stand_mid(prelude: &PreludeOptions) -> usize {
     (prelude.stand_s * RATE_HZ / 2.0) as usize
 }
+
+/// The bundled sample's true walking (13 s, its calibration prelude left out) at 60 Hz.
+pub fn sample_walk_clip() -> MotionClip {
+    use imuflow_graph::frames::flags;
+    use imuflow_recording::{Recorded, Recording};
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/sample/walk.mcap");
+    let recording = Recording::load(&path, None, None).expect("bundled sample");
+    let poses = recording
+        .frames
+        .iter()
+        .filter_map(|f| match f {
+            Recorded::Truth(t) if !t.header.has(flags::PRELUDE) => Some(t),
+            _ => None,
+        })
+        .map(|t| Pose::from_wire(&t.local_pose_wxyz, &t.root_position_m).expect("true pose"))
+        .collect();
+    MotionClip {
+        frame_time_s: 1.0 / RATE_HZ,
+        poses,
+    }
+}
+
+/// Median and maximum of `values`.
+pub fn median_max(values: &[f64]) -> (f64, f64) {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    (v[v.len() / 2], v[v.len() - 1])
+}
