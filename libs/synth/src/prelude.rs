@@ -72,6 +72,9 @@ pub struct PreludeOptions {
     /// Heading change during the step (deg). Not 0 means the subject does not stand as before the
     /// step: a walking calibration must then ask for a redo (used by tests).
     pub turn_deg: f64,
+    /// Elbow flexion while standing in the N-pose (deg; 0: straight arms, as GlobalPose's N-pose).
+    /// Relaxed arms hang with the elbows bent 15–35°.
+    pub elbow_deg: f64,
 }
 
 /// The imu-source stage's `prelude_stand_s`, the default of [`PreludeOptions::stand_s`].
@@ -95,6 +98,7 @@ impl Default for PreludeOptions {
             step_s: 1.2,
             blend_s: 1.0,
             turn_deg: 0.0,
+            elbow_deg: 0.0,
         }
     }
 }
@@ -109,6 +113,16 @@ pub fn n_pose(root_m: Vector3<f64>) -> Pose {
     let mut p = Pose::t_pose(root_m);
     p.parent_from_joint[JointId::LEFT_SHOULDER.index()] = Axis::Z.rotation(-FRAC_PI_2);
     p.parent_from_joint[JointId::RIGHT_SHOULDER.index()] = Axis::Z.rotation(FRAC_PI_2);
+    p
+}
+
+/// The N-pose with both elbows bent by `elbow_rad` (the hands forward): relaxed arms.
+pub fn relaxed_n_pose(root_m: Vector3<f64>, elbow_rad: f64) -> Pose {
+    let mut p = n_pose(root_m);
+    // With the upper arm hanging (shoulder R_z(∓90°)), a turn about the elbow's local y axis is
+    // a turn about M's left axis: R_z(−90°)·R_y(−θ)·R_z(90°) = R_x(−θ), hand forward.
+    p.parent_from_joint[JointId::LEFT_ELBOW.index()] = Axis::Y.rotation(-elbow_rad);
+    p.parent_from_joint[JointId::RIGHT_ELBOW.index()] = Axis::Y.rotation(elbow_rad);
     p
 }
 
@@ -263,13 +277,16 @@ pub fn with_prelude(clip: &MotionClip, body: &BodyModel, options: &PreludeOption
     let start = if options.kind.has_tpose() {
         t_pose(origin)
     } else {
-        n_pose(origin)
+        relaxed_n_pose(origin, options.elbow_deg.to_radians())
     };
     let mut track = PoseTrack::new(clip.frame_time_s, start);
     track.hold(options.stand_s);
     if options.kind.has_walk() {
         if options.kind.has_tpose() {
-            track.blend_to(&n_pose(origin), options.blend_s);
+            track.blend_to(
+                &relaxed_n_pose(origin, options.elbow_deg.to_radians()),
+                options.blend_s,
+            );
             track.hold(options.stand_s);
         }
         track.step_forward(

@@ -18,7 +18,15 @@ pub enum ReferencePose {
     /// identity (GlobalPose's N-pose, reference §4).
     #[serde(rename = "n")]
     N,
+    /// Relaxed N-pose: arms hanging with the elbows bent [`RELAXED_ELBOW_DEG`] (hands forward),
+    /// how people stand when not told to straighten their arms.
+    #[serde(rename = "relaxed")]
+    Relaxed,
 }
+
+/// Elbow flexion of the relaxed pose, deg: the middle of the 15–35° measured on people standing
+/// at ease.
+pub const RELAXED_ELBOW_DEG: f64 = 25.0;
 
 impl ReferencePose {
     /// Parses `t` or `n`.
@@ -26,6 +34,7 @@ impl ReferencePose {
         match name {
             "t" => Some(ReferencePose::T),
             "n" => Some(ReferencePose::N),
+            "relaxed" => Some(ReferencePose::Relaxed),
             _ => None,
         }
     }
@@ -35,16 +44,23 @@ impl ReferencePose {
         match self {
             ReferencePose::T => "t",
             ReferencePose::N => "n",
+            ReferencePose::Relaxed => "relaxed",
         }
     }
 
     /// `R_MB` of each IMU's bone (IMU order) in this pose, facing +z.
     pub fn bone_orientations(self) -> [Rotation3<f64>; NUM_IMUS] {
         let mut r = [Rotation3::identity(); NUM_IMUS];
-        if self == ReferencePose::N {
+        if self != ReferencePose::T {
             // Left forearm: the bone's x axis (along the arm, pointing left) turns down.
             r[0] = Axis::Z.rotation(-std::f64::consts::FRAC_PI_2);
             r[1] = Axis::Z.rotation(std::f64::consts::FRAC_PI_2);
+        }
+        if self == ReferencePose::Relaxed {
+            // Bent elbows bring the hands forward: a turn about M's left axis (x).
+            let bend = Axis::X.rotation(-RELAXED_ELBOW_DEG.to_radians());
+            r[0] = bend * r[0];
+            r[1] = bend * r[1];
         }
         r
     }

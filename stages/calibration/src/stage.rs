@@ -31,8 +31,9 @@ imuflow_graph::stage_params! {
         /// tpose: direction the subject faces in I, right-handed about up from the convention's
         /// forward axis (model: +z, z-up/z-down: +x)
         heading_deg: f64 = 0, float(-360.0, 360.0);
-        /// the pose held (tpose) or stood in (walking): t = arms out, n = arms down
-        pose: Option<ReferencePose> = computed("t for tpose, n for walking"), choice(&["t", "n"]);
+        /// the pose held (tpose) or stood in (walking): t = arms out, n = arms down and straight,
+        /// relaxed = arms down with the elbows bent 25°
+        pose: Option<ReferencePose> = computed("t for tpose, n for walking"), choice(&["t", "n", "relaxed"]);
         /// estimate the accelerometer offset while still and subtract it
         accel_offset: bool = true, bool;
         /// walking: re-estimate the heading corrections at every later stand-step-stand

@@ -203,3 +203,45 @@ fn a_walk_to_the_side_gives_forward_with_walk_direction() {
         "walk_direction 0° on a walk to the left: {not_told:.1}°"
     );
 }
+
+/// Median forearm bone error (deg) after a natural start whose stand has the elbows bent
+/// `elbow_deg`, calibrated assuming `pose`.
+fn forearm_error_deg(elbow_deg: f64, pose: imuflow_calibration::ReferencePose) -> f64 {
+    let motion = synthesize(
+        sample_walk_clip(),
+        PreludeOptions {
+            elbow_deg,
+            ..natural_start()
+        },
+        setup(InertialFrame::ZUp, 20.0, 15.0),
+        false,
+        6,
+    );
+    let session = run(CalibratorConfig { pose, ..config() }, &motion);
+    let at = session.calibrated_at().expect("calibrated");
+    let body = body();
+    let mut errors = Vec::new();
+    for t in at..motion.len() {
+        let truth = true_bones(&body, &motion.clip.poses[t]);
+        errors.extend((0..2).map(|k| bone_error_deg(&session.outputs[t], &truth, k)));
+    }
+    median_max(&errors).0
+}
+
+#[test]
+fn relaxed_elbows_need_the_relaxed_pose() {
+    use imuflow_calibration::ReferencePose::{N, Relaxed};
+    // Assuming straight arms while the subject stood with bent elbows puts the bend into the
+    // forearm's mounting: every later forearm orientation is off by about the bend.
+    let straight_assumed_bent_stood = forearm_error_deg(25.0, N);
+    let relaxed_assumed_bent_stood = forearm_error_deg(25.0, Relaxed);
+    let relaxed_assumed_straight_stood = forearm_error_deg(0.0, Relaxed);
+    eprintln!(
+        "forearm median error: stood 25°, assumed n {straight_assumed_bent_stood:.1}°; assumed \
+         relaxed {relaxed_assumed_bent_stood:.1}°; stood straight, assumed relaxed \
+         {relaxed_assumed_straight_stood:.1}°"
+    );
+    assert!(straight_assumed_bent_stood > 15.0);
+    assert!(relaxed_assumed_bent_stood < 3.0);
+    assert!(relaxed_assumed_straight_stood > 15.0);
+}
