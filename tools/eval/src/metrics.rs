@@ -202,6 +202,28 @@ pub fn translation_drift_percent(
         .map(|e| e / DRIFT_WINDOW_M * 100.0)
 }
 
+/// Shortest horizontal travel of the truth for [`distance_walked_percent`], m.
+pub const MIN_WALKED_M: f64 = 1.0;
+
+/// Distance walked, %: the estimate's horizontal root displacement from the first to the last
+/// frame, projected on the truth's, over the truth's length × 100. 100 is right; below 100 the
+/// estimate walks short (or off to the side), above it too far. Heading is not aligned: a walk
+/// estimated in the wrong direction counts as short. `None` when the truth travels less than
+/// [`MIN_WALKED_M`] horizontally (imuflow's definition, for walking in any direction).
+pub fn distance_walked_percent(
+    predicted_root: &[Vector3<f64>],
+    truth_root: &[Vector3<f64>],
+) -> Option<f64> {
+    let horizontal = |roots: &[Vector3<f64>]| {
+        let d = roots.last()? - roots.first()?;
+        Some(Vector3::new(d.x, 0.0, d.z))
+    };
+    let truth = horizontal(truth_root)?;
+    let estimate = horizontal(predicted_root)?;
+    let length = truth.norm();
+    (length >= MIN_WALKED_M).then(|| estimate.dot(&truth) / (length * length) * 100.0)
+}
+
 /// Foot joints used by the contact metrics.
 pub const FOOT_JOINTS: [JointId; 2] = [JointId::LEFT_FOOT, JointId::RIGHT_FOOT];
 
@@ -251,6 +273,25 @@ pub fn ground_penetration_m(positions: &[[Vector3<f64>; NUM_JOINTS]], floor_y_m:
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn distance_walked_is_the_estimate_along_the_truth() {
+        let line = |end: Vector3<f64>| -> Vec<Vector3<f64>> {
+            (0..=10).map(|i| end * (i as f64 / 10.0)).collect()
+        };
+        let truth = line(Vector3::new(3.0, 0.0, 4.0));
+        // Half as far, same direction: 50 %; height changes do not count.
+        let half = line(Vector3::new(1.5, 0.7, 2.0));
+        assert!((distance_walked_percent(&half, &truth).unwrap() - 50.0).abs() < 1e-9);
+        // As far but at right angles: nothing along the truth.
+        let sideways = line(Vector3::new(4.0, 0.0, -3.0));
+        assert!(distance_walked_percent(&sideways, &truth).unwrap().abs() < 1e-9);
+        // Backwards: negative.
+        let back = line(Vector3::new(-3.0, 0.0, -4.0));
+        assert!((distance_walked_percent(&back, &truth).unwrap() + 100.0).abs() < 1e-9);
+        // A truth that stays within 1 m has no distance to compare.
+        assert!(distance_walked_percent(&half, &line(Vector3::new(0.5, 0.0, 0.0))).is_none());
+    }
     use approx::assert_relative_eq;
 
     #[test]

@@ -84,6 +84,10 @@ pub struct MotionScores {
     /// Translation drift, %: the 7 m error / 7 m × 100, the figure GlobalPose's test.py prints
     /// (reference §6; GlobalPose paper Fig. 4 and Table 5).
     pub translation_drift_percent: Option<f64>,
+    /// Distance walked, % of the truth's horizontal displacement (per run from its first to its
+    /// last frame, along the truth's; runs whose truth travels ≥ 1 m, weighted by their frames;
+    /// [`crate::metrics::distance_walked_percent`]).
+    pub distance_walked_percent: Option<f64>,
     /// Foot skating, m/s: horizontal speed of a foot joint within 5 cm of its rest clearance in two
     /// consecutive frames (imuflow's definition; runs of ≥ 2 frames).
     pub foot_skating_mps: Option<f64>,
@@ -318,6 +322,7 @@ fn translation(
     let mut short = FrameWeighted::default();
     let mut long = FrameWeighted::default();
     let mut drift = FrameWeighted::default();
+    let mut walked = FrameWeighted::default();
     for run in runs {
         let est = roots_of(&estimates[run.clone()]);
         let tru = roots_of(&truths[run.clone()]);
@@ -330,7 +335,11 @@ fn translation(
         if let Some(d) = translation_drift_percent(&est, &tru) {
             drift.add(d, 1);
         }
+        if let Some(w) = crate::metrics::distance_walked_percent(&est, &tru) {
+            walked.add(w, run.len());
+        }
     }
+    scores.distance_walked_percent = walked.mean();
     scores.translation_error_2m_m = short.mean();
     scores.translation_error_7m_m = long.mean();
     scores.translation_drift_percent = drift.mean();
