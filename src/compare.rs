@@ -59,6 +59,11 @@ pub struct CompareArgs {
             .try_map(|name| SensorErrors::parse(&name).ok_or("not a sensor-error model")),
     )]
     sensor_errors: SensorErrors,
+    /// With --input or --data: set a parameter of the replaced source, after the input's own
+    /// (repeatable), e.g. `prelude=stand`, `raw=true`, `raw_noise=1` (see the imu-source's
+    /// parameters: `imuflow stage --list`).
+    #[arg(long, value_name = "KEY=VALUE", value_parser = imuflow_compare::combine::parse_source_set)]
+    source_set: Vec<(String, toml::Value)>,
     /// Name of the comparison (the graph's name and its files' stem; default: the ablation
     /// file's name, or "compare").
     #[arg(long)]
@@ -124,6 +129,7 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
             path: path.clone(),
             mapping: args.mapping.clone(),
             sensor_errors: args.sensor_errors,
+            source_set: args.source_set.clone(),
         }),
         overlaid: args.overlaid,
         launch,
@@ -201,11 +207,17 @@ fn batch(
         limit: args.limit,
         mapping: args.mapping.clone(),
         sensor_errors: args.sensor_errors,
+        source_set: args.source_set.clone(),
         imuflow_exe: launch.imuflow_exe,
         progress: launch.progress,
         keep_recordings: args.keep_recordings,
         fresh: args.fresh,
-        fingerprint: batch::fingerprint(sources, args.mapping.as_deref(), args.sensor_errors)?,
+        fingerprint: batch::fingerprint(
+            sources,
+            args.mapping.as_deref(),
+            args.sensor_errors,
+            &args.source_set,
+        )?,
         command: std::env::args()
             .enumerate()
             .map(|(i, a)| if i == 0 { "imuflow".to_owned() } else { a })

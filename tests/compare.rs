@@ -489,3 +489,57 @@ fn a_bvh_input_is_synthesized_with_the_sensor_errors_asked_for() {
         text(&out.stderr)
     );
 }
+
+#[test]
+fn source_set_overrides_the_replaced_source_s_parameters_in_order() {
+    let sb = Sandbox::new("compare-source-set");
+    let root = env!("CARGO_MANIFEST_DIR");
+    let walk = format!("{root}/libs/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
+    let (pip, gp) = (
+        format!("{root}/configs/pip.toml"),
+        format!("{root}/configs/globalpose.toml"),
+    );
+    let out = sb.run(&[
+        "compare",
+        "--print-graph",
+        "--input",
+        &walk,
+        &pip,
+        &gp,
+        "--source-set",
+        "prelude=stand",
+        "--source-set",
+        "raw_noise=1.5",
+        "--source-set",
+        "raw=true",
+        "--source-set",
+        "raw_noise=2",
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let combined: toml::Table = text(&out.stdout).parse().expect("TOML");
+    let params = combined["stages"]["source"]["params"]
+        .as_table()
+        .expect("source params");
+    // A word is a string, TOML values keep their type, the last of a key wins, and what the
+    // input sets itself stays unless overridden.
+    assert_eq!(params["prelude"].as_str(), Some("stand"));
+    assert_eq!(params["raw"].as_bool(), Some(true));
+    assert_eq!(params["raw_noise"].as_integer(), Some(2));
+    assert_eq!(params["mounting"].as_str(), Some("random"));
+    let out = sb.run(&[
+        "compare",
+        "--print-graph",
+        "--input",
+        &walk,
+        &pip,
+        &gp,
+        "--source-set",
+        "no-equals-sign",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        text(&out.stderr).contains("KEY=VALUE"),
+        "{}",
+        text(&out.stderr)
+    );
+}

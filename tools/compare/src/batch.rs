@@ -55,6 +55,8 @@ pub struct BatchOptions {
     pub mapping: Option<PathBuf>,
     /// What the synthesized IMUs get wrong besides their mounting.
     pub sensor_errors: SensorErrors,
+    /// Source parameters set after the clip replaced the source (`--source-set`).
+    pub source_set: Vec<(String, toml::Value)>,
     /// How each clip's graph is launched (its own progress bar and logs stay off).
     pub imuflow_exe: PathBuf,
     /// The batch's progress bar.
@@ -356,6 +358,7 @@ fn run_clip(
         path: path.to_owned(),
         mapping: options.mapping.clone(),
         sensor_errors: options.sensor_errors,
+        source_set: options.source_set.clone(),
     };
     let launch_options = LaunchOptions {
         imuflow_exe: options.imuflow_exe.clone(),
@@ -528,7 +531,7 @@ fn markdown(
     );
     let _ = writeln!(
         md,
-        "{} clips of `{}` scored ({frames} frames){}{}. Each clip ran as one combined graph (every variant on byte-identical input: six IMUs synthesized from the clip with a T-pose + walk calibration prelude, random sensor mountings and {}), scored on the frames all variants share. Means are over clips (each clip counts once, whatever its length).\n",
+        "{} clips of `{}` scored ({frames} frames){}{}. Each clip ran as one combined graph (every variant on byte-identical input: six IMUs synthesized from the clip with a T-pose + walk calibration prelude, random sensor mountings and {}), scored on the frames all variants share{}. Means are over clips (each clip counts once, whatever its length).\n",
         scored.len(),
         options.data.display(),
         if failed.is_empty() {
@@ -544,6 +547,16 @@ fn markdown(
             String::new()
         },
         options.sensor_errors.describe(),
+        if options.source_set.is_empty() {
+            String::new()
+        } else {
+            let set: Vec<String> = options
+                .source_set
+                .iter()
+                .map(|(k, v)| format!("`{k} = {v}`"))
+                .collect();
+            format!("; the source's parameters then set: {}", set.join(", "))
+        },
     );
     let _ = writeln!(md, "Regenerate: `{}`\n", options.command);
 
@@ -665,6 +678,7 @@ pub fn fingerprint(
     sources: &[AblationVariant],
     mapping: Option<&Path>,
     sensor_errors: SensorErrors,
+    source_set: &[(String, toml::Value)],
 ) -> anyhow::Result<String> {
     let mut fingerprint = String::new();
     for source in sources {
@@ -680,6 +694,9 @@ pub fn fingerprint(
     }
     if sensor_errors != SensorErrors::default() {
         fingerprint.push_str(&format!("-sensor-errors={sensor_errors:?}"));
+    }
+    for (key, value) in source_set {
+        fingerprint.push_str(&format!("-{key}={value}"));
     }
     Ok(fingerprint)
 }

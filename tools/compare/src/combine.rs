@@ -453,12 +453,14 @@ impl SensorErrors {
 }
 
 /// Points the first variant's source at `input`: an mcap replay, or IMUs synthesized from a BVH
-/// with `errors` (an mcap replays what was recorded: `errors` does not apply).
+/// with `errors` (an mcap replays what was recorded: `errors` does not apply); then sets the
+/// parameters of `set` on it, in order (`--source-set`: another prelude, raw sensors, ...).
 pub fn replace_source(
     graph: &mut Graph,
     input: &Path,
     mapping: Option<&Path>,
     errors: SensorErrors,
+    set: &[(String, toml::Value)],
 ) -> Result<(), InputError> {
     if !input.is_file() {
         return Err(InputError(format!("{}: no such file", input.display())));
@@ -512,8 +514,31 @@ pub fn replace_source(
             )));
         }
     }
+    for (key, value) in set {
+        params.insert(key.clone(), value.clone());
+    }
     source.params = params;
     Ok(())
+}
+
+/// Parses one `--source-set KEY=VALUE`: the value as a TOML value (`true`, `1.5`, `"text"`), or as
+/// a string when it is not one (`prelude=stand`).
+pub fn parse_source_set(arg: &str) -> Result<(String, toml::Value), String> {
+    let (key, value) = arg
+        .split_once('=')
+        .ok_or_else(|| format!("--source-set {arg}: expected KEY=VALUE"))?;
+    let key = key.trim();
+    if key.is_empty() || !key.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+        return Err(format!(
+            "--source-set {arg}: '{key}' is not a parameter name"
+        ));
+    }
+    let value = value.trim();
+    let parsed = toml::from_str::<toml::Table>(&format!("v = {value}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(value.to_owned()));
+    Ok((key.to_owned(), parsed))
 }
 
 fn prefixed(variant: &str, stage: &str) -> String {

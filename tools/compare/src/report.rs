@@ -403,7 +403,13 @@ fn add_motion_rows(table: &mut Table, k: usize, s: &MotionScores, with_truth: bo
         );
         table.set("drift at 7 m", "%", true, k, s.translation_drift_percent);
         // 100 is right: neither more nor less is better, so no best is marked.
-        table.set("distance walked", "% of truth", false, k, s.distance_walked_percent);
+        table.set(
+            "distance walked",
+            "% of truth",
+            false,
+            k,
+            s.distance_walked_percent,
+        );
     }
     table.set("foot skating", "m/s", true, k, s.foot_skating_mps);
     let penetration = s.ground_penetration_m.map(|m| 100.0 * m);

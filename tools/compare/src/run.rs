@@ -19,6 +19,8 @@ pub struct Input {
     pub mapping: Option<PathBuf>,
     /// What the synthesized IMUs get wrong besides their mounting.
     pub sensor_errors: SensorErrors,
+    /// Source parameters set after the input replaced the source (`--source-set`), in order.
+    pub source_set: Vec<(String, toml::Value)>,
 }
 
 /// One comparison to run.
@@ -76,6 +78,7 @@ pub fn combine_variants(
             &input.path,
             input.mapping.as_deref(),
             input.sensor_errors,
+            &input.source_set,
         )
         .map_err(|e| RunError::Input(e.to_string()))?;
     }
