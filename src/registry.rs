@@ -18,6 +18,7 @@ pub const STAGES: &[BuiltinStage] = &[
     builtin(imuflow_recorder::SPEC, imuflow_recorder::run),
     builtin(imuflow_rerun_logger::SPEC, imuflow_rerun_logger::run),
     builtin(imuflow_imu_source::SPEC, imuflow_imu_source::run),
+    builtin(imuflow_fusion::SPEC, imuflow_fusion::run),
     builtin(imuflow_calibration::SPEC, imuflow_calibration::run),
     builtin(imuflow_kinematics::SPEC, imuflow_kinematics::run),
     builtin(imuflow_contact_stage::SPEC, imuflow_contact_stage::run),

@@ -40,7 +40,8 @@ pub mod flags {
     pub const RESTARTED: u32 = 1 << 4;
     /// Part of a constructed calibration prelude that a synthesizing source put in front of the
     /// clip (T-pose hold, stand, step): the subject's motion, but not the clip's, so scores of the
-    /// clip leave it out. Only sources set it; stages do not carry it to their outputs.
+    /// clip leave it out. Only sources set it (and the fusion stage, which resamples a source's
+    /// raw frames, on the frames it makes of them); other stages do not carry it to their outputs.
     pub const PRELUDE: u32 = 1 << 5;
 
     /// Every flag with its name, for logs and recorders.
@@ -349,8 +350,8 @@ frame! {
         magnetometer_mask: u32,
         /// Bit i set when sensor i's sample has an on-board orientation.
         orientation_mask: u32,
-        /// Reserved, zero.
-        reserved: u32,
+        /// Bit i set when sensor i's sample carries no gyroscope reading (its gyroscope field is zero): the fusion stage derives the angular rate from consecutive on-board orientations.
+        no_gyroscope_mask: u32,
     }
 }
 

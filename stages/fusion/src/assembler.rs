@@ -1,0 +1,351 @@
+//! The output grid: raw frames in, one `ImuFrame` per output period out, in order, none skipped.
+//!
+//! Output frame k stands for source time `t_k = origin + k / rate_hz` (origin 0 offline, the first
+//! raw frame's capture time live) and carries `seq = k`, `capture_ns = t_k`. It is emitted as soon
+//! as every sensor can be resampled at `t_k` (it has a sample stamped at or after `t_k` plus its
+//! low-pass delay plus half its sample interval), or once a raw frame captured more than
+//! `max_latency` after `t_k` arrived; the sensors that cannot be resampled then are written as
+//! identity / zeros with their bit cleared and the frame is flagged INVALID.
+
+use imuflow_graph::frames::{ImuFrame, RawImuFrame, flags};
+
+use crate::quat::IDENTITY;
+use crate::sensor::{RawSample, SensorCounters, SensorSettings, SensorTrack};
+use crate::{FusionError, NUM_IMUS, sensor_name};
+
+/// Offline, a first capture time later than this is not "near 0": the grid starts there instead
+/// of emitting this long a run of empty frames first, s.
+pub const MAX_ZERO_ORIGIN_S: f64 = 60.0;
+/// A raw frame captured this much after the newest one so far is refused (a corrupt timestamp
+/// would otherwise make the stage emit empty frames for years), s.
+pub const MAX_CAPTURE_JUMP_S: f64 = 3600.0;
+/// A sensor that has never been usable this long after another one was is reported missing, s.
+const NEVER_SEEN_S: f64 = 1.0;
+
+/// Where output frame 0 lies on the source clock.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Origin {
+    /// Offline: source time 0, so that output seq k is the source's frame k (the synthesizing
+    /// source numbers its truth frames so).
+    Zero,
+    /// Live: the first raw frame's capture time.
+    FirstCapture,
+}
+
+/// The whole stage's configuration.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Settings {
+    pub sensor: SensorSettings,
+    /// A frame waits for late sensors at most this long after its time, s.
+    pub max_latency_s: f64,
+    pub origin: Origin,
+}
+
+/// Something worth a log line.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Notice {
+    pub warning: bool,
+    pub text: String,
+}
+
+/// Output counts besides the sensors' own.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FrameCounters {
+    /// Output frames emitted.
+    pub frames: u64,
+    /// Output frames flagged INVALID.
+    pub invalid: u64,
+    /// Per sensor: output frames where it could not be resampled.
+    pub sensor_invalid: [u64; NUM_IMUS],
+    /// Per sensor: output frames emitted at their latency deadline before the samples describing
+    /// its specific force and angular rate had come (extrapolated from the newest two).
+    pub sensor_held: [u64; NUM_IMUS],
+    /// Raw frames refused for a capture time more than [`MAX_CAPTURE_JUMP_S`] ahead.
+    pub refused_raw: u64,
+}
+
+/// Per sensor: whether it was usable in the last frame, and whether its going missing was logged.
+#[derive(Clone, Copy, Debug, Default)]
+struct Presence {
+    ever: bool,
+    now: bool,
+    warned: bool,
+    return_logged: bool,
+    missing_since: Option<u64>,
+}
+
+pub struct Assembler {
+    settings: Settings,
+    rate_hz: f64,
+    sensors: Vec<SensorTrack>,
+    origin_ns: Option<i128>,
+    next_k: u64,
+    newest_capture: Option<i128>,
+    /// The latest source time a raw frame flagged PRELUDE vouches for (see `mark_prelude`).
+    prelude_until: Option<i128>,
+    presence: [Presence; NUM_IMUS],
+    first_usable_ns: Option<i128>,
+    /// Flushing at the end of the stream.
+    finishing: bool,
+    counters: FrameCounters,
+    notices: Vec<Notice>,
+}
+
+impl Assembler {
+    /// An assembler for the output rate `settings.sensor.output_rate_hz` (> 0).
+    pub fn new(settings: Settings) -> Assembler {
+        Assembler {
+            rate_hz: settings.sensor.output_rate_hz,
+            sensors: (0..NUM_IMUS)
+                .map(|i| SensorTrack::new(i, settings.sensor))
+                .collect(),
+            settings,
+            origin_ns: None,
+            next_k: 0,
+            newest_capture: None,
+            prelude_until: None,
+            presence: [Presence::default(); NUM_IMUS],
+            first_usable_ns: None,
+            finishing: false,
+            counters: FrameCounters::default(),
+            notices: Vec::new(),
+        }
+    }
+
+    pub fn counters(&self) -> &FrameCounters {
+        &self.counters
+    }
+
+    pub fn sensor(&self, i: usize) -> &SensorTrack {
+        &self.sensors[i]
+    }
+
+    pub fn sensor_counters(&self, i: usize) -> &SensorCounters {
+        self.sensors[i].counters()
+    }
+
+    /// The log lines gathered since the last call.
+    pub fn take_notices(&mut self) -> Vec<Notice> {
+        for s in &mut self.sensors {
+            self.notices
+                .extend(s.take_notices().into_iter().map(|text| Notice {
+                    warning: text.contains("jumped") || text.contains("implausible"),
+                    text,
+                }));
+        }
+        std::mem::take(&mut self.notices)
+    }
+
+    /// The source time of output frame `k`, ns.
+    pub fn time_of(&self, k: u64) -> Option<i128> {
+        let origin = self.origin_ns?;
+        Some(origin + (k as f64 * 1e9 / self.rate_hz).round() as i128)
+    }
+
+    /// Takes one raw frame; the output frames it completes go to `out`.
+    pub fn push(&mut self, raw: &RawImuFrame, out: &mut Vec<ImuFrame>) -> Result<(), FusionError> {
+        let capture = i128::from(raw.header.capture_ns);
+        if let Some(newest) = self.newest_capture
+            && capture - newest > (MAX_CAPTURE_JUMP_S * 1e9) as i128
+        {
+            self.counters.refused_raw += 1;
+            self.notices.push(Notice {
+                warning: true,
+                text: format!(
+                    "raw frame {} refused: captured {:.0} s after the newest one",
+                    raw.header.seq,
+                    (capture - newest) as f64 * 1e-9
+                ),
+            });
+            return Ok(());
+        }
+        self.start_grid(capture);
+        self.newest_capture = Some(self.newest_capture.map_or(capture, |n| n.max(capture)));
+        let mut earliest = None::<i128>;
+        for (i, sample) in samples(raw) {
+            self.sensors[i].push(sample)?;
+            if let Some(t) = self.sensors[i].source_ns_of(sample.sample_ns) {
+                earliest = Some(earliest.map_or(t, |e| e.min(t)));
+            }
+        }
+        if raw.header.has(flags::PRELUDE) {
+            self.mark_prelude(earliest.unwrap_or(capture));
+        }
+        self.emit_ready(out);
+        Ok(())
+    }
+
+    /// At the end of the stream: every frame up to the newest sample of any sensor.
+    pub fn finish(&mut self, out: &mut Vec<ImuFrame>) -> Result<(), FusionError> {
+        for s in &mut self.sensors {
+            s.finish()?;
+        }
+        self.emit_ready(out);
+        // The sensors' last samples lie a few milliseconds apart: the flush flags the ones that
+        // ended first without calling them missing.
+        self.finishing = true;
+        let end = self.sensors.iter().filter_map(|s| s.newest_ns()).max();
+        while let (Some(t), Some(end)) = (self.time_of(self.next_k), end)
+            && t <= end
+        {
+            self.emit(t, out);
+        }
+        Ok(())
+    }
+
+    fn start_grid(&mut self, capture: i128) {
+        if self.origin_ns.is_some() {
+            return;
+        }
+        let far = capture as f64 * 1e-9 > MAX_ZERO_ORIGIN_S;
+        self.origin_ns = Some(match self.settings.origin {
+            Origin::Zero if !far => 0,
+            Origin::Zero => {
+                self.notices.push(Notice {
+                    warning: false,
+                    text: format!(
+                        "the first capture time is {:.1} s, not near 0: output frame 0 is at it",
+                        capture as f64 * 1e-9
+                    ),
+                });
+                capture
+            }
+            Origin::FirstCapture => capture,
+        });
+    }
+
+    /// A raw frame flagged PRELUDE holds a sample taken before the clip (the synthesizing
+    /// source's rule), so the prelude lasts at least until its earliest sample's time (source
+    /// clock; its capture time when it holds none).
+    fn mark_prelude(&mut self, t: i128) {
+        self.prelude_until = Some(self.prelude_until.map_or(t, |u| u.max(t)));
+    }
+
+    /// Whether source time `t` lies in the prelude: at or before a sample of a PRELUDE frame. The
+    /// source's truth frame k is PRELUDE when it lies before the clip, and the last prelude sample
+    /// lies less than a sample interval before the clip, so output frame k is PRELUDE exactly
+    /// when the truth's is (for sensors faster than the output).
+    fn prelude_at(&self, t: i128) -> bool {
+        self.prelude_until.is_some_and(|u| t <= u)
+    }
+
+    fn emit_ready(&mut self, out: &mut Vec<ImuFrame>) {
+        let latency = (self.settings.max_latency_s * 1e9).round() as i128;
+        while let (Some(t), Some(newest)) = (self.time_of(self.next_k), self.newest_capture) {
+            let all_there = self
+                .sensors
+                .iter()
+                .all(|s| s.covered_until_ns().is_some_and(|c| c >= t));
+            if !all_there && newest - t <= latency {
+                break;
+            }
+            self.emit(t, out);
+        }
+    }
+
+    fn emit(&mut self, t: i128, out: &mut Vec<ImuFrame>) {
+        let k = self.next_k;
+        let mut frame = ImuFrame::default();
+        frame.header.seq = k;
+        frame.header.capture_ns = t.max(0) as u64;
+        if self.prelude_at(t) {
+            frame.header.flags |= flags::PRELUDE;
+        }
+        for i in 0..NUM_IMUS {
+            let value = self.sensors[i].at(t);
+            match value {
+                Some(v) => {
+                    if self.sensors[i].covered_until_ns().is_none_or(|c| c < t) {
+                        self.counters.sensor_held[i] += 1;
+                    }
+                    frame.orientation_wxyz[i] = v.orientation.map(|c| c as f32);
+                    frame.specific_force_mps2[i] = v.specific_force.map(|c| c as f32);
+                    frame.angular_rate_radps[i] = v.angular_rate.map(|c| c as f32);
+                    frame.valid_mask |= 1 << i;
+                }
+                None => {
+                    frame.orientation_wxyz[i] = IDENTITY.map(|c| c as f32);
+                    self.counters.sensor_invalid[i] += 1;
+                }
+            }
+            self.track_presence(i, k, t, value.is_some());
+            self.sensors[i].prune(t);
+        }
+        if frame.valid_mask != (1 << NUM_IMUS) - 1 {
+            frame.header.flags |= flags::INVALID;
+            self.counters.invalid += 1;
+        }
+        self.counters.frames += 1;
+        self.next_k += 1;
+        out.push(frame);
+    }
+
+    /// Logs a sensor's going missing once (the first time it is not usable after it was, or when
+    /// it has never been usable a second after another sensor was), and its first return.
+    fn track_presence(&mut self, i: usize, k: u64, t: i128, usable: bool) {
+        if usable {
+            self.first_usable_ns.get_or_insert(t);
+        }
+        let p = &mut self.presence[i];
+        let never_seen = !p.ever
+            && self
+                .first_usable_ns
+                .is_some_and(|first| (t - first) as f64 * 1e-9 > NEVER_SEEN_S);
+        if !usable && p.missing_since.is_none() && (p.now || never_seen) && !self.finishing {
+            p.missing_since = Some(k);
+            if !p.warned {
+                p.warned = true;
+                let what = if p.ever {
+                    "went missing"
+                } else {
+                    "has delivered no usable sample"
+                };
+                self.notices.push(Notice {
+                    warning: true,
+                    text: format!(
+                        "{} {what} at output frame {k} ({:.3} s); its frames are flagged INVALID \
+                         while it is missing",
+                        sensor_name(i),
+                        t as f64 * 1e-9
+                    ),
+                });
+            }
+        }
+        if usable
+            && let Some(since) = p.missing_since.take()
+            && !p.return_logged
+        {
+            p.return_logged = true;
+            self.notices.push(Notice {
+                warning: false,
+                text: format!(
+                    "{} is back at output frame {k} after {} frame(s)",
+                    sensor_name(i),
+                    k - since
+                ),
+            });
+        }
+        p.ever |= usable;
+        p.now = usable;
+    }
+}
+
+/// The samples a raw frame carries, per sensor.
+fn samples(raw: &RawImuFrame) -> impl Iterator<Item = (usize, RawSample)> + '_ {
+    let f64s = |v: [f32; 3]| v.map(f64::from);
+    (0..NUM_IMUS)
+        .filter(|i| raw.valid_mask & (1 << i) != 0)
+        .map(move |i| {
+            let has = |mask: u32| mask & (1 << i) != 0;
+            let sample = RawSample {
+                sample_ns: raw.sample_time_ns[i],
+                capture_ns: i128::from(raw.header.capture_ns),
+                acc: f64s(raw.accelerometer_mps2[i]),
+                gyr: f64s(raw.gyroscope_radps[i]),
+                mag: has(raw.magnetometer_mask).then(|| f64s(raw.magnetometer_ut[i])),
+                onboard: has(raw.orientation_mask).then(|| raw.orientation_wxyz[i].map(f64::from)),
+                no_gyroscope: has(raw.no_gyroscope_mask),
+            };
+            (i, sample)
+        })
+}

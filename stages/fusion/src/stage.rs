@@ -1,0 +1,298 @@
+//! The `fusion` stage process: reads `raw`, writes `imu`, logs what it counted.
+
+use anyhow::{Context, bail};
+use imuflow_graph::frames::{ImuFrame, RawImuFrame};
+use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
+use imuflow_graph::stage::EndOutput;
+use imuflow_graph::transport::{Output, TransportError};
+use imuflow_graph::{FrameType, Mode, StageContext};
+
+use crate::assembler::{Assembler, Notice, Origin, Settings};
+use crate::filter::VqfParams;
+use crate::sensor::{MagnetometerUse, OrientationSource, SensorSettings};
+use crate::{NUM_IMUS, sensor_name};
+
+imuflow_graph::stage_params! {
+    /// The fusion stage's parameters.
+    pub struct FusionParams {
+        /// auto: a sensor's on-board orientation when its first sample carries one, else fused;
+        /// fuse: always fused (VQF); onboard: on-board only (a sample without one is an error)
+        orientation: String = "auto", choice(&["auto", "fuse", "onboard"]);
+        /// auto: 9D (ENU earth frame) for samples with a magnetometer reading; ignore: 6D always
+        magnetometer: String = "auto", choice(&["auto", "ignore"]);
+        // Laidig & Seel 2023, Table 1: the authors' defaults.
+        /// VQF: time constant of the accelerometer (inclination) correction, s
+        tau_acc_s: f64 = 3, float(0.01, 1000.0);
+        /// VQF: time constant of the magnetometer (heading) correction, s
+        tau_mag_s: f64 = 9, float(0.01, 1000.0);
+        /// VQF: rest detection and gyroscope bias estimation at rest
+        rest_bias: bool = true, bool;
+        // VQF's default is 1.5 s and 2°/s; a natural recording's stand may last 1 s, and consumer
+        // MEMS gyroscopes have biases up to ±3°/s (BMI160 data sheet), which VQF with a 2°/s clip
+        // never detects at rest: on the raw-sensor graph SIP error +9.2° against ideal sensors
+        // with VQF's values, +1.7° with these (docs/journal/2026-11-28-real-sensors.md).
+        /// VQF: how long a sensor must be still before rest is detected (and its gyroscope bias
+        /// estimated), s
+        rest_min_s: f64 = 0.5, float(0.1, 60.0);
+        /// VQF: largest gyroscope bias estimated, per axis, deg/s (a sensor with a larger bias
+        /// is never detected at rest)
+        bias_clip_dps: f64 = 5, float(0.1, 100.0);
+        /// VQF: magnetic disturbance detection and rejection
+        mag_rejection: bool = true, bool;
+        /// every sensor's sample rate, Hz (0: measured per sensor from its timestamps)
+        sensor_rate_hz: f64 = 0, float(0.0, 100000.0);
+        /// a sensor without a sample for longer than this is missing (its frames INVALID);
+        /// shorter gaps are interpolated, ms
+        max_gap_ms: f64 = 50, float(0.1, 600000.0);
+        /// an output frame waits at most this long (source time) for a late sensor, ms
+        max_latency_ms: f64 = 30, float(0.0, 600000.0);
+    }
+}
+
+impl FusionParams {
+    /// The stage's configuration at the graph's rate (> 0) and mode.
+    pub fn settings(&self, rate_hz: f64, mode: Mode) -> anyhow::Result<Settings> {
+        if !(rate_hz.is_finite() && rate_hz > 0.0) {
+            bail!("the graph's rate_hz must be positive, got {rate_hz}");
+        }
+        let orientation = match self.orientation.as_str() {
+            "auto" => OrientationSource::Auto,
+            "fuse" => OrientationSource::Fuse,
+            "onboard" => OrientationSource::Onboard,
+            other => bail!("params.orientation: unknown '{other}' (auto, fuse, onboard)"),
+        };
+        let magnetometer = match self.magnetometer.as_str() {
+            "auto" => MagnetometerUse::Auto,
+            "ignore" => MagnetometerUse::Ignore,
+            other => bail!("params.magnetometer: unknown '{other}' (auto, ignore)"),
+        };
+        Ok(Settings {
+            sensor: SensorSettings {
+                vqf: VqfParams {
+                    tau_acc_s: self.tau_acc_s,
+                    tau_mag_s: self.tau_mag_s,
+                    rest_bias: self.rest_bias,
+                    rest_min_s: self.rest_min_s,
+                    bias_clip_dps: self.bias_clip_dps,
+                    mag_rejection: self.mag_rejection,
+                },
+                orientation,
+                magnetometer,
+                sensor_rate_hz: (self.sensor_rate_hz > 0.0).then_some(self.sensor_rate_hz),
+                max_gap_s: self.max_gap_ms * 1e-3,
+                output_rate_hz: rate_hz,
+            },
+            max_latency_s: self.max_latency_ms * 1e-3,
+            origin: match mode {
+                Mode::Live => Origin::FirstCapture,
+                Mode::Offline => Origin::Zero,
+            },
+        })
+    }
+}
+
+pub const SPEC: StageSpec = StageSpec {
+    kind: "fusion",
+    role: Role::Transform,
+    summary: "raw IMU samples on each sensor's clock -> oriented IMU frames at the graph's rate (VQF, clock alignment, resampling)",
+    inputs: InputsSpec::Fixed(&[PortSpec {
+        name: "raw",
+        frame: FrameType::RawImu,
+        required: true,
+        doc: "raw accelerometer, gyroscope, magnetometer (and on-board orientation) samples, each sensor on its own clock and rate",
+    }]),
+    outputs: &[PortSpec {
+        name: "imu",
+        frame: FrameType::Imu,
+        required: false,
+        doc: "per sensor R_IS (VQF earth frame, z up; ENU with a magnetometer), specific force and angular rate in S at the graph's rate; seq k at k / rate_hz; INVALID where a sensor has no sample",
+    }],
+    params: FusionParams::SPECS,
+};
+
+/// The output, closed with END_OF_STREAM numbered after the stage's own last frame (the input's
+/// numbering is the raw frames', not the output grid's).
+struct EndAfter<'a> {
+    output: &'a mut Output<ImuFrame>,
+    seq: u64,
+    capture_ns: u64,
+}
+
+impl EndOutput for EndAfter<'_> {
+    fn end(&mut self, _input_seq: u64, _input_capture_ns: u64) -> Result<(), TransportError> {
+        self.output.publish_end(self.seq, self.capture_ns)
+    }
+    fn frames_sent(&self) -> u64 {
+        self.output.sent()
+    }
+}
+
+/// Runs the fusion as the current process's stage.
+pub fn run() -> anyhow::Result<()> {
+    let mut ctx = StageContext::from_env()?;
+    let stage = ctx.id().to_owned();
+    let params = FusionParams::from_params(ctx.params());
+    let settings = params
+        .settings(ctx.graph().rate_hz, ctx.mode())
+        .with_context(|| format!("stage '{stage}'"))?;
+    let input = ctx.input::<RawImuFrame>("raw")?;
+    let mut output = ctx.output::<ImuFrame>("imu")?;
+    if !ctx.ready()? {
+        ctx.finish(&mut [&mut output])?;
+        return Ok(());
+    }
+    let mut assembler = Assembler::new(settings);
+    let mut frames = Vec::new();
+    let mut outcome = Ok(());
+    while let Some(step) = ctx.next()? {
+        let raw = *ctx.get(&input);
+        outcome = assembler.push(&raw, &mut frames);
+        publish(&stage, &mut output, &mut frames, &mut assembler)
+            .with_context(|| format!("stage '{stage}': after raw frame {}", step.seq))?;
+        if outcome.is_err() {
+            break;
+        }
+    }
+    // END_OF_STREAM goes downstream after what can still be emitted, also when the input was bad.
+    if outcome.is_ok() {
+        outcome = assembler.finish(&mut frames);
+    }
+    publish(&stage, &mut output, &mut frames, &mut assembler)
+        .with_context(|| format!("stage '{stage}': at the end"))?;
+    for line in sensor_lines(&assembler) {
+        tracing::info!(stage, "{line}");
+    }
+    let line = summary_line(&assembler);
+    tracing::info!(stage, "{line}");
+    ctx.set_summary_detail(line);
+    let next = assembler.counters().frames;
+    let capture_ns = assembler.time_of(next).unwrap_or(0).max(0) as u64;
+    ctx.finish(&mut [&mut EndAfter {
+        output: &mut output,
+        seq: next,
+        capture_ns,
+    }])?;
+    outcome.with_context(|| format!("stage '{stage}'"))
+}
+
+fn publish(
+    stage: &str,
+    output: &mut Output<ImuFrame>,
+    frames: &mut Vec<ImuFrame>,
+    assembler: &mut Assembler,
+) -> anyhow::Result<()> {
+    for notice in assembler.take_notices() {
+        log(stage, &notice);
+    }
+    for frame in frames.drain(..) {
+        output
+            .publish(frame.header, |f| *f = frame)
+            .with_context(|| format!("publishing frame {}", frame.header.seq))?;
+    }
+    Ok(())
+}
+
+fn log(stage: &str, notice: &Notice) {
+    if notice.warning {
+        tracing::warn!(stage, "{}", notice.text);
+    } else {
+        tracing::info!(stage, "{}", notice.text);
+    }
+}
+
+/// One line per sensor: rate, orientation source, counts, clock.
+pub fn sensor_lines(assembler: &Assembler) -> Vec<String> {
+    (0..NUM_IMUS)
+        .map(|i| {
+            let track = assembler.sensor(i);
+            let c = track.counters();
+            let rate = track
+                .rate_hz()
+                .map_or("rate unknown".to_owned(), |r| format!("{r:.1} Hz"));
+            let clock = match track.clock() {
+                Some((offset_ns, Some(ppm))) => {
+                    format!(
+                        "clock offset {:+.3} ms, drift {ppm:+.1} ppm",
+                        offset_ns * 1e-6
+                    )
+                }
+                Some((offset_ns, None)) => {
+                    format!(
+                        "clock offset {:+.3} ms, drift not estimated",
+                        offset_ns * 1e-6
+                    )
+                }
+                None => "no clock".to_owned(),
+            };
+            format!(
+                "{}: {rate} {}, {} samples ({} fused), {} lost, {} duplicate, {} out of order, \
+                 {} non-finite, {} without orientation, {} gaps over max_gap_ms, {} clock \
+                 restarts, {} INVALID frames, {} late frames; {clock}",
+                sensor_name(i),
+                track.source_name(),
+                c.samples,
+                c.fused,
+                c.lost,
+                c.duplicates,
+                c.out_of_order,
+                c.nonfinite + c.nonfinite_mag,
+                c.no_orientation,
+                c.long_gaps,
+                c.clock_resets,
+                assembler.counters().sensor_invalid[i],
+                assembler.counters().sensor_held[i],
+            )
+        })
+        .collect()
+}
+
+/// The stage's result in one line (the run summary's detail).
+pub fn summary_line(assembler: &Assembler) -> String {
+    let per = |f: &dyn Fn(usize) -> String| (0..NUM_IMUS).map(f).collect::<Vec<_>>().join("/");
+    let counts = |i| *assembler.sensor_counters(i);
+    let frames = assembler.counters();
+    let mut line = format!(
+        "fusion: {} frames, {} INVALID; per sensor: samples {}, lost {}, dropped {}, INVALID {}, \
+         drift ppm {}",
+        frames.frames,
+        frames.invalid,
+        per(&|i| counts(i).samples.to_string()),
+        per(&|i| counts(i).lost.to_string()),
+        per(&|i| (counts(i).duplicates + counts(i).out_of_order).to_string()),
+        per(&|i| frames.sensor_invalid[i].to_string()),
+        per(&|i| match assembler.sensor(i).clock() {
+            Some((_, Some(ppm))) => format!("{ppm:+.0}"),
+            _ => "-".to_owned(),
+        }),
+    );
+    if frames.refused_raw > 0 {
+        line += &format!(", {} raw frames refused", frames.refused_raw);
+    }
+    line
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_params_defaults_are_the_specs() {
+        imuflow_graph::params::check_defaults::<FusionParams>().unwrap();
+        let defaults = FusionParams::default()
+            .settings(60.0, Mode::Offline)
+            .unwrap();
+        // The authors' defaults except the two a natural recording needs: rest detected within
+        // its 1 s stand, and consumer MEMS gyroscope biases (up to ±3°/s) estimated.
+        assert_eq!(
+            defaults.sensor.vqf,
+            VqfParams {
+                rest_min_s: 0.5,
+                bias_clip_dps: 5.0,
+                ..VqfParams::default()
+            }
+        );
+        assert_eq!(defaults.sensor.sensor_rate_hz, None);
+        assert_eq!(defaults.origin, Origin::Zero);
+        assert!(FusionParams::default().settings(0.0, Mode::Live).is_err());
+    }
+}
