@@ -6,8 +6,12 @@
 //!
 //! - [`prelude`]: the T-pose / stand-step-stand prelude put in front of a clip.
 //! - [`Motion`]: a clip synthesized into IMU frames and truth frames.
+//! - [`raw`]: the raw accelerometer, gyroscope and magnetometer samples of a [`Motion`] on the
+//!   sensors' own clocks, with noise, clock offsets and drift, delivery jitter and loss, as
+//!   `RawImuFrame`s.
 
 pub mod prelude;
+pub mod raw;
 
 use std::path::{Path, PathBuf};
 
@@ -147,16 +151,33 @@ pub struct Motion {
 }
 
 impl Motion {
-    /// Reads, retargets, resamples to `rate_hz` and synthesizes. Errors name the file (and line,
-    /// for a malformed BVH or mapping).
+    /// Reads a motion, resamples it to `rate_hz` and synthesizes. The motion is, by extension: a
+    /// `.bvh` (retargeted with the options' joint mapping), an AMASS-style `.npz` (SMPL poses, as
+    /// `imuflow export --format npz` writes) or an imuflow recording `.mcap` (its first
+    /// `MotionFrame` channel, the true pose, without the frames flagged PRELUDE). Errors name the
+    /// file (and line, for a malformed BVH or mapping).
     pub fn load(path: &Path, options: &Options, rate_hz: f64) -> anyhow::Result<Motion> {
-        let source = match &options.mapping {
-            Some(m) => SourceSkeleton::load(m).map_err(flat)?,
-            None => SourceSkeleton::bandai_namco().map_err(flat)?,
-        };
         let body = body_model(options)?;
-        let bvh = Bvh::read(path).map_err(flat)?;
-        let clip = retarget_bvh(&bvh, &source, &body, &RetargetOptions::default()).map_err(flat)?;
+        let extension = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_lowercase())
+            .unwrap_or_default();
+        let clip = match extension.as_str() {
+            "npz" => imuflow_motion::npz::read_amass_npz(
+                path,
+                &imuflow_motion::npz::AmassOptions::default(),
+            )
+            .map_err(flat)?,
+            "mcap" => recorded_truth(path)?,
+            _ => {
+                let source = match &options.mapping {
+                    Some(m) => SourceSkeleton::load(m).map_err(flat)?,
+                    None => SourceSkeleton::bandai_namco().map_err(flat)?,
+                };
+                let bvh = Bvh::read(path).map_err(flat)?;
+                retarget_bvh(&bvh, &source, &body, &RetargetOptions::default()).map_err(flat)?
+            }
+        };
         let clip = resample(&clip, rate_hz).with_context(|| path.display().to_string())?;
         let mut motion = Motion::from_clip(clip, &body, options)
             .with_context(|| format!("{} (resampled to {rate_hz} Hz)", path.display()))?;
@@ -197,6 +218,59 @@ impl Motion {
             prelude_frames,
         })
     }
+}
+
+/// The true pose of a recording (its first `MotionFrame` channel, the frames flagged PRELUDE left
+/// out) as a clip at the recording's rate.
+fn recorded_truth(path: &Path) -> anyhow::Result<MotionClip> {
+    use imuflow_graph::frames::{MotionFrame, flags};
+    use imuflow_recording::{carries, decode, for_each_record};
+    let file = path.display();
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {file}"))?;
+    let channels = imuflow_recording::channels(&bytes)
+        .with_context(|| format!("{file}: not an imuflow recording"))?;
+    let Some((&id, channel)) = channels.iter().find(|(_, c)| carries::<MotionFrame>(c)) else {
+        anyhow::bail!("{file}: no MotionFrame channel (the true pose) to synthesize from");
+    };
+    let topic = channel.topic.clone();
+    let mut frames: Vec<MotionFrame> = Vec::new();
+    let mut index = 0u64;
+    for_each_record(&bytes, |_, record| {
+        if let mcap::records::Record::Message { header, data } = record
+            && header.channel_id == id
+        {
+            let frame = decode::<MotionFrame>(&data, &topic, index)?;
+            index += 1;
+            if !frame.header.has(flags::PRELUDE) && !frame.header.is_end() {
+                frames.push(frame);
+            }
+        }
+        Ok(())
+    })
+    .with_context(|| format!("{file}: channel '{topic}'"))?;
+    let (Some(first), Some(last)) = (frames.first(), frames.last()) else {
+        anyhow::bail!("{file}: channel '{topic}' holds no pose outside the prelude");
+    };
+    let span_s = last
+        .header
+        .capture_ns
+        .saturating_sub(first.header.capture_ns) as f64
+        * 1e-9;
+    if frames.len() < 2 || span_s <= 0.0 {
+        anyhow::bail!("{file}: channel '{topic}' holds fewer than 2 poses in time order");
+    }
+    let poses = frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            imuflow_body::Pose::from_wire(&f.local_pose_wxyz, &f.root_position_m)
+                .with_context(|| format!("{file}: channel '{topic}', pose {i}"))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(MotionClip {
+        frame_time_s: span_s / (frames.len() - 1) as f64,
+        poses,
+    })
 }
 
 /// The body model of the options' subject.
@@ -332,6 +406,56 @@ mod tests {
             assert_eq!(t.header.seq, seq as u64);
             assert_eq!(t.header.capture_ns, f.header.capture_ns);
         }
+    }
+
+    /// Largest angle (rad) between the local rotations, and distance (m) between the roots, of two
+    /// clips' poses frame by frame.
+    fn clip_difference(a: &MotionClip, b: &MotionClip) -> (f64, f64) {
+        assert_eq!(a.poses.len(), b.poses.len());
+        let (mut angle, mut root) = (0.0f64, 0.0f64);
+        for (p, q) in a.poses.iter().zip(&b.poses) {
+            for (r, s) in p.parent_from_joint.iter().zip(&q.parent_from_joint) {
+                angle = angle.max(imuflow_body::rotation::angle_between(r, s));
+            }
+            root = root.max((p.root_in_world_m - q.root_in_world_m).norm());
+        }
+        (angle, root)
+    }
+
+    #[test]
+    fn a_recording_s_truth_and_an_exported_npz_synthesize_the_same_motion() {
+        let rate = 60.0;
+        let bvh = Motion::load(&fixture(), &Options::default(), rate).expect("fixture loads");
+        let dir = std::env::temp_dir().join(format!("imuflow-synth-load-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        // The npz round trip: what `imuflow export --format npz` writes, read back.
+        let npz = dir.join("walk.npz");
+        imuflow_motion::npz::write_amass_npz(
+            &npz,
+            &bvh.clip,
+            &imuflow_motion::npz::AmassOptions::default(),
+        )
+        .expect("npz written");
+        let from_npz = Motion::load(&npz, &Options::default(), rate).expect("npz loads");
+        let (angle, root) = clip_difference(&bvh.clip, &from_npz.clip);
+        assert!(angle < 1e-6 && root < 1e-6, "npz: {angle} rad, {root} m");
+        // The bundled sample's truth, without its calibration prelude: 13.0 s of walking.
+        let sample = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/sample/walk.mcap");
+        let from_mcap = Motion::load(&sample, &Options::default(), rate).expect("sample loads");
+        assert_eq!(from_mcap.len(), 1511 - 732, "frames outside the prelude");
+        assert_eq!(from_mcap.prelude_frames, 0);
+        // Not a recording, and a recording without a pose: errors that name the file.
+        let text = dir.join("not.mcap");
+        std::fs::write(&text, "hello").expect("write");
+        let Err(e) = Motion::load(&text, &Options::default(), rate) else {
+            panic!("a text file is not a recording");
+        };
+        let e = format!("{e:#}");
+        assert!(
+            e.contains("not.mcap") && e.contains("not an imuflow recording"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

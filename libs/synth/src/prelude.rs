@@ -367,6 +367,36 @@ mod tests {
     }
 
     #[test]
+    fn stand_prelude_holds_the_n_pose_then_blends_into_the_clip() {
+        let body = body();
+        let mut a = Pose::t_pose(Vector3::new(1.0, 0.9, 2.0));
+        a.parent_from_joint[0] = Axis::Y.rotation(-0.5);
+        let clip = MotionClip {
+            frame_time_s: 1.0 / 60.0,
+            poses: vec![a.clone(), a],
+        };
+        let options = PreludeOptions {
+            kind: PreludeKind::Stand,
+            stand_s: 1.0,
+            blend_s: 0.5,
+            ..PreludeOptions::default()
+        };
+        let out = with_prelude(&clip, &body, &options);
+        // The N-pose, held 1 s, a 0.5 s blend whose last pose is the clip's first, then the clip's
+        // second frame: no step.
+        assert_eq!(out.prelude_frames, 60 + 30);
+        assert_eq!(out.clip.poses.len(), 1 + 60 + 30 + 1);
+        let origin = Vector3::new(0.0, standing_root_height_m(&body), 0.0);
+        for pose in &out.clip.poses[..=60] {
+            assert_eq!(pose, &n_pose(origin));
+        }
+        // The clip starts where the subject stood, facing +z.
+        let start = &out.clip.poses[out.prelude_frames];
+        assert!(angle_between(&start.parent_from_joint[0], &Rotation3::identity()) < 1e-9);
+        assert!((start.root_in_world_m - Vector3::new(0.0, 0.9, 0.0)).norm() < 1e-9);
+    }
+
+    #[test]
     fn prelude_turns_the_clip_to_face_forward_and_keeps_its_frames() {
         let body = body();
         let mut a = Pose::t_pose(Vector3::new(3.0, 0.9, -2.0));

@@ -7,9 +7,11 @@ use std::time::Duration;
 use anyhow::{Context, bail};
 use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::{FrameType, Mode, StageContext};
+use imuflow_motion::imu_synthesis::AccelStencil;
 use imuflow_synth::prelude;
+use imuflow_synth::raw::{Magnetometer, RawOptions, RawSession};
 
-use crate::{replay, synth, udp};
+use crate::{file, replay, slimevr, synth, udp};
 
 imuflow_graph::stage_params! {
     /// The imu-source's parameters; each doc names the modes that read it.
@@ -27,7 +29,8 @@ imuflow_graph::stage_params! {
         mass_kg: Option<f64>, float(10.0, 300.0);
         /// synthesize: add the reference sensor errors (mounting, noise, bias, heading drift)
         augment: bool = false, bool;
-        /// synthesize: seed of the augmentation's random draws
+        /// synthesize: seed of the random draws (augmentation, mountings, heading offsets, raw
+        /// sensors)
         seed: u64 = 0, int(0, i64::MAX);
         /// synthesize: acceleration stencil (TransPose/PIP smoothed, or central differences)
         stencil: String = "smoothed", choice(&["smoothed", "central"]);
@@ -49,8 +52,8 @@ imuflow_graph::stage_params! {
         /// in ±this (seeded by `seed`)
         heading_offset_deg: f64 = 0, float(0.0, 180.0);
         /// synthesize: publish raw sensor samples on `raw` (accelerometer, gyroscope, magnetometer
-        /// at `raw_rate_hz`, each sensor on its own clock) instead of oriented IMUs on `imu`; the
-        /// `fusion` stage turns them into IMU frames
+        /// at `raw_rate_hz`, each sensor on its own clock) for a `fusion` stage; `imu` then
+        /// carries the same motion's ideal oriented sensors with each truth frame
         raw: bool = false, bool;
         /// synthesize (raw): sensor sample rate, Hz
         raw_rate_hz: f64 = 200, float(10.0, 2000.0);
@@ -59,7 +62,7 @@ imuflow_graph::stage_params! {
         raw_noise: f64 = 0, float(0.0, 10.0);
         /// synthesize (raw): magnetometer: none, clean (earth field only) or disturbed (plus
         /// local disturbances near the floor and ferrous objects)
-        raw_magnetometer: String = "clean", choice(&["none", "clean", "disturbed"]);
+        raw_magnetometer: String = "clean", choice(&Magnetometer::NAMES);
         /// synthesize (raw): each sensor's clock offset uniform in ±this, ms (seeded)
         raw_clock_offset_ms: f64 = 0, float(0.0, 1.0e6);
         /// synthesize (raw): each sensor's clock drift uniform in ±this, parts per million (seeded)
@@ -72,7 +75,7 @@ imuflow_graph::stage_params! {
         format: String = "auto", choice(&["auto", "csv", "mvnx"]);
         /// file (csv): TOML that describes the columns, units and sensor files
         layout: Option<PathBuf>, path;
-        /// slimevr: TOML mapping trackers (MAC address or tracker id) to the six sites
+        /// slimevr: TOML mapping trackers (MAC address and sensor id) to the six sites (required)
         trackers: Option<PathBuf>, path;
         /// synthesize/replay/file: pace frames in real time (graph rate / recorded capture times)
         realtime: Option<bool> = computed("false offline, true live"), bool;
@@ -85,8 +88,9 @@ imuflow_graph::stage_params! {
         bind: Option<String> = computed("udp 127.0.0.1:8777, slimevr 0.0.0.0:6969"), string;
         /// udp, slimevr: end the stream when no packet arrived for this long
         timeout_ms: u64 = 2000, int(1, 3_600_000);
-        /// udp: end the stream after this many packets (0 = only on timeout or stop); replay:
-        /// after this many frames (0 = all)
+        /// udp: end the stream after this many packets (0 = only on timeout or stop); slimevr:
+        /// after this many frames (0 = no limit); replay: after this many frames (0 = all);
+        /// file: after this many raw frames (0 = all)
         frames: u64 = 0, int(0, 1 << 40);
     }
 }
@@ -128,26 +132,11 @@ pub fn run() -> anyhow::Result<()> {
     let realtime = params.realtime.unwrap_or(ctx.mode() == Mode::Live);
     match mode {
         "synthesize" => {
-            let path = required_path(&params, &stage, mode)?;
-            let options = imuflow_synth::Options {
-                mapping: params.mapping.clone(),
-                stature_m: params.stature_m,
-                mass_kg: params.mass_kg,
-                augment: params.augment,
-                seed: params.seed,
-                central_stencil: params.stencil == "central",
-                prelude: prelude_options(&params, &stage)?,
-                sensors: sensor_setup(&params, &stage)?,
-            };
-            let rate_hz = ctx.graph().rate_hz;
-            let motion =
-                imuflow_synth::Motion::load(&path, &options, rate_hz).with_context(|| {
-                    format!(
-                        "stage '{stage}': cannot synthesize IMUs from '{}'",
-                        path.display()
-                    )
-                })?;
-            synth::run(ctx, &motion, realtime)
+            let (motion, raw) = synthesize(&params, &stage, ctx.graph().rate_hz)?;
+            match raw {
+                None => synth::run(ctx, &motion, realtime),
+                Some(session) => synth::run_raw(ctx, &motion, &session, realtime),
+            }
         }
         "replay" => {
             let path = required_path(&params, &stage, mode)?;
@@ -161,17 +150,89 @@ pub fn run() -> anyhow::Result<()> {
         }
         "udp" => {
             let options = udp::Options {
-                bind: params.bind.clone().unwrap_or_else(|| "127.0.0.1:8777".to_owned()),
+                bind: params
+                    .bind
+                    .clone()
+                    .unwrap_or_else(|| "127.0.0.1:8777".to_owned()),
                 timeout: Duration::from_millis(params.timeout_ms),
                 frames: params.frames,
             };
             udp::run(ctx, &options)
                 .with_context(|| format!("stage '{stage}': udp source on '{}'", options.bind))
         }
+        "slimevr" => {
+            let Some(trackers) = params
+                .trackers
+                .clone()
+                .filter(|p| !p.as_os_str().is_empty())
+            else {
+                bail!("stage '{stage}': mode 'slimevr' needs param `trackers` (the trackers file)");
+            };
+            let options = slimevr::Options {
+                bind: params
+                    .bind
+                    .clone()
+                    .unwrap_or_else(|| slimevr::DEFAULT_BIND.to_owned()),
+                trackers,
+                timeout: Duration::from_millis(params.timeout_ms),
+                frames: params.frames,
+            };
+            slimevr::run(ctx, &options)
+                .with_context(|| format!("stage '{stage}': slimevr source on '{}'", options.bind))
+        }
+        "file" => {
+            let path = required_path(&params, &stage, mode)?;
+            let format = match params.format.as_str() {
+                "csv" => imuflow_sensor_files::Format::Csv,
+                "mvnx" => imuflow_sensor_files::Format::Mvnx,
+                _ => imuflow_sensor_files::Format::detect(&path),
+            };
+            let recording = imuflow_sensor_files::read(&path, format, params.layout.as_deref())
+                .with_context(|| format!("stage '{stage}': cannot read the recording"))?;
+            file::run(ctx, &recording, realtime, params.frames)
+        }
         other => bail!(
             "stage '{stage}': unknown mode '{other}' (synthesize, replay, udp, file or slimevr)"
         ),
     }
+}
+
+/// Mode `synthesize`: the motion at the graph's `rate_hz`, and with `raw` its raw sensor samples.
+fn synthesize(
+    params: &ImuSourceParams,
+    stage: &str,
+    rate_hz: f64,
+) -> anyhow::Result<(imuflow_synth::Motion, Option<RawSession>)> {
+    let path = required_path(params, stage, "synthesize")?;
+    let options = imuflow_synth::Options {
+        mapping: params.mapping.clone(),
+        stature_m: params.stature_m,
+        mass_kg: params.mass_kg,
+        augment: params.augment,
+        seed: params.seed,
+        central_stencil: params.stencil == "central",
+        prelude: prelude_options(params, stage)?,
+        sensors: sensor_setup(params, stage)?,
+    };
+    let motion = imuflow_synth::Motion::load(&path, &options, rate_hz).with_context(|| {
+        format!(
+            "stage '{stage}': cannot synthesize IMUs from '{}'",
+            path.display()
+        )
+    })?;
+    if !params.raw {
+        return Ok((motion, None));
+    }
+    let body = imuflow_synth::body_model(&options)
+        .with_context(|| format!("stage '{stage}': the body model"))?;
+    let session = RawSession::synthesize(&motion, &body, &raw_options(params, stage)?)
+        .with_context(|| {
+            format!(
+                "stage '{stage}': cannot synthesize raw sensors from '{}'",
+                path.display()
+            )
+        })?;
+    Ok((motion, Some(session)))
 }
 
 fn prelude_options(
@@ -190,6 +251,34 @@ fn prelude_options(
         stand_s: params.prelude_stand_s,
         step_m: params.step_m,
         ..prelude::PreludeOptions::default()
+    })
+}
+
+/// The raw synthesis's options: the `raw_*` parameters, the seed, the stencil and the heading.
+fn raw_options(params: &ImuSourceParams, stage: &str) -> anyhow::Result<RawOptions> {
+    let name = params.raw_magnetometer.as_str();
+    let Some(magnetometer) = Magnetometer::parse(name) else {
+        bail!(
+            "stage '{stage}': unknown raw_magnetometer '{name}' ({})",
+            Magnetometer::NAMES.join(", ")
+        );
+    };
+    Ok(RawOptions {
+        rate_hz: params.raw_rate_hz,
+        noise_scale: params.raw_noise,
+        magnetometer,
+        clock_offset_ms: params.raw_clock_offset_ms,
+        clock_drift_ppm: params.raw_clock_drift_ppm,
+        jitter_ms: params.raw_jitter_ms,
+        loss: params.raw_loss,
+        seed: params.seed,
+        heading_deg: params.frame_heading_deg,
+        stencil: if params.stencil == "central" {
+            AccelStencil::Central
+        } else {
+            AccelStencil::SmoothedTransPose
+        },
+        ..RawOptions::default()
     })
 }
 
@@ -235,5 +324,47 @@ mod tests {
             prelude::PreludeOptions::default(),
         );
         assert_eq!((p.prelude_stand_s, p.step_m), (d.stand_s, d.step_m));
+    }
+
+    /// The source of `configs/examples/raw-imu.toml` on its own (the other stages' kinds live in
+    /// other crates): its parameters pass this kind's validation and synthesize raw sensors as
+    /// they say.
+    #[test]
+    fn the_raw_example_graphs_source_is_valid_and_synthesizes_raw_sensors() {
+        use imuflow_graph::params::toml;
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let file = root.join("configs/examples/raw-imu.toml");
+        let text = std::fs::read_to_string(&file).expect("the example graph");
+        let mut table: toml::Table = text.parse().expect("TOML");
+        let stages = table
+            .get_mut("stages")
+            .and_then(|s| s.as_table_mut())
+            .expect("[stages]");
+        stages.retain(|id, _| id == "source");
+        let registry = imuflow_graph::Registry::new([SPEC]);
+        let graph = imuflow_graph::Graph::from_str_with(&file, &table.to_string(), &[], &registry)
+            .expect("the source validates");
+        let mut params = ImuSourceParams::from_params(&graph.stages["source"].params);
+        assert!(params.raw && params.raw_magnetometer == "disturbed");
+        // The graph's paths are relative to the repository root.
+        params.path = params.path.map(|p| root.join(p));
+        let (motion, raw) = synthesize(&params, "source", graph.rate_hz).expect("synthesizes");
+        let raw = raw.expect("raw = true");
+        // A 1 s stand, a 1 s blend, then the clip.
+        assert_eq!(motion.prelude_frames, 120);
+        assert!(raw.frames.len() > motion.len());
+        for clock in &raw.clocks {
+            assert!(clock.offset_ns.abs() <= 500e6 && clock.drift.abs() <= 100e-6);
+        }
+        assert!(raw.disturbance.is_some());
+        assert!(
+            raw.frames
+                .iter()
+                .all(|f| f.magnetometer_mask == f.valid_mask)
+        );
+        assert!(
+            raw.accel_bias_mps2.iter().all(|b| b.norm() > 0.0),
+            "noise 1"
+        );
     }
 }

@@ -1,0 +1,71 @@
+//! Mode `file`: a recorded session read by imuflow-sensor-files (CSV/TSV exports described by a
+//! layout TOML, or Xsens MVNX). Publishes its raw samples on `raw` in capture order, keeping the
+//! recording's `seq` and capture times (the shared clock that starts at 0 with the first sample);
+//! the fusion stage turns them into IMU frames at the graph's rate. A recording with a truth
+//! (MVNX) also publishes it on `truth`, resampled to the graph's rate: frame k at k/rate_hz with
+//! seq k, as the fusion stage numbers its output, so scores align truth and estimate by seq.
+
+use std::time::{Duration, Instant};
+
+use imuflow_graph::StageContext;
+use imuflow_graph::frames::MotionFrame;
+use imuflow_sensor_files::{SensorRecording, resample_truth};
+
+use crate::publisher::Publisher;
+
+/// Publishes `recording` (paced by its capture times when `realtime`); `limit` > 0 ends the
+/// stream after that many raw frames (and the truth with it).
+pub fn run(
+    ctx: StageContext,
+    recording: &SensorRecording,
+    realtime: bool,
+    limit: u64,
+) -> anyhow::Result<()> {
+    let total = match limit {
+        0 => recording.frames.len(),
+        n => recording.frames.len().min(n as usize),
+    };
+    let frames = &recording.frames[..total];
+    let until = frames.last().map(|f| f.header.capture_ns);
+    let truth: Vec<MotionFrame> = match (&recording.truth, until) {
+        (Some(t), Some(until)) => resample_truth(t, ctx.graph().rate_hz, Some(until)),
+        _ => Vec::new(),
+    };
+    tracing::info!(
+        source = %recording.source.display(),
+        raw_frames = total,
+        truth_frames = truth.len(),
+        "{}",
+        recording.summary()
+    );
+    let Some(mut out) = Publisher::start(ctx, total as u64)? else {
+        return Ok(());
+    };
+    out.ctx.set_summary_detail(recording.summary());
+    let mut truth = truth.iter().peekable();
+    for frame in frames {
+        if out.ctx.should_stop() {
+            break;
+        }
+        // Truth frames due by this sample leave first, paced like it: the estimate of a truth
+        // frame comes from samples up to its time.
+        while let Some(t) = truth.next_if(|t| t.header.capture_ns <= frame.header.capture_ns) {
+            let offset = Duration::from_nanos(t.header.capture_ns);
+            if realtime {
+                out.pace(offset);
+            }
+            let mut t = *t;
+            t.header.capture_ns = out.capture_ns(offset, t.header.capture_ns);
+            out.publish_truth(&t)?;
+        }
+        let offset = Duration::from_nanos(frame.header.capture_ns);
+        if realtime {
+            out.pace(offset);
+        }
+        let started = Instant::now();
+        let mut f = *frame;
+        f.header.capture_ns = out.capture_ns(offset, f.header.capture_ns);
+        out.publish_raw(&f, started)?;
+    }
+    out.finish()
+}

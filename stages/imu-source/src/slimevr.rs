@@ -1,0 +1,301 @@
+//! Mode `slimevr`: live SlimeVR trackers over UDP. The stage plays the SlimeVR server's part of
+//! the protocol ([`packets`]): it answers the handshake of every tracker the `trackers` file maps
+//! ([`mapping`]), keeps them streaming with heartbeats, acknowledges their sensor info and
+//! feature-flags packets, and publishes each sensor's samples as `RawImuFrame`s on `raw`.
+//!
+//! # What a frame carries
+//!
+//! A sample is a sensor's rotation and acceleration packets of one fusion update (the firmware
+//! sends them back to back): it sets its site's bit in `orientation_mask` and `valid_mask`. A
+//! rotation whose acceleration does not follow within [`receiver::PAIR_WAIT`] is a sample alone
+//! (orientation bit only); an acceleration on its own (older firmware sends one when the rotation
+//! did not change) is one with the valid bit only. Samples of different sites that arrive within
+//! [`MERGE_WINDOW`] of each other share a frame ([`Assembler`]); a frame never holds two samples
+//! of one site.
+//!
+//! Sources: SlimeVR/SlimeVR-Tracker-ESP `src/sensors/sensor.cpp` (`setFusedRotation`,
+//! `setAcceleration`, `sendData`), `src/sensors/SensorFusion.cpp` (`calcGravityVec`,
+//! `calcLinearAcc`), `src/sensors/softfusion/softfusionsensor.h` (units, send rate),
+//! `src/consts.h` (`CONST_EARTH_GRAVITY`); SlimeVR/SlimeVR-Server
+//! `server/core/src/main/java/dev/slimevr/tracking/trackers/udp/TrackersUDPServer.kt`
+//! (`AXES_OFFSET`). In the firmware's terms the frame's `R_IS` is `R_IT`:
+//!
+//! - `orientation_wxyz`: the on-board fused orientation as received, reordered from the
+//!   firmware's x, y, z, w to w, x, y, z: `R_IT`, tracker frame T to the tracker's own inertial
+//!   frame I. I is z-up (x, y horizontal; the SlimeVR server turns it into its y-up frame with
+//!   a −90° rotation about x, `AXES_OFFSET`), so the calibration stage's `frame` is `z-up`. Its
+//!   heading is arbitrary and differs from tracker to tracker (6-axis fusion has no north),
+//!   which walking calibration's per-sensor heading corrections absorb. T is the IMU chip's
+//!   frame turned by the board's mounting rotation (`setFusedRotation`: `r · sensorOffset`).
+//! - `accelerometer_mps2`: specific force in T, `f = a + g·R_ITᵀ·e_z`
+//!   ([`receiver::specific_force`]), from the packet's linear acceleration a (m/s², gravity
+//!   removed by the firmware with its own orientation and g = 9.80665 m/s²) and the same sample's
+//!   rotation. Approximations: BNO08x chips remove gravity with their internal estimate, which
+//!   the game rotation vector sent matches only to the chip's precision; and the firmware turns
+//!   the acceleration by the mounting rotation (`sensorOffset.sandwich`) where the orientation
+//!   gets its inverse, so on boards mounted at 90° or 270° the acceleration arrives turned 180°
+//!   about z (x and y negated; 0° and 180° agree); older firmware sends it in the chip frame.
+//! - `gyroscope_radps`: zero, with the site's bit in `no_gyroscope_mask`: the protocol carries no
+//!   angular rate (only the firmware's inspection packets, which release builds do not send), so
+//!   the fusion stage derives it from consecutive orientations.
+//! - `sample_time_ns`: when the sample's first packet arrived (host clock, Unix epoch ns); tracker
+//!   packets carry no sample time. `header.capture_ns`: the arrival of the frame's first sample.
+//! - `seq`: frame counter from 0.
+//!
+//! A rotation that is not finite or whose norm is not within 0.9–1.1, or a specific force that is
+//! not finite, leaves its bit clear and flags the frame INVALID.
+
+pub mod mapping;
+pub mod packets;
+pub mod receiver;
+pub mod sim;
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use imuflow_graph::StageContext;
+use imuflow_graph::frames::{RawImuFrame, flags};
+
+use crate::publisher::Publisher;
+use mapping::Mapping;
+use receiver::{Receiver, Sample, specific_force};
+
+/// Default address the `slimevr` mode listens on: every interface, the SlimeVR server's port
+/// (trackers broadcast their handshake there).
+pub const DEFAULT_BIND: &str = "0.0.0.0:6969";
+
+/// Settings of the slimevr mode.
+#[derive(Debug, Clone)]
+pub struct Options {
+    pub bind: String,
+    /// The trackers file.
+    pub trackers: PathBuf,
+    /// End of stream after this long without a packet from a mapped tracker.
+    pub timeout: Duration,
+    /// End after this many frames (0: no limit).
+    pub frames: u64,
+}
+
+/// How long one wait for a datagram lasts at most (the stop flag is checked in between).
+const POLL: Duration = Duration::from_millis(20);
+
+/// How long a frame collects samples of other sites after its first one. Trackers send in bursts
+/// (six boards on one tick, Wi-Fi aggregation); one frame per sample would publish them back to
+/// back, faster than a live reader's two-frame buffer takes them.
+pub const MERGE_WINDOW: Duration = Duration::from_millis(2);
+
+/// Receives from the trackers and publishes their samples until timeout, `frames` or stop.
+pub fn run(ctx: StageContext, options: &Options) -> anyhow::Result<()> {
+    let mapping = Mapping::load(&options.trackers)?;
+    let missing = mapping.missing_sites();
+    if !missing.is_empty() {
+        tracing::warn!(
+            "the trackers file maps nothing to {}: those sites get no samples",
+            missing.join(", ")
+        );
+    }
+    let mut receiver = Receiver::bind(&options.bind, mapping)
+        .with_context(|| format!("cannot bind UDP socket to '{}'", options.bind))?;
+    let Some(out) = Publisher::start(ctx, options.frames)? else {
+        return Ok(());
+    };
+    let mut out = Frames {
+        out,
+        assembler: Assembler::default(),
+        seq: 0,
+        limit: options.frames,
+    };
+    let mut samples = Vec::new();
+    let mut last_heard = Instant::now();
+    while !out.out.ctx.should_stop() && !out.full() {
+        let wait = out.assembler.deadline().map_or(POLL, |d| {
+            d.saturating_duration_since(Instant::now()).min(POLL)
+        });
+        if receiver
+            .poll(wait, &mut samples)
+            .context("receiving from the trackers")?
+        {
+            last_heard = Instant::now();
+        } else if last_heard.elapsed() >= options.timeout {
+            tracing::info!("no tracker packet for {:?}: end of stream", options.timeout);
+            break;
+        }
+        out.add(&mut samples, Instant::now())?;
+    }
+    receiver.flush_all(&mut samples);
+    out.add(&mut samples, Instant::now())?;
+    out.flush()?;
+    let summary = report(&receiver);
+    out.out.ctx.set_summary_detail(summary);
+    out.out.finish()
+}
+
+/// The publishing end: samples into frames, frames numbered and published up to the limit.
+struct Frames {
+    out: Publisher,
+    assembler: Assembler,
+    seq: u64,
+    /// `frames` (0: no limit).
+    limit: u64,
+}
+
+impl Frames {
+    fn full(&self) -> bool {
+        self.limit > 0 && self.seq >= self.limit
+    }
+
+    /// Adds the samples (drained) and publishes every frame they complete or whose window ended.
+    fn add(&mut self, samples: &mut Vec<Sample>, now: Instant) -> anyhow::Result<()> {
+        for sample in samples.drain(..) {
+            if let Some(done) = self.assembler.push(&sample, now) {
+                self.publish(done)?;
+            }
+        }
+        if let Some(done) = self.assembler.take_due(now) {
+            self.publish(done)?;
+        }
+        Ok(())
+    }
+
+    /// Publishes the frame still collecting, if any.
+    fn flush(&mut self) -> anyhow::Result<()> {
+        match self.assembler.take() {
+            Some(done) => self.publish(done),
+            None => Ok(()),
+        }
+    }
+
+    fn publish(&mut self, mut frame: RawImuFrame) -> anyhow::Result<()> {
+        if self.full() {
+            return Ok(());
+        }
+        let started = Instant::now();
+        frame.header.seq = self.seq;
+        self.out.publish_raw(&frame, started)?;
+        self.seq += 1;
+        Ok(())
+    }
+}
+
+/// Collects samples into frames: samples of different sites that arrive within
+/// [`MERGE_WINDOW`] of a frame's first one share it; a second sample of a site already in it
+/// closes it. The frame's `capture_ns` is its first sample's arrival; `seq` is left to the
+/// publisher.
+#[derive(Debug, Default)]
+pub struct Assembler {
+    current: Option<(RawImuFrame, Instant)>,
+}
+
+impl Assembler {
+    /// Adds a sample that arrived at `now`; the frame it closed, if any.
+    pub fn push(&mut self, sample: &Sample, now: Instant) -> Option<RawImuFrame> {
+        // Every sample sets its site's sample time (an arrival time, never 0).
+        let closed = match &self.current {
+            Some((f, _)) if f.sample_time_ns[sample.site] != 0 => self.take(),
+            _ => None,
+        };
+        let (frame, _) = self.current.get_or_insert_with(|| {
+            let mut f = RawImuFrame::default();
+            f.header.capture_ns = sample.received_ns;
+            (f, now)
+        });
+        if !fill(frame, sample) {
+            frame.header.flags |= flags::INVALID;
+        }
+        closed
+    }
+
+    /// When the frame collecting now must go out.
+    pub fn deadline(&self) -> Option<Instant> {
+        self.current.as_ref().map(|(_, t)| *t + MERGE_WINDOW)
+    }
+
+    /// The frame collecting now, if its window ended by `now`.
+    pub fn take_due(&mut self, now: Instant) -> Option<RawImuFrame> {
+        if self.deadline().is_some_and(|d| d <= now) {
+            self.take()
+        } else {
+            None
+        }
+    }
+
+    /// The frame collecting now.
+    pub fn take(&mut self) -> Option<RawImuFrame> {
+        self.current.take().map(|(f, _)| f)
+    }
+}
+
+/// Writes one sample into its site's slots (see the module docs); false when a value it brought
+/// was not usable (its bit stays clear).
+pub fn fill(f: &mut RawImuFrame, sample: &Sample) -> bool {
+    let (i, bit) = (sample.site, 1u32 << sample.site);
+    let mut usable = true;
+    f.sample_time_ns[i] = sample.received_ns;
+    if let Some([x, y, z, w]) = sample.rotation_xyzw {
+        let norm = (w * w + x * x + y * y + z * z).sqrt();
+        if norm.is_finite() && (0.9..=1.1).contains(&norm) {
+            f.orientation_wxyz[i] = [w, x, y, z];
+            f.orientation_mask |= bit;
+        } else {
+            usable = false;
+        }
+    }
+    if let Some((linear, rotation)) = sample.acceleration {
+        match specific_force(linear, rotation) {
+            Some(force) => {
+                f.accelerometer_mps2[i] = force;
+                f.valid_mask |= bit;
+                f.no_gyroscope_mask |= bit;
+            }
+            None => usable = false,
+        }
+    }
+    usable
+}
+
+/// Logs each tracker's counts and returns the one-line summary for the run.
+fn report(receiver: &Receiver) -> String {
+    let mut total = receiver::TrackerStats::default();
+    let mut trackers = 0;
+    for (mac, s) in receiver.tracker_stats() {
+        trackers += 1;
+        let line = format!(
+            "tracker {mac}: {} packets, {} samples, {} lost, {} duplicated, {} out of order, \
+             {} of unknown type, {} malformed, {} connection(s)",
+            s.packets,
+            s.samples,
+            s.lost,
+            s.duplicated,
+            s.out_of_order,
+            s.unknown_types,
+            s.malformed,
+            s.handshakes
+        );
+        if s.lost + s.duplicated + s.out_of_order + s.unknown_types + s.malformed > 0 {
+            tracing::warn!("{line}");
+        } else {
+            tracing::info!("{line}");
+        }
+        total.packets += s.packets;
+        total.samples += s.samples;
+        total.lost += s.lost;
+        total.duplicated += s.duplicated;
+        total.out_of_order += s.out_of_order;
+        total.unknown_types += s.unknown_types;
+    }
+    format!(
+        "{trackers} tracker(s): {} packets, {} samples, {} lost, {} duplicated, {} out of order, \
+         {} of unknown type; {} ignored from unconnected or unmapped trackers",
+        total.packets,
+        total.samples,
+        total.lost,
+        total.duplicated,
+        total.out_of_order,
+        total.unknown_types,
+        receiver.other_stats().ignored
+    )
+}
+
+#[cfg(test)]
+mod tests;
