@@ -34,7 +34,8 @@ pub fn apply(table: &mut toml::Table, assignment: &str) -> Result<(), String> {
     Ok(())
 }
 
-fn parse_value(raw: &str) -> toml::Value {
+/// A `--set` value: a TOML value (`3`, `true`, `"text"`, `[1, 2]`), or the text as a string when it is not one.
+pub fn parse_value(raw: &str) -> toml::Value {
     format!("v = {raw}")
         .parse::<toml::Table>()
         .ok()

@@ -14,8 +14,8 @@ use iceoryx2::port::backpressure_strategy::BackpressureStrategy;
 use iceoryx2::prelude::*;
 
 use crate::frames::{
-    BodyImuFrame, ContactFrame, Frame, FrameHeader, FrameType, ImuFrame, KinematicsFrame, RawImuFrame,
-    MotionFrame, ValidationFrame, flags,
+    BodyImuFrame, ContactFrame, Frame, FrameHeader, FrameType, ImuFrame, KinematicsFrame,
+    MotionFrame, RawImuFrame, ValidationFrame, flags,
 };
 use crate::graph::Mode;
 

@@ -521,8 +521,8 @@ pub fn replace_source(
     Ok(())
 }
 
-/// Parses one `--source-set KEY=VALUE`: the value as a TOML value (`true`, `1.5`, `"text"`), or as
-/// a string when it is not one (`prelude=stand`).
+/// Parses one `--source-set KEY=VALUE`, the value as `--set` reads it (a TOML value, or the text as
+/// a string: `prelude=stand`).
 pub fn parse_source_set(arg: &str) -> Result<(String, toml::Value), String> {
     let (key, value) = arg
         .split_once('=')
@@ -533,11 +533,7 @@ pub fn parse_source_set(arg: &str) -> Result<(String, toml::Value), String> {
             "--source-set {arg}: '{key}' is not a parameter name"
         ));
     }
-    let value = value.trim();
-    let parsed = toml::from_str::<toml::Table>(&format!("v = {value}"))
-        .ok()
-        .and_then(|mut t| t.remove("v"))
-        .unwrap_or_else(|| toml::Value::String(value.to_owned()));
+    let parsed = imuflow_graph::overrides::parse_value(value.trim());
     Ok((key.to_owned(), parsed))
 }
 
