@@ -77,7 +77,7 @@ imuflow_graph::stage_params! {
         /// right-handed about up: 0 forward, 90 left, -90 right, 180 backwards
         walk_direction_deg: f64 = 0, float(-360.0, 360.0);
         /// walking (natural start): shortest pelvis displacement over the walk, m
-        min_walk_m: f64 = 1.0, float(0.0, 100.0);
+        min_walk_m: f64 = 0.5, float(0.0, 100.0);
         /// walking (natural start): largest RMS distance of a sensor's path from the pelvis's, m
         max_walk_mismatch_m: f64 = 0.5, float(0.0, 100.0);
         /// walking (natural start): largest vertical displacement of a sensor over the walk, m

@@ -325,15 +325,52 @@ pub fn calibrate_walk_start(
         offset_in_inertial_mps2: [Vector3::zeros(); NUM_IMUS],
         heading_to_pelvis_rad: [0.0; NUM_IMUS],
     };
-    let mut paths: Vec<Vec<Vector3<f64>>> = Vec::with_capacity(NUM_IMUS);
+    // Each sensor's path from rest, and how a residual accelerometer bias would bend it.
+    let mut raw_paths = Vec::with_capacity(NUM_IMUS);
+    let mut bias_bases = Vec::with_capacity(NUM_IMUS);
     for k in 0..NUM_IMUS {
         g.stand_before[k] = stand_orientation(stand, k)?;
         g.stand_after[k] = g.stand_before[k];
         if walking.accel_offset {
             g.offset_in_inertial_mps2[k] = mean_free_acceleration(stand.iter(), k, &gravity);
         }
-        let path = integrate_path(walk, k, &(gravity - g.offset_in_inertial_mps2[k]));
-        let end = path.last().copied().unwrap_or_else(Vector3::zeros);
+        raw_paths.push(integrate_path(
+            walk,
+            k,
+            &(gravity - g.offset_in_inertial_mps2[k]),
+        ));
+        bias_bases.push(bias_paths(walk, k, &g.stand_before[k]));
+    }
+    // The pelvis first: its own bias only from its height staying level (it turns too little
+    // for more); then every sensor against it.
+    let pelvis_fit = fit_path(
+        &up,
+        &gravity,
+        &raw_paths[PELVIS],
+        &bias_bases[PELVIS],
+        None,
+        0.0,
+    );
+    let pelvis: Vec<Vector3<f64>> = pelvis_fit.path.iter().map(|p| horizontal(p, &up)).collect();
+    check_walk(&pelvis, &up, config)?;
+    for k in 0..NUM_IMUS {
+        let fit = if k == PELVIS {
+            PathFit {
+                heading_rad: 0.0,
+                ..pelvis_fit.clone()
+            }
+        } else {
+            let start = align_about(&up, &horizontal_path(&raw_paths[k], &up), &pelvis);
+            fit_path(
+                &up,
+                &gravity,
+                &raw_paths[k],
+                &bias_bases[k],
+                Some(&pelvis),
+                start,
+            )
+        };
+        let end = fit.path.last().copied().unwrap_or_else(Vector3::zeros);
         g.vertical_m[k] = end.dot(&up);
         if g.vertical_m[k].abs() > config.max_walk_vertical_m {
             return Err(Rejection::NotLevel {
@@ -343,13 +380,8 @@ pub fn calibrate_walk_start(
             });
         }
         g.displacement_m[k] = horizontal(&end, &up);
-        paths.push(path.iter().map(|p| horizontal(p, &up)).collect());
-    }
-    let pelvis = &paths[PELVIS];
-    check_walk(pelvis, &up, config)?;
-    for (k, path) in paths.iter().enumerate() {
-        let psi = align_about(&up, path, pelvis);
-        let rms_m = path_mismatch_m(&up, psi, path, pelvis);
+        let path = horizontal_path(&fit.path, &up);
+        let rms_m = path_mismatch_m(&up, fit.heading_rad, &path, &pelvis);
         if rms_m > config.max_walk_mismatch_m {
             return Err(Rejection::WalkMismatch {
                 sensor: sensor_name(k),
@@ -357,7 +389,7 @@ pub fn calibrate_walk_start(
                 max_m: config.max_walk_mismatch_m,
             });
         }
-        g.heading_to_pelvis_rad[k] = psi;
+        g.heading_to_pelvis_rad[k] = fit.heading_rad;
     }
     g.heading_to_pelvis_rad[PELVIS] = 0.0;
 
@@ -404,6 +436,134 @@ fn integrate_path(samples: &[Sample], k: usize, gravity: &Vector3<f64>) -> Vec<V
         path.push(p);
     }
     path
+}
+
+/// A sensor's path with its fitted residual bias removed, and its heading to the pelvis.
+#[derive(Clone, Debug)]
+struct PathFit {
+    path: Vec<Vector3<f64>>,
+    heading_rad: f64,
+}
+
+/// Rounds of alternating between the bias (linear least squares) and the heading (Procrustes).
+const FIT_ROUNDS: usize = 4;
+/// Ridge on the bias, relative to the data's own scale: keeps a sensor that barely turns (whose
+/// bias paths are nearly the walk's own acceleration) from explaining its walk away as bias.
+const BIAS_RIDGE: f64 = 0.05;
+
+/// Fits a sensor's path to `target` (the pelvis's horizontal path): the turn about up (starting
+/// from `heading_rad`), a constant offset c and the sensor's residual errors, by alternating the
+/// linear least squares in them with the 2-D Procrustes in ψ. The vertical rows say the path
+/// stays level; without a target (the pelvis itself) they are the only ones.
+///
+/// The residual errors are an accelerometer bias b_S and the tilt error δ_S the fusion keeps
+/// because of it, both fixed in the sensor frame: they add `R_IS(t)·b + g × (R_IS(t)·δ)` to the
+/// free acceleration, less what the stand's offset removed. Both are linear in the bias paths
+/// `B_j` ([`bias_paths`]), so the path is `p(t) − Σ_j (b_j·B_j(t) + δ_j·g × B_j(t))`, and the fit
+/// minimises `Σ_t |R_up(ψ)·(that) − target(t) − c|² + ridge·(|b|² + |g|²·|δ|²)`.
+fn fit_path(
+    up: &Unit<Vector3<f64>>,
+    gravity: &Vector3<f64>,
+    path: &[Vector3<f64>],
+    basis: &[[Vector3<f64>; 3]],
+    target: Option<&[Vector3<f64>]>,
+    heading_rad: f64,
+) -> PathFit {
+    type Matrix9 = nalgebra::SMatrix<f64, 9, 9>;
+    type Vector9 = nalgebra::SVector<f64, 9>;
+    // Rows kept: all three, or only the vertical one.
+    let keep = match target {
+        Some(_) => nalgebra::Matrix3::identity(),
+        None => up.into_inner() * up.transpose(),
+    };
+    let zero = Vector3::zeros();
+    let columns = |b: &[Vector3<f64>; 3]| -> [Vector3<f64>; 6] {
+        [
+            b[0],
+            b[1],
+            b[2],
+            gravity.cross(&b[0]),
+            gravity.cross(&b[1]),
+            gravity.cross(&b[2]),
+        ]
+    };
+    let mut fit = PathFit {
+        path: path.to_vec(),
+        heading_rad,
+    };
+    let scale: f64 = basis
+        .iter()
+        .map(|b| b.iter().map(|v| v.norm_squared()).sum::<f64>())
+        .sum::<f64>()
+        / 3.0;
+    let ridge = BIAS_RIDGE * scale + 1e-12;
+    for round in 0..FIT_ROUNDS {
+        let turn = Rotation3::from_axis_angle(up, fit.heading_rad);
+        let mut normal = Matrix9::zeros();
+        let mut rhs = Vector9::zeros();
+        for (i, (p, b)) in path.iter().zip(basis).enumerate() {
+            let t = target.map_or(&zero, |t| &t[i]);
+            let mut a = nalgebra::SMatrix::<f64, 3, 9>::zeros();
+            for (j, column) in columns(b).iter().enumerate() {
+                a.set_column(j, &(keep * (turn * column)));
+            }
+            a.fixed_view_mut::<3, 3>(0, 6).copy_from(&keep);
+            // r = (R·p − t) − A·x with x = (b, δ, c).
+            let y = keep * (turn * p - t);
+            normal += a.transpose() * a;
+            rhs += a.transpose() * y;
+        }
+        for j in 0..9 {
+            normal[(j, j)] += match j {
+                0..3 => ridge,
+                3..6 => ridge * gravity.norm_squared(),
+                _ => 1e-9,
+            };
+        }
+        let Some(x) = normal.cholesky().map(|c| c.solve(&rhs)) else {
+            break;
+        };
+        fit.path = path
+            .iter()
+            .zip(basis)
+            .map(|(p, b)| {
+                let drift: Vector3<f64> =
+                    columns(b).iter().zip(x.iter()).map(|(c, w)| c * *w).sum();
+                p - drift
+            })
+            .collect();
+        if let Some(target) = target
+            && round + 1 < FIT_ROUNDS
+        {
+            fit.heading_rad = align_about(up, &horizontal_path(&fit.path, up), target);
+        }
+    }
+    fit
+}
+
+/// The paths a unit residual accelerometer bias along each of the sensor's axes adds to its
+/// integrated path: `B_j(t) = ∫∫ (R_IS(τ) − R̄_IS)·e_j` (the offset measured at the stand, `R̄_IS·b`,
+/// is already removed, so only the part the walk's rotations move remains).
+fn bias_paths(samples: &[Sample], k: usize, stand: &Rotation3<f64>) -> Vec<[Vector3<f64>; 3]> {
+    let mut p = [Vector3::zeros(); 3];
+    let mut v = [Vector3::zeros(); 3];
+    let mut out = Vec::with_capacity(samples.len());
+    out.push(p);
+    for pair in samples.windows(2) {
+        let dt = pair[1].time_s - pair[0].time_s;
+        let delta = pair[0].sensors[k].inertial_from_sensor.matrix() - stand.matrix();
+        for j in 0..3 {
+            let a = delta.column(j).into_owned();
+            p[j] += v[j] * dt + a * (0.5 * dt * dt);
+            v[j] += a * dt;
+        }
+        out.push(p);
+    }
+    out
+}
+
+fn horizontal_path(path: &[Vector3<f64>], up: &Unit<Vector3<f64>>) -> Vec<Vector3<f64>> {
+    path.iter().map(|p| horizontal(p, up)).collect()
 }
 
 /// The rotation about `up` (rad) that best turns `path` onto `target` in the least-squares sense,
