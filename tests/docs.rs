@@ -13,7 +13,8 @@
 //!   `imuflow graph check`; an ablation file (one with `[[variant]]`s) passes
 //!   `imuflow compare FILE --print-graph`, which loads and validates every variant and combines
 //!   them. Templates (`configs/<graph>.toml`) are skipped; a `*` must match at least one file.
-//!   Sensor layouts (`configs/sensor-layouts/`) only have to exist: their reader's tests load them.
+//!   Sensor layouts and tracker maps (`configs/sensor-layouts/`, `configs/trackers/`) only have to
+//!   exist: their readers' tests load them.
 //! - The README's two commands (the first lines of its code blocks that start with `cargo test` and
 //!   with `cargo run ... -- run`): the test command is the one .ci/run runs, and the run command's
 //!   graph (with none given, `imuflow run`'s default) exists and passes `imuflow graph check`.
@@ -299,8 +300,11 @@ fn every_config_the_docs_mention_exists_and_is_valid() {
             problems.push(format!("{doc}: {mention} matches no file"));
         }
         for file in found {
-            // Sensor layouts are not graphs; libs/sensor-files' tests read every shipped one.
-            if file.is_file() && mention.starts_with("configs/sensor-layouts/") {
+            // Sensor layouts and tracker maps are not graphs; their readers' tests read them.
+            if file.is_file()
+                && (mention.starts_with("configs/sensor-layouts/")
+                    || mention.starts_with("configs/trackers/"))
+            {
                 continue;
             }
             if file.is_file() {

@@ -29,8 +29,8 @@ imuflow_graph::stage_params! {
         rest_bias: bool = true, bool;
         // VQF's default is 1.5 s and 2°/s; a natural recording's stand may last 1 s, and consumer
         // MEMS gyroscopes have biases up to ±3°/s (BMI160 data sheet), which VQF with a 2°/s clip
-        // never detects at rest: on the raw-sensor graph SIP error +9.2° against ideal sensors
-        // with VQF's values, +1.7° with these (docs/journal/2026-11-28-real-sensors.md).
+        // never detects at rest: with those sensors alone on the raw-sensor graph, SIP error
+        // +7.9° against ideal sensors with VQF's values, none with these (docs/real-sensors.md).
         /// VQF: how long a sensor must be still before rest is detected (and its gyroscope bias
         /// estimated), s
         rest_min_s: f64 = 0.5, float(0.1, 60.0);

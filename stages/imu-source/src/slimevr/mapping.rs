@@ -182,6 +182,15 @@ fn line_of(text: &str, offset: usize) -> usize {
 mod tests {
     use super::*;
 
+    #[test]
+    fn the_shipped_simulator_mapping_covers_every_site() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../configs/trackers/slimevr-sim.toml");
+        let mapping = Mapping::load(&path).expect("configs/trackers/slimevr-sim.toml loads");
+        assert!(mapping.missing_sites().is_empty());
+        assert_eq!(mapping.entries().count(), NUM_IMUS);
+    }
+
     fn error(text: &str) -> String {
         Mapping::parse(text, "trackers.toml")
             .expect_err("should be rejected")
