@@ -24,6 +24,7 @@ pub const STAGES: &[BuiltinStage] = &[
     builtin(imuflow_contact_stage::SPEC, imuflow_contact_stage::run),
     builtin(imuflow_optimizer::SPEC, imuflow_optimizer::run),
     builtin(imuflow_validation::SPEC, imuflow_validation::run),
+    builtin(imuflow_vmc::SPEC, imuflow_vmc::run),
     builtin(imuflow_bench::SOURCE_SPEC, imuflow_bench::run_source),
     builtin(imuflow_bench::RELAY_SPEC, imuflow_bench::run_relay),
 ];
