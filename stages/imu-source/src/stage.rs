@@ -18,8 +18,9 @@ imuflow_graph::stage_params! {
     pub struct ImuSourceParams {
         /// where the frames come from
         mode: String = "synthesize", choice(&["synthesize", "replay", "udp", "file", "slimevr"]);
-        /// synthesize: the .bvh motion; replay: the .mcap recording; file: the recording (a CSV/TSV
-        /// file or a folder of one file per sensor, or an .mvnx file) (required for these)
+        /// synthesize: the motion (.bvh, AMASS-style .npz, or a recording .mcap's truth); replay:
+        /// the .mcap recording; file: the recording (a CSV/TSV file or a folder of one file per
+        /// sensor, or an .mvnx file) (required for these)
         path: Option<PathBuf>, path;
         /// synthesize: joint-mapping TOML of the BVH skeleton (default: built-in Bandai Namco)
         mapping: Option<PathBuf>, path;
