@@ -16,8 +16,9 @@ pub struct ExportArgs {
     /// body (val.sim), a comparison's variant (pip-opt.motion), ...
     #[arg(long, default_value = "opt.motion")]
     channel: String,
-    /// bvh (animation tools: Blender, MotionBuilder, Unity via an importer) or npz (AMASS style,
-    /// SMPL axis-angle).
+    /// bvh (animation tools: Blender, MotionBuilder, Unity via an importer), glb (glTF 2.0 binary:
+    /// a jointed figure for any glTF viewer, Blender, Godot, three.js) or npz (AMASS style, SMPL
+    /// axis-angle).
     #[arg(
         long,
         value_parser = PossibleValuesParser::new(Format::NAMES)
@@ -33,7 +34,7 @@ pub struct ExportArgs {
     /// Keep frames flagged CALIBRATING, PRELUDE or INVALID (left out by default).
     #[arg(long)]
     keep_all: bool,
-    /// BVH: the subject's stature (m), which scales the skeleton's offsets.
+    /// BVH and glb: the subject's stature (m), which scales the skeleton's offsets.
     #[arg(long, default_value_t = 1.75)]
     stature_m: f64,
 }

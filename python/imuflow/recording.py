@@ -7,6 +7,7 @@
     imu["header.seq"], imu["specific_force_mps2"]            # (N,), (N, 6, 3)
     seq, rotations, root = rec.poses("opt.motion")         # (N,), (N, 24, 4) wxyz, (N, 3) m
     df = rec.dataframe("opt.contacts")                       # with pandas installed
+    rec.export("opt.motion", "out/walk.glb")                 # via the `imuflow export` binary
 
 Each raw channel's frames are decoded through the layout stored with it (its schema, encoding
 `imuflow-layout`), so a recording made by another imuflow version reads correctly as long as its
@@ -14,6 +15,9 @@ layouts say what it holds. A file whose recorder was killed reads up to its last
 """
 
 import json
+import os
+import shutil
+import subprocess
 
 import numpy as np
 from mcap.records import Channel, Message, Schema
@@ -28,6 +32,13 @@ LAYOUT_ENCODING = "imuflow-layout"
 
 class RecordingError(Exception):
     """A file that is not a readable imuflow recording, or a topic it does not have."""
+
+
+class ExportError(RecordingError):
+    """`imuflow export` refused (its message names the file and channel) or could not be run."""
+
+
+EXPORT_FORMATS = ("bvh", "glb", "npz")
 
 
 class Recording:
@@ -104,6 +115,10 @@ class Recording:
                 columns[name + "".join(f"[{i}]" for i in index)] = values[(slice(None),) + index]
         return pd.DataFrame(columns)
 
+    def export(self, channel, out, format=None, **options):
+        """Writes MotionFrame channel `channel` to `out` with `imuflow export` (see `export`)."""
+        return export(self.path, channel, out, format=format, **options)
+
     def _topic(self, topic):
         if topic not in self._layouts:
             raise RecordingError(f"{self.path}: no topic {topic!r} (it has {sorted(self._layouts)})")
@@ -113,6 +128,53 @@ class Recording:
 def open_recording(path):
     """Reads a recorder's mcap file (see `Recording`)."""
     return Recording(path)
+
+
+def export(path, channel, out, format=None, keep_all=False, unit=None, stature_m=None):
+    """Exports MotionFrame channel `channel` of recording `path` to the file `out` by running
+    `imuflow export` (the formats are the binary's: bvh, glb, npz; `format=None` takes it from
+    `out`'s extension). `keep_all`, `unit` ("m" or "cm", BVH) and `stature_m` (BVH, glb) are the
+    command's options. Returns `out`. Raises `ExportError` with the binary's message (which names
+    the file and channel) when it refuses; nothing is written then."""
+    out = str(out)
+    if format is None:
+        format = os.path.splitext(out)[1].lstrip(".").lower()
+        if format not in EXPORT_FORMATS:
+            raise ExportError(f"{out}: no format given and the extension is not one of {', '.join(EXPORT_FORMATS)}")
+    elif format not in EXPORT_FORMATS:
+        raise ExportError(f"format {format!r} is not one of {', '.join(EXPORT_FORMATS)}")
+    command = [find_binary(), "export", str(path), "--channel", channel, "--format", format, "-o", out]
+    if keep_all:
+        command.append("--keep-all")
+    if unit is not None:
+        command += ["--unit", unit]
+    if stature_m is not None:
+        command += ["--stature-m", str(stature_m)]
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode != 0:
+        message = done.stderr.strip().removeprefix("error: ") or f"exit status {done.returncode}"
+        raise ExportError(message)
+    return out
+
+
+def find_binary():
+    """The `imuflow` binary that `export` runs: $IMUFLOW_BIN, else `imuflow` on PATH, else the
+    repository's own build (target/release, then target/debug) when this package runs from it."""
+    named = os.environ.get("IMUFLOW_BIN")
+    if named:
+        if not (os.path.isfile(named) and os.access(named, os.X_OK)):
+            raise ExportError(f"IMUFLOW_BIN={named!r} is not an executable file")
+        return named
+    on_path = shutil.which("imuflow")
+    if on_path:
+        return on_path
+    repo = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+    for profile in ("release", "debug"):
+        built = os.path.normpath(os.path.join(repo, "target", profile, "imuflow"))
+        if os.path.isfile(built) and os.access(built, os.X_OK):
+            return built
+    raise ExportError("no imuflow binary: set IMUFLOW_BIN to its path, put `imuflow` on PATH, "
+                      "or build it in the repository (cargo build --release)")
 
 
 def _messages(stream):

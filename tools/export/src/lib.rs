@@ -4,6 +4,9 @@
 //! - **BVH** (`--format bvh`): the body model's skeleton at the subject's stature, joints named as
 //!   SMPL names them, root translation, intrinsic XYZ Euler channels, Y up, metres or centimetres,
 //!   at the recording's rate. Blender, MotionBuilder and most animation tools import it.
+//! - **glTF binary** (`--format glb`): the same skeleton as a node per joint with the root's
+//!   translation and every joint's local rotation animated, and a box per bone so any glTF viewer
+//!   shows a moving figure; Y up, metres, the model frame as it is ([`glb`]).
 //! - **npz** (`--format npz`): AMASS style (`poses` N × 72 SMPL axis-angle with the root, `trans`
 //!   N × 3, `mocap_framerate`, `betas` zeros, `gender` "neutral"), in the conventions
 //!   `imuflow_motion::npz` reads, so exporting and reading back is the identity.
@@ -11,6 +14,8 @@
 //! Frames flagged CALIBRATING, PRELUDE or INVALID are left out unless `keep_all`; the result says
 //! which recorded frame the export starts at. Nothing is written unless the whole export succeeds:
 //! the file is written beside its destination and renamed into place.
+
+pub mod glb;
 
 use std::path::{Path, PathBuf};
 
@@ -24,15 +29,17 @@ use imuflow_recording::{carries, decode, for_each_record, schema_name};
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Format {
     Bvh,
+    Glb,
     Npz,
 }
 
 impl Format {
-    pub const NAMES: [&'static str; 2] = ["bvh", "npz"];
+    pub const NAMES: [&'static str; 3] = ["bvh", "glb", "npz"];
 
     pub fn parse(name: &str) -> Option<Format> {
         match name {
             "bvh" => Some(Format::Bvh),
+            "glb" => Some(Format::Glb),
             "npz" => Some(Format::Npz),
             _ => None,
         }
@@ -53,7 +60,7 @@ pub struct ExportOptions {
     pub unit: LengthUnit,
     /// Keep frames flagged CALIBRATING, PRELUDE or INVALID.
     pub keep_all: bool,
-    /// The subject's stature (m): scales the BVH skeleton's offsets.
+    /// The subject's stature (m): scales the BVH and glTF skeleton's offsets.
     pub stature_m: f64,
 }
 
@@ -113,15 +120,44 @@ pub enum ExportError {
     Write { file: String, message: String },
 }
 
+/// A channel's exportable motion: its poses at the recording's rate, and where they start.
+#[derive(Clone, Debug)]
+pub struct ChannelMotion {
+    /// The poses kept, at the recording's rate.
+    pub clip: MotionClip,
+    /// What the export of this motion reports.
+    pub exported: Exported,
+}
+
 /// Exports `options.channel` of `options.input` to `options.out`.
 pub fn export(options: &ExportOptions) -> Result<Exported, ExportError> {
-    let file = options.input.display().to_string();
-    let recorded = read_channel(&options.input, &options.channel)?;
+    let motion = read_motion(&options.input, &options.channel, options.keep_all)?;
+    let clip = &motion.clip;
+    write_atomically(&options.out, |path| match options.format {
+        Format::Bvh => write_bvh(path, clip, options),
+        Format::Glb => write_glb(path, clip, options),
+        Format::Npz => {
+            write_amass_npz(path, clip, &AmassOptions::default()).map_err(|e| e.to_string())
+        }
+    })?;
+    Ok(motion.exported)
+}
+
+/// The poses of MotionFrame channel `channel` of the recording `input` that an export writes
+/// (frame `k` of the clip is frame `k` of every exported file): the frames flagged CALIBRATING,
+/// PRELUDE or INVALID are left out unless `keep_all`.
+pub fn read_motion(
+    input: &Path,
+    channel: &str,
+    keep_all: bool,
+) -> Result<ChannelMotion, ExportError> {
+    let file = input.display().to_string();
+    let recorded = read_channel(input, channel)?;
     let total = recorded.frames.len();
     let kept: Vec<&MotionFrame> = recorded
         .frames
         .iter()
-        .filter(|f| options.keep_all || !is_left_out(f))
+        .filter(|f| keep_all || !is_left_out(f))
         .collect();
     let Some(first) = kept.first() else {
         let why = if total == 0 {
@@ -133,7 +169,7 @@ pub fn export(options: &ExportOptions) -> Result<Exported, ExportError> {
         };
         return Err(ExportError::Empty {
             file,
-            channel: options.channel.clone(),
+            channel: channel.to_owned(),
             why,
         });
     };
@@ -145,27 +181,23 @@ pub fn export(options: &ExportOptions) -> Result<Exported, ExportError> {
         let pose = Pose::from_wire(&frame.local_pose_wxyz, &frame.root_position_m);
         poses.push(pose.map_err(|e| ExportError::BadFrame {
             file: file.clone(),
-            channel: options.channel.clone(),
+            channel: channel.to_owned(),
             index,
             message: e.to_string(),
         })?);
     }
-    let clip = MotionClip {
-        frame_time_s: 1.0 / recorded.rate_hz,
-        poses,
-    };
-    write_atomically(&options.out, |path| match options.format {
-        Format::Bvh => write_bvh(path, &clip, options),
-        Format::Npz => {
-            write_amass_npz(path, &clip, &AmassOptions::default()).map_err(|e| e.to_string())
-        }
-    })?;
-    Ok(Exported {
-        frames: kept.len(),
-        left_out: total - kept.len(),
-        first_seq,
-        first_time_s,
-        rate_hz: recorded.rate_hz,
+    Ok(ChannelMotion {
+        clip: MotionClip {
+            frame_time_s: 1.0 / recorded.rate_hz,
+            poses,
+        },
+        exported: Exported {
+            frames: kept.len(),
+            left_out: total - kept.len(),
+            first_seq,
+            first_time_s,
+            rate_hz: recorded.rate_hz,
+        },
     })
 }
 
@@ -255,14 +287,25 @@ fn read_channel(path: &Path, channel: &str) -> Result<RecordedChannel, ExportErr
     Ok(RecordedChannel { frames, rate_hz })
 }
 
-fn write_bvh(path: &Path, clip: &MotionClip, options: &ExportOptions) -> Result<(), String> {
+/// The subject's body model at `stature_m` (its mass does not enter an export: BVH and glTF hold
+/// none, so imuflow's default subject mass).
+fn body_model(stature_m: f64) -> Result<BodyModel, String> {
     let params = BodyParams::builtin().map_err(|e| e.to_string())?;
-    // imuflow's default subject mass; a BVH holds no masses.
-    let body = BodyModel::new(&params, options.stature_m, 70.0).map_err(|e| e.to_string())?;
+    BodyModel::new(&params, stature_m, 70.0).map_err(|e| e.to_string())
+}
+
+fn write_bvh(path: &Path, clip: &MotionClip, options: &ExportOptions) -> Result<(), String> {
+    let body = body_model(options.stature_m)?;
     let name = options.out.display().to_string();
     let bvh = bvh_from_clip(&body, clip, options.unit, &name)
         .ok_or_else(|| "the motion has no frame".to_owned())?;
     std::fs::write(path, bvh.to_bvh_string()).map_err(|e| e.to_string())
+}
+
+fn write_glb(path: &Path, clip: &MotionClip, options: &ExportOptions) -> Result<(), String> {
+    let body = body_model(options.stature_m)?;
+    let bytes = glb::glb_from_clip(&body, clip, &options.channel)?;
+    std::fs::write(path, bytes).map_err(|e| e.to_string())
 }
 
 /// Writes through `write` into a temporary file beside `out` and renames it into place, so a failed
@@ -283,10 +326,22 @@ fn write_atomically(
         }
         None => Path::new("."),
     };
-    let partial = tempfile::NamedTempFile::new_in(dir).map_err(|e| fail(e.to_string()))?;
+    let partial = partial_file(dir).map_err(|e| fail(e.to_string()))?;
     write(partial.path()).map_err(fail)?;
     partial
         .persist(out)
         .map_err(|e| fail(e.error.to_string()))?;
     Ok(())
+}
+
+/// A temporary file in `dir` with the permissions any new file gets (0o666 less the umask), not
+/// the owner-only 0o600 of a temporary file: it is renamed into place as the export.
+fn partial_file(dir: &Path) -> std::io::Result<tempfile::NamedTempFile> {
+    let mut builder = tempfile::Builder::new();
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    builder.tempfile_in(dir)
 }

@@ -159,6 +159,23 @@ fn bad_input_is_named_and_writes_nothing() {
     assert!(matches!(e, ExportError::Read { .. }));
 }
 
+/// The export is an ordinary file: readable by whoever may read a file its user creates there
+/// (not the owner-only mode of the temporary file it is written as).
+#[cfg(unix)]
+#[test]
+fn the_export_has_the_mode_of_a_new_file() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let plain = dir.path().join("plain");
+    std::fs::write(&plain, b"").expect("write");
+    let mode = |p: &Path| std::fs::metadata(p).expect("metadata").permissions().mode() & 0o777;
+    for format in [Format::Bvh, Format::Glb, Format::Npz] {
+        let out = dir.path().join(format!("truth.{format:?}"));
+        export(&options(&out, format)).expect("exports");
+        assert_eq!(mode(&out), mode(&plain), "{format:?}");
+    }
+}
+
 /// A channel whose frames are all calibration or prelude has nothing to export, and says why.
 #[test]
 fn a_channel_with_only_left_out_frames_is_empty_and_says_why() {
