@@ -30,7 +30,7 @@ pub const NUM_STATIONARY_JOINTS: usize = 5;
 pub mod flags {
     /// The last frame of the stream; its payload is meaningless. Every stage forwards it and exits.
     pub const END_OF_STREAM: u32 = 1 << 0;
-    /// Carry on, but don't trust the payload (a sensor dropped out, a solver failed, ...).
+    /// Carry on, but don't trust the payload (a sensor dropped out, an unusable input, ...).
     pub const INVALID: u32 = 1 << 1;
     /// The calibration stage is still calibrating; the payload is not yet calibrated.
     pub const CALIBRATING: u32 = 1 << 2;
@@ -43,15 +43,21 @@ pub mod flags {
     /// clip leave it out. Only sources set it (and the fusion stage, which resamples a source's
     /// raw frames, on the frames it makes of them); other stages do not carry it to their outputs.
     pub const PRELUDE: u32 = 1 << 5;
+    /// A usable estimate of lower quality: a stage that could not do its full computation for
+    /// this frame published its best simpler one instead (the optimizer: the networks' pose with
+    /// the root integrated, where its physics could not be solved). Unlike INVALID, the payload is
+    /// the stage's output for this frame, and scores keep it.
+    pub const DEGRADED: u32 = 1 << 6;
 
     /// Every flag with its name, for logs and recorders.
-    pub const NAMES: [(u32, &str); 6] = [
+    pub const NAMES: [(u32, &str); 7] = [
         (END_OF_STREAM, "END_OF_STREAM"),
         (INVALID, "INVALID"),
         (CALIBRATING, "CALIBRATING"),
         (FEEDBACK_INITIAL, "FEEDBACK_INITIAL"),
         (RESTARTED, "RESTARTED"),
         (PRELUDE, "PRELUDE"),
+        (DEGRADED, "DEGRADED"),
     ];
 }
 
@@ -304,7 +310,7 @@ macro_rules! frame {
                         field::<u64>("header.publish_ns", std::mem::offset_of!($name, header.publish_ns),
                             "publish time, ns since the Unix epoch"),
                         field::<u32>("header.flags", std::mem::offset_of!($name, header.flags),
-                            "bit set: 1 END_OF_STREAM, 2 INVALID, 4 CALIBRATING, 8 FEEDBACK_INITIAL, 16 RESTARTED, 32 PRELUDE"),
+                            "bit set: 1 END_OF_STREAM, 2 INVALID, 4 CALIBRATING, 8 FEEDBACK_INITIAL, 16 RESTARTED, 32 PRELUDE, 64 DEGRADED"),
                         field::<u32>("header.restarts", std::mem::offset_of!($name, header.restarts),
                             "times the publishing stage had been restarted (0: its first process)"),
                     ];

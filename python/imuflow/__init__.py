@@ -17,6 +17,7 @@ from .layout import dtype_from_layout, flatten_fields
 from .recording import Recording, RecordingError, open_recording
 from .stage import (
     CALIBRATING,
+    DEGRADED,
     END_OF_STREAM,
     FEEDBACK_INITIAL,
     INVALID,
@@ -30,6 +31,7 @@ from .stage import (
 
 __all__ = [
     "CALIBRATING",
+    "DEGRADED",
     "END_OF_STREAM",
     "FEEDBACK_INITIAL",
     "INVALID",

@@ -6,8 +6,9 @@
 //!
 //! - Before the optimizer has published (`state` flagged FEEDBACK_INITIAL), while calibrating (the step
 //!   flagged CALIBRATING), or when the state cannot be decoded: an empty contact set, flagged INVALID.
-//! - A state flagged only INVALID (the optimizer flags its solver-fallback frames so) is still the state
-//!   the optimizer continues from, so the rule is applied to it.
+//! - A state flagged INVALID or DEGRADED (the optimizer's estimate where its input was unusable or
+//!   its physics could not be solved) is still the state the optimizer continues from, so the rule
+//!   is applied to it.
 //!
 //! `MotionFrame` is decoded here (local rotations + root position → forward kinematics) because the
 //! stages import no other stage.

@@ -94,18 +94,38 @@ impl MotionEstimate {
 /// Place `pose` so that the lowest of `joints` rests on the floor (y = 0), keeping x and z: the first
 /// frame of every method (GlobalPose reference §5.4 "First frame"; PIP starts from the network pose).
 pub fn place_on_floor(physics: &PhysicsBody, pose: &mut Pose, joints: &[JointId], fk: &mut FkData) {
+    let lowest = lowest_height(physics, pose, joints, fk);
+    if lowest.is_finite() {
+        pose.root_in_world_m.y -= lowest;
+    }
+}
+
+/// Lift `pose` so that none of `joints` is below the floor (y = 0), keeping x and z; a pose already
+/// clear of it stays where it is.
+pub fn lift_out_of_floor(
+    physics: &PhysicsBody,
+    pose: &mut Pose,
+    joints: &[JointId],
+    fk: &mut FkData,
+) {
+    let lowest = lowest_height(physics, pose, joints, fk);
+    if lowest.is_finite() && lowest < 0.0 {
+        pose.root_in_world_m.y -= lowest;
+    }
+}
+
+/// Height above the floor of the lowest ground point of `joints` in `pose` (negative: below it;
+/// infinite without joints).
+fn lowest_height(physics: &PhysicsBody, pose: &Pose, joints: &[JointId], fk: &mut FkData) -> f64 {
     imuflow_body::forward_kinematics(&physics.body.skeleton, pose, fk);
-    let lowest = joints
+    joints
         .iter()
         .map(|&j| {
             physics
                 .geometry
                 .height_above(j, &fk.joint_in_world_m[j.index()], 0.0)
         })
-        .fold(f64::INFINITY, f64::min);
-    if lowest.is_finite() {
-        pose.root_in_world_m.y -= lowest;
-    }
+        .fold(f64::INFINITY, f64::min)
 }
 
 /// The joints a standing body can rest on when placed on the floor: ankles and feet.

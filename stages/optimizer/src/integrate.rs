@@ -136,6 +136,16 @@ impl Integrate {
             .unwrap_or(0.0)
     }
 
+    /// Continue from another method's frame: the next step integrates from `root` (m, M), with
+    /// `reference` as the previous frame's networks' estimate (its contact joints for the velocity
+    /// refinement, its rotations for the joint velocities). The physics methods' degraded
+    /// estimate ([`crate::degraded`]) steps from where they stood this way.
+    pub fn continue_from(&mut self, reference: &Reference, root: &Vector3<f64>) {
+        self.previous_rel = Some(self.contact_joints_rel(reference));
+        self.previous.pose.clone_from(&reference.pose);
+        self.previous.pose.root_in_world_m = *root;
+    }
+
     /// Contact joints relative to the root, in world axes, of the reference pose.
     fn contact_joints_rel(
         &mut self,

@@ -10,12 +10,14 @@
 //!
 //! Shared pieces: [`Reference`] (what the networks say, decoded from a `KinematicsFrame`),
 //! [`MotionEstimate`] (a method's result, written into a `MotionFrame`), [`PhysicsBody`] (the subject's
-//! body and rigid-body model) and [`Method`] (what the stage calls once per frame).
+//! body and rigid-body model), [`Method`] (what the stage calls once per frame) and
+//! [`degraded::Degraded`] (what `pip` and `globalpose` publish for a frame they cannot solve).
 //!
 //! World: model frame M (x left, y up, z forward), floor at y = 0, gravity (0, −9.81, 0).
 
 pub mod bench;
 mod cholesky;
+pub mod degraded;
 pub mod estimate;
 pub mod globalpose;
 pub mod integrate;
@@ -31,8 +33,8 @@ pub use estimate::MotionEstimate;
 pub use reference::Reference;
 pub use stage::{SPEC, run};
 
-use imuflow_body::dynamics::RigidBodyModel;
-use imuflow_body::{BodyModel, BodyParams};
+use imuflow_body::dynamics::{DofVector, RigidBodyModel, joint_dof};
+use imuflow_body::{BodyModel, BodyParams, JointId};
 use imuflow_contact::{ContactGeometry, ContactSet};
 
 /// Frame period of the networks and the physics (s): 60 Hz, as in both papers.
@@ -114,11 +116,34 @@ impl Terrain {
     }
 }
 
+/// Faster than a sprinter's pelvis (about 12 m/s at top speed): a step that leaves the root moving
+/// faster has diverged (GlobalPose's root reached 1e39 m within frames of committing one, on a bow
+/// with exact sensor signals, 2026-11-26).
+pub const MAX_ROOT_SPEED_MPS: f64 = 15.0;
+
+/// Faster than a pitcher's shoulder (about 120 rad/s, the fastest human joint motion): a step that
+/// leaves a joint turning faster has diverged.
+pub const MAX_JOINT_SPEED_RADPS: f64 = 150.0;
+
+/// Whether a generalized velocity is finite and within what a human body can do
+/// ([`MAX_ROOT_SPEED_MPS`], [`MAX_JOINT_SPEED_RADPS`]).
+pub fn within_human_speeds(v: &DofVector) -> bool {
+    let root = v.fixed_rows::<3>(0).norm();
+    let fastest_joint = JointId::all()
+        .map(|j| v.fixed_rows::<3>(joint_dof(j)).norm())
+        .fold(0.0, f64::max);
+    v.iter().all(|x| x.is_finite())
+        && root <= MAX_ROOT_SPEED_MPS
+        && fastest_joint <= MAX_JOINT_SPEED_RADPS
+}
+
 /// What a method reports about one step besides its estimate.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct StepReport {
-    /// The solver failed (infeasible, not converged, non-finite) and the method's documented fallback
-    /// produced this frame. Counted by the stage and reported in its summary; the frame is flagged INVALID.
+    /// The solver failed (not converged, non-finite, a diverged step) and this frame is the method's
+    /// degraded estimate ([`degraded::Degraded`]): the networks' pose with the root integrated, no
+    /// dynamics. The next step continues the physics from it. The stage flags such a frame DEGRADED,
+    /// counts it and reports the count in its summary.
     pub fallback: bool,
 }
 

@@ -4,11 +4,16 @@
 //!   reference pose standing on the floor, flagged INVALID; the method starts at the first frame
 //!   that is neither.
 //! - A kinematics frame that cannot be decoded (non-finite values) repeats the previous estimate,
-//!   flagged INVALID, and is counted.
-//! - Solver fallbacks are counted, logged, and flag their frames INVALID; the totals are printed
-//!   when the stream ends.
+//!   flagged INVALID, and is counted. A kinematics frame flagged INVALID keeps the flag.
+//! - A frame the method cannot solve is its degraded estimate ([`crate::degraded`]), flagged
+//!   DEGRADED, not INVALID: the user's output for that frame. Such frames are counted, the first
+//!   and last of each run logged, and the totals reported when the stream ends (the stage's log
+//!   and the run summary).
+//!
+//! [`Optimizer`] is that per-frame logic without the transport; [`run`] feeds it the aligned inputs.
 
 use anyhow::{Context, bail};
+use imuflow_body::kinematics::FkData;
 use imuflow_contact::ContactSet;
 use imuflow_contact::subject::{MASS_PARAM, STATURE_PARAM, subject_body};
 use imuflow_graph::frames::{ContactFrame, KinematicsFrame, MotionFrame, flags};
@@ -149,12 +154,185 @@ fn build(
     Ok((name, method, for_stage))
 }
 
+/// The stage's work on one frame without the transport: which estimate goes out, with which flags,
+/// and what is counted (the module docs).
+pub struct Optimizer {
+    stage: String,
+    method_name: String,
+    method: Box<dyn Method>,
+    physics: PhysicsBody,
+    fk: FkData,
+    estimate: MotionEstimate,
+    /// The method has started (a calibrated, decodable frame came since the last calibrating one).
+    running: bool,
+    /// Degraded frames in a row up to the last frame.
+    degraded_run: u64,
+    counts: Counts,
+}
+
+/// What the optimizer stage counts.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counts {
+    /// Frames taken.
+    pub frames: u64,
+    /// Frames the method could not solve, published as its degraded estimate (flagged DEGRADED).
+    pub degraded: u64,
+    /// Kinematics frames that could not be decoded (the previous estimate, flagged INVALID).
+    pub undecodable: u64,
+}
+
+impl Optimizer {
+    /// The method `params` ask for, for stage `stage` (the id in messages).
+    pub fn new(stage: &str, params: &OptimizerParams) -> anyhow::Result<Optimizer> {
+        let (method_name, method, physics) = build(stage, params)?;
+        Ok(Optimizer::with_method(stage, &method_name, method, physics))
+    }
+
+    /// A method built elsewhere (tests, other configurations), named `method_name` in messages;
+    /// `physics` is the subject's body (the calibrating frames stand its reference pose on it).
+    pub fn with_method(
+        stage: &str,
+        method_name: &str,
+        method: Box<dyn Method>,
+        physics: PhysicsBody,
+    ) -> Optimizer {
+        Optimizer {
+            stage: stage.to_owned(),
+            method_name: method_name.to_owned(),
+            method,
+            physics,
+            fk: FkData::new(),
+            estimate: MotionEstimate::default(),
+            running: false,
+            degraded_run: 0,
+            counts: Counts::default(),
+        }
+    }
+
+    /// The method's name (`pip`, ...).
+    pub fn method_name(&self) -> &str {
+        &self.method_name
+    }
+
+    /// The estimate of the last frame.
+    pub fn estimate(&self) -> &MotionEstimate {
+        &self.estimate
+    }
+
+    /// The contacts the method used in the last frame.
+    pub fn contacts(&self) -> &ContactSet {
+        self.method.contacts()
+    }
+
+    /// What was counted so far.
+    pub fn counts(&self) -> Counts {
+        self.counts
+    }
+
+    /// One frame. `step_flags`: the step's (its inputs' INVALID and CALIBRATING); `kin`: the
+    /// networks' frame; `contacts`: the contact stage's frame, where the graph wires one. Returns
+    /// the output frames' flags; the estimate is then [`Optimizer::estimate`].
+    pub fn step(
+        &mut self,
+        seq: u64,
+        step_flags: u32,
+        kin: &KinematicsFrame,
+        contacts: Option<&ContactFrame>,
+    ) -> anyhow::Result<u32> {
+        let stage = self.stage.as_str();
+        let mut out_flags = step_flags;
+        self.counts.frames += 1;
+        let reference = match Reference::read(kin) {
+            Ok(r) => Some(r),
+            Err(why) => {
+                self.counts.undecodable += 1;
+                tracing::warn!(stage, seq, "kinematics frame unusable: {why}");
+                None
+            }
+        };
+        let contacts = match contacts.map(ContactSet::read) {
+            Some(Ok(c)) => Some(c),
+            Some(Err(why)) => {
+                tracing::warn!(stage, seq, "contact frame unusable: {why}");
+                out_flags |= flags::INVALID;
+                None
+            }
+            None => None,
+        };
+        match reference {
+            Some(reference) if step_flags & flags::CALIBRATING == 0 => {
+                if !self.running {
+                    self.method.reset();
+                    self.running = true;
+                }
+                let report = self
+                    .method
+                    .step(&reference, contacts.as_ref(), &mut self.estimate)
+                    .with_context(|| format!("stage '{stage}': frame {seq}"))?;
+                if report.fallback {
+                    out_flags |= flags::DEGRADED;
+                }
+                self.count_degraded(seq, report.fallback);
+            }
+            Some(reference) => {
+                // Still calibrating: show the reference pose standing on the floor.
+                self.running = false;
+                self.estimate = MotionEstimate {
+                    pose: reference.pose,
+                    ..MotionEstimate::default()
+                };
+                self.estimate.pose.root_in_world_m = nalgebra::Vector3::zeros();
+                place_on_floor(&self.physics, &mut self.estimate.pose, &FEET, &mut self.fk);
+                out_flags |= flags::INVALID;
+            }
+            None => out_flags |= flags::INVALID,
+        }
+        Ok(out_flags)
+    }
+
+    /// Counts a degraded frame; logs where a run of them starts and ends.
+    fn count_degraded(&mut self, seq: u64, degraded: bool) {
+        let (stage, method) = (self.stage.as_str(), self.method_name.as_str());
+        if degraded {
+            self.counts.degraded += 1;
+            if self.degraded_run == 0 {
+                tracing::warn!(
+                    stage,
+                    seq,
+                    "{method}: solver failed, publishing the degraded estimate (DEGRADED)"
+                );
+            }
+            self.degraded_run += 1;
+        } else if self.degraded_run > 0 {
+            tracing::info!(
+                stage,
+                seq,
+                "{method}: physics solved again after {} degraded frames",
+                self.degraded_run
+            );
+            self.degraded_run = 0;
+        }
+    }
+
+    /// The counts as one line (the run summary's).
+    pub fn summary_line(&self) -> String {
+        let c = &self.counts;
+        let mut line = format!(
+            "{}: {} of {} frames degraded (solver fallback)",
+            self.method_name, c.degraded, c.frames
+        );
+        if c.undecodable > 0 {
+            line += &format!(", {} undecodable kinematics frames", c.undecodable);
+        }
+        line
+    }
+}
+
 /// Runs the optimizer stage as the current process's stage.
 pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
-    let (method_name, mut method, physics) =
-        build(&stage, &OptimizerParams::from_params(ctx.params()))?;
+    let mut optimizer = Optimizer::new(&stage, &OptimizerParams::from_params(ctx.params()))?;
     let kin = ctx.input::<KinematicsFrame>("kin")?;
     let has_contacts = ctx.input_names().iter().any(|n| n == "contacts");
     let contacts_in = if has_contacts {
@@ -162,7 +340,7 @@ pub fn run() -> anyhow::Result<()> {
     } else {
         None
     };
-    if method_name == "pip" && contacts_in.is_none() {
+    if optimizer.method_name() == "pip" && contacts_in.is_none() {
         tracing::info!(
             stage,
             "no 'contacts' input: pip applies PIP's contact rule to its own state (as a contact \
@@ -174,88 +352,30 @@ pub fn run() -> anyhow::Result<()> {
     if !ctx.ready()? {
         return Ok(());
     }
-    let mut fk = imuflow_body::kinematics::FkData::new();
-    let mut estimate = MotionEstimate::default();
-    let mut counts = Counts::default();
-    let mut running = false;
     while let Some(step) = ctx.next()? {
-        let frame = ctx.get(&kin);
         let mut header = step.header();
-        counts.frames += 1;
-        let reference = match Reference::read(frame) {
-            Ok(r) => Some(r),
-            Err(why) => {
-                counts.undecodable += 1;
-                tracing::warn!(stage, seq = step.seq, "kinematics frame unusable: {why}");
-                None
-            }
-        };
-        let contacts = match &contacts_in {
-            Some(input) => match ContactSet::read(ctx.get(input)) {
-                Ok(c) => Some(c),
-                Err(why) => {
-                    tracing::warn!(stage, seq = step.seq, "contact frame unusable: {why}");
-                    header.flags |= flags::INVALID;
-                    None
-                }
-            },
-            None => None,
-        };
-        match reference {
-            Some(reference) if step.flags & flags::CALIBRATING == 0 => {
-                if !running {
-                    method.reset();
-                    running = true;
-                }
-                let report = method
-                    .step(&reference, contacts.as_ref(), &mut estimate)
-                    .with_context(|| format!("stage '{stage}': frame {}", step.seq))?;
-                if report.fallback {
-                    counts.fallbacks += 1;
-                    header.flags |= flags::INVALID;
-                    tracing::warn!(stage, seq = step.seq, "{method_name}: solver fallback used");
-                }
-            }
-            Some(reference) => {
-                // Still calibrating: show the reference pose standing on the floor.
-                running = false;
-                estimate = MotionEstimate {
-                    pose: reference.pose,
-                    ..MotionEstimate::default()
-                };
-                estimate.pose.root_in_world_m = nalgebra::Vector3::zeros();
-                place_on_floor(&physics, &mut estimate.pose, &FEET, &mut fk);
-                header.flags |= flags::INVALID;
-            }
-            None => header.flags |= flags::INVALID,
-        }
-        motion_out.publish(header, |out| estimate.write(out))?;
-        let used = method.contacts();
-        contacts_out.publish(header, |out| used.write(out))?;
+        let contacts = contacts_in.as_ref().map(|input| ctx.get(input));
+        header.flags = optimizer.step(step.seq, step.flags, ctx.get(&kin), contacts)?;
+        motion_out.publish(header, |out| optimizer.estimate().write(out))?;
+        contacts_out.publish(header, |out| optimizer.contacts().write(out))?;
     }
-    ctx.finish(&mut [&mut motion_out, &mut contacts_out])?;
+    let counts = optimizer.counts();
     tracing::info!(
         stage,
-        method = method_name,
+        method = optimizer.method_name(),
         frames = counts.frames,
-        fallbacks = counts.fallbacks,
+        degraded = counts.degraded,
         undecodable = counts.undecodable,
         "optimizer done"
     );
-    if counts.fallbacks > 0 {
-        eprintln!(
-            "{stage}: {method_name}: solver fallback in {} of {} frames",
-            counts.fallbacks, counts.frames
-        );
+    let line = optimizer.summary_line();
+    if counts.degraded > 0 {
+        eprintln!("{stage}: {line}");
     }
+    // The same line under `imuflow run`'s summary table.
+    ctx.set_summary_detail(line);
+    ctx.finish(&mut [&mut motion_out, &mut contacts_out])?;
     Ok(())
-}
-
-#[derive(Default)]
-struct Counts {
-    frames: u64,
-    fallbacks: u64,
-    undecodable: u64,
 }
 
 #[cfg(test)]

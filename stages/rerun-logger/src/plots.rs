@@ -72,7 +72,7 @@ impl Plots {
             self.invalid.insert(input.to_owned());
             (
                 format!(
-                    "frame {seq}: {input} flagged INVALID (calibrating, a sensor missing, or a fallback)"
+                    "frame {seq}: {input} flagged INVALID (calibrating, a sensor missing, or unusable input)"
                 ),
                 rerun::TextLogLevel::WARN,
             )

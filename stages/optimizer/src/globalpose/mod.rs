@@ -59,11 +59,12 @@
 //! # Fallback
 //!
 //! Never panics. When a solve fails (the normal matrix not positive definite) or produces non-finite
-//! values or a body faster than a human's (root 15 m/s, a joint 150 rad/s: a diverged step), the
-//! frame follows the reference pose kinematically at the previous root position with zero
-//! velocity, no contacts and zero forces, and the step reports `fallback = true`; the next frame
-//! continues from that state. A non-finite reference keeps the previous state unchanged (also
-//! `fallback = true`) and does not enter the velocity refinement.
+//! values or a body faster than a human's ([`crate::within_human_speeds`]: root 15 m/s, a joint
+//! 150 rad/s: a diverged step), the frame is the degraded estimate ([`crate::degraded`]: the
+//! reference pose, the root moved from its last position at the refined root velocity, kept above
+//! the floor), with no contacts and zero forces, and the step reports `fallback = true`; the next
+//! frame continues the physics from that state. A non-finite reference keeps the previous state
+//! unchanged (also `fallback = true`) and does not enter the velocity refinement.
 
 pub mod tracking;
 
@@ -80,10 +81,12 @@ use imuflow_contact::force::{
 use imuflow_contact::{ContactPoint, ContactSet};
 use nalgebra::{Vector3, Vector6};
 
+use crate::degraded::Degraded;
 use crate::estimate::{FEET, place_on_floor};
 use crate::integrate::{contact_joints_rel, refined_root_velocity, stationary_weight};
 use crate::{
     DT_S, Method, MotionEstimate, PhysicsBody, Reference, StepReport, Terrain, pull_to_floor,
+    within_human_speeds,
 };
 use tracking::{TrackingTerms, solve_tracking, square_skipping_zeros};
 
@@ -173,6 +176,8 @@ pub struct GlobalPose {
     previous_rel: Option<[Vector3<f64>; NUM_CONTACT_JOINTS]>,
     contacts: ContactSet,
     residuals: PassResiduals,
+    /// The estimate of frames the physics cannot solve.
+    degraded: Degraded,
 }
 
 impl GlobalPose {
@@ -208,6 +213,7 @@ impl GlobalPose {
             c.contact.force_regularization > 0.0,
             "globalpose: the contact force regularization must be > 0"
         );
+        let degraded = Degraded::new(physics.clone(), c.terrain);
         physics.geometry.clearance_m[JointId::PELVIS.index()] = c.pelvis_drop_m;
         let mut contact = config.contact.clone();
         contact.friction = config.friction;
@@ -229,6 +235,7 @@ impl GlobalPose {
             previous_rel: None,
             contacts: ContactSet::new(),
             residuals: PassResiduals::default(),
+            degraded,
         })
     }
 
@@ -248,18 +255,21 @@ impl GlobalPose {
         out.v = self.v;
     }
 
-    /// Follow `reference` kinematically at the previous root position (the documented fallback).
-    fn fall_back(&mut self, reference: &Reference, out: &mut MotionEstimate) -> StepReport {
+    /// The degraded estimate (the documented fallback), and the physics continues from it.
+    fn fall_back(
+        &mut self,
+        reference: &Reference,
+        out: &mut MotionEstimate,
+    ) -> anyhow::Result<StepReport> {
         let root = self.pose.root_in_world_m;
-        self.pose = reference.pose.clone();
-        self.pose.root_in_world_m = root;
-        self.v = DofVector::zeros();
+        self.degraded.estimate(reference, &root, out)?;
+        self.pose.clone_from(&out.pose);
+        self.v = out.v;
         self.estimator.reset();
         self.contacts.clear();
+        self.contacts.mask = out.contact_mask;
         self.residuals = PassResiduals::default();
-        *out = MotionEstimate::default();
-        self.write_state(out);
-        StepReport { fallback: true }
+        Ok(StepReport { fallback: true })
     }
 
     /// Steps 1–11 for a frame after the first. `None` when a solve failed or went non-finite (the
@@ -502,24 +512,6 @@ impl GlobalPose {
     }
 }
 
-/// Faster than a sprinter's pelvis (about 12 m/s at top speed) or a pitcher's shoulder (about
-/// 120 rad/s, the fastest human joint motion): a step that leaves the body moving so fast has
-/// diverged, and committing it lets the state run off to infinity within a few frames (seen on a
-/// bow with exact sensor signals, 2026-11-26: the root reached 1e39 m, past f32 on the wire).
-const MAX_ROOT_SPEED_MPS: f64 = 15.0;
-const MAX_JOINT_SPEED_RADPS: f64 = 150.0;
-
-/// Whether a generalized velocity is finite and within what a human body can do.
-fn within_human_speeds(v: &DofVector) -> bool {
-    let root = v.fixed_rows::<3>(0).norm();
-    let fastest_joint = JointId::all()
-        .map(|j| v.fixed_rows::<3>(joint_dof(j)).norm())
-        .fold(0.0, f64::max);
-    v.iter().all(|x| x.is_finite())
-        && root <= MAX_ROOT_SPEED_MPS
-        && fastest_joint <= MAX_JOINT_SPEED_RADPS
-}
-
 /// Whether every value the method reads from `reference` is finite.
 fn reference_is_finite(reference: &Reference) -> bool {
     reference
@@ -544,6 +536,7 @@ impl Method for GlobalPose {
         self.contacts.clear();
         self.residuals = PassResiduals::default();
         self.v = DofVector::zeros();
+        self.degraded.reset();
     }
 
     fn step(
@@ -568,8 +561,10 @@ impl Method for GlobalPose {
             self.v = DofVector::zeros();
             self.estimator.reset();
             self.contacts.clear();
+            self.degraded.reset();
             *out = MotionEstimate::default();
             self.write_state(out);
+            self.degraded.follow(reference);
             return Ok(StepReport::default());
         };
         let root_velocity = refined_root_velocity(
@@ -578,14 +573,16 @@ impl Method for GlobalPose {
             &reference.stationary_prob,
             &reference.root_velocity_mps,
         );
-        if self
+        let report = if self
             .physics_step(reference, &rel, &root_velocity, out)
             .is_some()
         {
-            Ok(StepReport::default())
+            StepReport::default()
         } else {
-            Ok(self.fall_back(reference, out))
-        }
+            self.fall_back(reference, out)?
+        };
+        self.degraded.follow(reference);
+        Ok(report)
     }
 }
 

@@ -1,4 +1,5 @@
 use super::*;
+use crate::MAX_ROOT_SPEED_MPS;
 use imuflow_body::NUM_JOINTS;
 use nalgebra::Rotation3;
 

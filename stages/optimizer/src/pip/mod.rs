@@ -70,10 +70,36 @@
 //!   positive definite (zero torque or force weights, where λ or v̇ need not be unique) and by the
 //!   tests as the reference (same optimum to ~1e-7 relative). Either way `τ` is finally computed from
 //!   the equation of motion with the solved `v̇` and `λ`, so the output satisfies it to rounding.
-//! - **Fallback** (PIP live demo, reference §5.2 "Solver"): when the QP fails (not solved, non-finite
-//!   data or solution, `‖x‖ > 1e4`), re-solve without the inequalities; when that fails too, follow the
-//!   reference pose kinematically (keep the root position, zero velocity). Both set
-//!   `StepReport::fallback`.
+//! - **Failure and fallback.** A step fails when the QP is not solved, its data or solution is not
+//!   finite, `‖x‖ > 1e5` ([`PipConfig::fallback_norm`]; PNP's threshold, reference §5.3, where
+//!   PIP's code has 1e4), or the integrated state is faster than a human
+//!   ([`crate::within_human_speeds`], the divergence guard GlobalPose has). The frame is then the
+//!   degraded estimate ([`crate::degraded`]) and the physics continues from it
+//!   (`StepReport::fallback`). PIP's live demo re-solves without the inequalities (reference §5.2
+//!   "Solver"), and where that failed too imuflow followed the reference at the last root
+//!   position at rest; see "Why not PIP's fallback" below.
+//!
+//! # Why not PIP's fallback
+//!
+//! A synthesized standing back flip (1 s of flight, tucked, upside down; `tests/athletics.rs`) with
+//! perfect network outputs failed in 83 of 183 frames, from the top of the flight to the end,
+//! and never recovered. Three things made it:
+//!
+//! 1. **`‖x‖ > 1e4` rejects landings.** `x` holds forces (N) and torques (N·m) of a 70 kg body
+//!    (PIP's URDF weighs 40 kg, reference §5.1), and the velocity bounds stop a contact within one
+//!    frame: stopping 70 kg at 3 m/s in 1/60 s takes 12.6 kN. The first rejected solve was the
+//!    body landing on its head and shoulders: contact forces 5.6 kN, root force 11 kN,
+//!    ‖x‖ = 1.3e4. With 1e5 (PNP's value) the same clip solves every frame.
+//! 2. **The re-solve without inequalities drops the floor.** Nothing stops a body from falling
+//!    through it; the flip's body sank to 1.4 m below the floor within 15 frames.
+//! 3. **A state in the floor does not get out.** PIP's contact rows keep penetrating bodies from
+//!    going deeper (`v⁺_y ≥ 0`), not out; the feet's rows ask for the whole depth within one frame
+//!    (`th_y = −height/dt`: 85 m/s at 1.4 m), which needs a solution of ‖x‖ ≈ 6e4, rejected
+//!    again; the re-solve sank further. Following the reference "at the last root position"
+//!    put an upside-down pose at a standing root height into the floor as well.
+//!
+//! The degraded estimate is kept above the floor and moves with the networks' root velocity, so
+//! the physics restarts from a state it can solve.
 //! - **First frame**: the reference pose placed on the floor (PIP: the network pose with zero
 //!   translation, on its own floor), zero velocity.
 //! - PIP's disabled cost terms (acceleration matching `coeff_acc`, plain λ size, position PD variant)
@@ -93,8 +119,11 @@ use imuflow_contact::pip::{PipContactConfig, pip_contacts};
 use imuflow_graph::params::Param;
 use nalgebra::Vector3;
 
+use crate::degraded::Degraded;
 use crate::estimate::{FEET, place_on_floor};
-use crate::{DT_S, Method, MotionEstimate, PhysicsBody, Reference, StepReport};
+use crate::{
+    DT_S, Method, MotionEstimate, PhysicsBody, Reference, StepReport, Terrain, within_human_speeds,
+};
 
 pub use qp::SolveStats;
 
@@ -140,7 +169,8 @@ pub struct PipConfig {
     pub contact_body_slide_mps: f64,
     /// Upward velocity bound of non-foot contact bodies (m/s; 100, reference §5.2(a)).
     pub contact_body_rise_mps: f64,
-    /// A solution with `‖x‖` above this counts as failed (PIP 1e4; PNP 1e5, reference §5.2/§5.3).
+    /// A solution with `‖x‖` above this counts as failed (1e5: PNP's, reference §5.3; PIP's code
+    /// has 1e4, reference §5.2, which the forces of a 70 kg body landing exceed: module docs).
     pub fallback_norm: f64,
     /// PIP's contact rule, used when a step gets no contact set (reference §5.2 "Contact set").
     pub contact: PipContactConfig,
@@ -183,7 +213,7 @@ impl Default for PipConfig {
             foot_lock_probability: 0.85,
             contact_body_slide_mps: 0.1,
             contact_body_rise_mps: 100.0,
-            fallback_norm: 1e4,
+            fallback_norm: 1e5,
             contact: PipContactConfig::default(),
             solver_tolerance: 1e-7,
             solver_max_iterations: 50,
@@ -221,6 +251,8 @@ pub struct Pip {
     contacts: ContactSet,
     qp: qp::Qp,
     last: Option<SolveStats>,
+    /// The estimate of frames the QP cannot solve (flat floor, as PIP's QP has).
+    degraded: Degraded,
 }
 
 impl Pip {
@@ -256,6 +288,7 @@ impl Pip {
             "pip: solver tolerance and iterations must be > 0"
         );
         Ok(Pip {
+            degraded: Degraded::new(physics.clone(), Terrain::Flat),
             physics,
             config,
             data: DynamicsData::new(),
@@ -286,20 +319,96 @@ impl Pip {
         self.started = true;
     }
 
-    /// The solver's statistics of the last step's solves (None before the first QP).
+    /// The solver's statistics of the last step's solve (None before the first QP).
     pub fn last_solve(&self) -> Option<SolveStats> {
         self.last
     }
 
-    /// Kinematic fallback: the reference rotations at the current root position, at rest.
-    fn follow_reference(&mut self, reference: &Reference) {
+    /// The current state with `tau` and the contacts' forces into `out`.
+    fn write(&self, tau: DofVector, out: &mut MotionEstimate) {
+        *out = MotionEstimate {
+            pose: self.pose.clone(),
+            v: self.v,
+            tau,
+            ground_reaction_force_n: self.contacts.joint_forces(),
+            contact_mask: self.contacts.mask,
+            surface_height_m: self.contacts.surface_height_m,
+            residual_root_force_n: Vector3::new(tau[0], tau[1], tau[2]),
+        };
+    }
+
+    /// The frame could not be solved: publish the degraded estimate and continue from it.
+    fn degrade(&mut self, reference: &Reference, out: &mut MotionEstimate) -> anyhow::Result<()> {
         let root = self.pose.root_in_world_m;
-        self.pose = reference.pose.clone();
-        self.pose.root_in_world_m = root;
-        self.v = DofVector::zeros();
-        for p in self.contacts.points_mut() {
-            p.force = Vector3::zeros();
+        self.degraded.estimate(reference, &root, out)?;
+        if !out.pose.is_finite() || !out.v.iter().all(|x| x.is_finite()) {
+            // Only a non-finite reference gets here: keep the state.
+            for p in self.contacts.points_mut() {
+                p.force = Vector3::zeros();
+            }
+            self.write(DofVector::zeros(), out);
+            return Ok(());
         }
+        self.pose.clone_from(&out.pose);
+        self.v = out.v;
+        self.contacts.clear();
+        self.contacts.mask = out.contact_mask;
+        Ok(())
+    }
+
+    /// One QP step from the current state; `None` (the state untouched) when it failed.
+    fn physics_step(
+        &mut self,
+        reference: &Reference,
+        contacts: Option<&ContactSet>,
+    ) -> Option<DofVector> {
+        self.data
+            .set_state(&self.physics.model, &self.pose, &self.v);
+        match contacts {
+            Some(c) => {
+                self.contacts.clone_from(c);
+                for p in self.contacts.points_mut() {
+                    p.force = Vector3::zeros();
+                }
+            }
+            None => {
+                pip_contacts(
+                    &self.data.fk().joint_in_world_m,
+                    reference.foot_contact_prob,
+                    &self.physics.geometry,
+                    &self.config.contact,
+                    &mut self.contacts,
+                );
+            }
+        }
+        let mut stats = SolveStats::default();
+        let solved = self.qp.solve(
+            &self.physics,
+            &self.config,
+            &mut self.data,
+            &self.pose,
+            reference,
+            &self.contacts,
+            true,
+            &mut stats,
+        );
+        self.last = Some(stats);
+        let sol = solved?;
+        let (mut pose, mut v) = (self.pose.clone(), self.v);
+        integrate_semi_implicit_euler(&mut pose, &mut v, &sol.acceleration, self.config.dt);
+        if !pose.is_finite() || !within_human_speeds(&v) {
+            return None;
+        }
+        let tau = sol.tau;
+        for (p, f) in self.contacts.points_mut().iter_mut().zip(&sol.forces) {
+            p.force = *f;
+        }
+        // Residual root wrench in M: force as is, the root torque from the pelvis frame.
+        let torque = self.pose.parent_from_joint[0] * Vector3::new(tau[3], tau[4], tau[5]);
+        self.contacts.residual_root_wrench = [tau[0], tau[1], tau[2], torque.x, torque.y, torque.z];
+        self.pose = pose;
+        self.v = v;
+        Some(tau)
     }
 }
 
@@ -314,6 +423,7 @@ impl Method for Pip {
         self.v = DofVector::zeros();
         self.contacts.clear();
         self.last = None;
+        self.degraded.reset();
     }
 
     fn step(
@@ -323,111 +433,30 @@ impl Method for Pip {
         out: &mut MotionEstimate,
     ) -> anyhow::Result<StepReport> {
         let mut report = StepReport::default();
-        let mut tau = DofVector::zeros();
         if !self.started {
             self.pose = reference.pose.clone();
             self.pose.root_in_world_m = Vector3::zeros();
             place_on_floor(&self.physics, &mut self.pose, &FEET, &mut self.fk);
             self.v = DofVector::zeros();
             self.contacts.clear();
+            self.degraded.reset();
             self.started = self.pose.is_finite();
             if !self.started {
                 report.fallback = true;
                 self.pose =
                     Pose::t_pose(Vector3::new(0.0, self.physics.body.rest_root_height_m, 0.0));
             }
+            self.write(DofVector::zeros(), out);
         } else {
-            self.data
-                .set_state(&self.physics.model, &self.pose, &self.v);
-            match contacts {
-                Some(c) => {
-                    self.contacts.clone_from(c);
-                    for p in self.contacts.points_mut() {
-                        p.force = Vector3::zeros();
-                    }
-                }
-                None => {
-                    pip_contacts(
-                        &self.data.fk().joint_in_world_m,
-                        reference.foot_contact_prob,
-                        &self.physics.geometry,
-                        &self.config.contact,
-                        &mut self.contacts,
-                    );
-                }
-            }
-            let mut stats = SolveStats::default();
-            let mut solved = self.qp.solve(
-                &self.physics,
-                &self.config,
-                &mut self.data,
-                &self.pose,
-                reference,
-                &self.contacts,
-                true,
-                &mut stats,
-            );
-            if solved.is_none() {
-                report.fallback = true;
-                solved = self.qp.solve(
-                    &self.physics,
-                    &self.config,
-                    &mut self.data,
-                    &self.pose,
-                    reference,
-                    &self.contacts,
-                    false,
-                    &mut stats,
-                );
-            }
-            self.last = Some(stats);
-            match solved {
-                Some(sol) => {
-                    let (pose0, v0) = (self.pose.clone(), self.v);
-                    integrate_semi_implicit_euler(
-                        &mut self.pose,
-                        &mut self.v,
-                        &sol.acceleration,
-                        self.config.dt,
-                    );
-                    if self.pose.is_finite() && self.v.iter().all(|x| x.is_finite()) {
-                        tau = sol.tau;
-                        for (p, f) in self.contacts.points_mut().iter_mut().zip(&sol.forces) {
-                            p.force = *f;
-                        }
-                        // Residual root wrench in M: force as is, the root torque from the pelvis frame.
-                        let torque =
-                            pose0.parent_from_joint[0] * Vector3::new(tau[3], tau[4], tau[5]);
-                        self.contacts.residual_root_wrench =
-                            [tau[0], tau[1], tau[2], torque.x, torque.y, torque.z];
-                    } else {
-                        report.fallback = true;
-                        self.pose = pose0;
-                        self.v = v0;
-                        self.follow_reference(reference);
-                    }
-                }
+            match self.physics_step(reference, contacts) {
+                Some(tau) => self.write(tau, out),
                 None => {
                     report.fallback = true;
-                    self.follow_reference(reference);
+                    self.degrade(reference, out)?;
                 }
             }
-            if !self.pose.is_finite() {
-                // Only a non-finite reference gets here: keep a usable state.
-                self.pose =
-                    Pose::t_pose(Vector3::new(0.0, self.physics.body.rest_root_height_m, 0.0));
-                self.v = DofVector::zeros();
-            }
         }
-        *out = MotionEstimate {
-            pose: self.pose.clone(),
-            v: self.v,
-            tau,
-            ground_reaction_force_n: self.contacts.joint_forces(),
-            contact_mask: self.contacts.mask,
-            surface_height_m: self.contacts.surface_height_m,
-            residual_root_force_n: Vector3::new(tau[0], tau[1], tau[2]),
-        };
+        self.degraded.follow(reference);
         Ok(report)
     }
 }

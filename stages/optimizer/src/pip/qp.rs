@@ -47,11 +47,9 @@ use crate::cholesky::{ColumnCholesky, add_four_columns};
 use crate::wide::with_avx2;
 use crate::{PhysicsBody, Reference};
 
-/// What the solver reported for one step (the last solve when there was a re-solve).
+/// What the solver reported for one step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SolveStats {
-    /// Solves this step (2 when the unconstrained re-solve ran).
-    pub solves: u32,
     /// The interior-point iterations of the last solve (0 when it had no inequality rows, which
     /// the reduced formulation solves in closed form).
     pub iterations: u32,
@@ -135,7 +133,8 @@ impl Qp {
     }
 
     /// Build and solve the QP at the state stored in `data` (`set_state` done with `pose`). `inequalities`: false
-    /// drops the friction and velocity rows (the fallback re-solve). `None` when the solve failed.
+    /// drops the friction and velocity rows (the tests compare the formulations without them too).
+    /// `None` when the solve failed.
     #[allow(clippy::too_many_arguments)]
     pub fn solve(
         &mut self,
@@ -188,7 +187,6 @@ impl Qp {
             return None;
         }
         let start = Instant::now();
-        stats.solves += 1;
         let z = match formulation {
             Formulation::Reduced => match self.solve_reduced(config) {
                 Reduced::Solved(z, iterations) => {

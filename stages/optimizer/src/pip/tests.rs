@@ -234,9 +234,9 @@ fn the_limb_bone_rows_bring_the_upper_limbs_to_their_world_orientation() {
 }
 
 #[test]
-fn solver_failures_fall_back_instead_of_panicking() {
-    // Every solution is "too large": both the QP and the unconstrained re-solve fail, so the step
-    // follows the reference kinematically at the current root position, at rest.
+fn solver_failures_publish_the_degraded_estimate_and_the_physics_continues_from_it() {
+    // Every solution is "too large", so every step is the degraded estimate: the reference's
+    // rotations, the root moved from where the physics stood by the network's root velocity.
     let mut m = pip(PipConfig {
         fallback_norm: 1.0,
         ..PipConfig::default()
@@ -246,13 +246,33 @@ fn solver_failures_fall_back_instead_of_panicking() {
     let mut r = standing_reference([0.9, 0.9]);
     r.pose.parent_from_joint[JointId::RIGHT_ELBOW.index()] =
         Rotation3::new(Vector3::new(0.0, 0.7, 0.0));
+    r.root_velocity_mps = Vector3::new(0.6, 0.0, 0.0);
     let mut out = MotionEstimate::default();
     let report = m.step(&r, None, &mut out).unwrap();
     assert!(report.fallback);
-    assert_eq!(m.last_solve().unwrap().solves, 2);
-    assert_eq!(out.pose.root_in_world_m, start.root_in_world_m);
+    // No previous reference after `set_state`: this one stands for it, so Eq. 25 (no stationary
+    // joint) is the network's velocity: 0.6 m/s · dt along x. The joints rest.
+    let want = start.root_in_world_m + Vector3::new(0.6 * DT_S, 0.0, 0.0);
+    assert!((out.pose.root_in_world_m - want).norm() < 1e-12);
     assert_eq!(out.pose.parent_from_joint, r.pose.parent_from_joint);
-    assert_eq!(out.v, DofVector::zeros());
+    assert!((out.v.fixed_rows::<3>(0) - r.root_velocity_mps).norm() < 1e-12);
+    assert!(out.v.rows(3, NUM_DOFS - 3).iter().all(|&w| w == 0.0));
+    assert_eq!(out.tau, DofVector::zeros());
+    // The physics continues from that estimate.
+    assert_eq!(m.state().0, &out.pose);
+    assert_eq!(m.state().1, &out.v);
+    // A second failed frame moves on from the first: the elbow turns 0.3 rad more, the root
+    // another 0.6 m/s · dt.
+    let elbow = JointId::RIGHT_ELBOW;
+    r.pose.parent_from_joint[elbow.index()] = Rotation3::new(Vector3::new(0.0, 1.0, 0.0));
+    let first = out.pose.root_in_world_m;
+    assert!(m.step(&r, None, &mut out).unwrap().fallback);
+    let moved = out.pose.root_in_world_m - first;
+    assert!(
+        (moved - Vector3::new(0.6 * DT_S, 0.0, 0.0)).norm() < 1e-12,
+        "{moved}"
+    );
+    assert_eq!(out.pose.parent_from_joint, r.pose.parent_from_joint);
 
     // Non-finite network output: no panic, a flagged frame, a finite state.
     let mut m = pip(PipConfig::default());
