@@ -1,17 +1,17 @@
 //! `imuflow compare`: the command line of tools/compare (imuflow-compare), which does the work:
 //! variants on identical input in one run, then their scores side by side (docs/compare.md).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::Args;
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use imuflow_compare::batch::{self, BatchOptions};
+use imuflow_compare::clips::{DataSource, Exclusions, Selection};
 use imuflow_compare::run::{Input, RunError};
 use imuflow_compare::single::{self, Outcome, SingleError, SingleOptions};
 use imuflow_compare::{SensorErrors, SinkPaths, Variant, variants};
-use imuflow_dataset::Split;
 use imuflow_graph::launch::LaunchOptions;
 
 use crate::registry;
@@ -25,11 +25,18 @@ pub struct CompareArgs {
     /// Batch mode: every .bvh clip of a dataset split under DIR (the directory `imuflow dataset
     /// build --bvh-dir` reads, split the same way) through all variants; reports means over clips
     /// and paired differences with 95 % bootstrap intervals. Resumes an interrupted batch in --out.
+    /// Repeatable: several data sets side by side, each clip labelled by its folder's name, with
+    /// means per folder too.
     #[arg(long, value_name = "DIR", conflicts_with_all = ["input", "print_graph", "overlaid"])]
-    data: Option<PathBuf>,
-    /// Batch mode: which split of --data (holdout: the motion contents never trained on).
-    #[arg(long, default_value = "test", value_parser = ["train", "validation", "test", "holdout"], requires = "data")]
+    data: Vec<PathBuf>,
+    /// Batch mode: which split of --data (holdout: the motion contents never trained on; all:
+    /// every clip, for data that is not the training set's).
+    #[arg(long, default_value = "test", value_parser = Selection::NAMES, requires = "data")]
     split: String,
+    /// Batch mode: a list of clips to leave out, one per line (its file name or its path under
+    /// --data; `#` starts a comment), e.g. clips with no floor to stand on.
+    #[arg(long, value_name = "FILE", requires = "data")]
+    exclude: Option<PathBuf>,
     /// Batch mode: at most N clips, spread evenly over the split's sorted clips.
     #[arg(long, value_name = "N", requires = "data")]
     limit: Option<usize>,
@@ -44,9 +51,11 @@ pub struct CompareArgs {
     /// Default: the first variant's source (the bundled sample in configs/).
     #[arg(long, value_name = "FILE")]
     input: Option<PathBuf>,
-    /// With a .bvh --input or --data: the joint-mapping TOML of the skeleton (default: Bandai Namco).
+    /// With a .bvh --input or --data: the joint-mapping TOML of the skeleton (default: Bandai Namco;
+    /// libs/motion/mappings/ holds the built-in one and others). With several --data: once for all
+    /// folders, or once per folder in the order of --data.
     #[arg(long, value_name = "FILE")]
-    mapping: Option<PathBuf>,
+    mapping: Vec<PathBuf>,
     /// With a .bvh --input or --data: what the synthesized IMUs get wrong besides their random
     /// mounting. `reference`: GlobalPose's model (mounting residual and its walk, noise, bias
     /// walks, heading drift); `none`: exact signals, so the calibration's residual is the only
@@ -116,9 +125,14 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
         progress: !args.no_progress,
         forward_logs: !args.quiet,
     };
-    if let Some(data) = &args.data {
-        return batch(args, &name, &sources, data, &variants, &registry, launch);
+    if !args.data.is_empty() {
+        return batch(args, &name, &sources, &variants, &registry, launch);
     }
+    let mapping = match args.mapping.as_slice() {
+        [] => None,
+        [one] => Some(one.clone()),
+        _ => anyhow::bail!("--mapping is given more than once: one --input has one skeleton"),
+    };
     let options = SingleOptions {
         out: args
             .out
@@ -127,7 +141,7 @@ fn compare(args: &CompareArgs) -> anyhow::Result<ExitCode> {
         name,
         input: args.input.as_ref().map(|path| Input {
             path: path.clone(),
-            mapping: args.mapping.clone(),
+            mapping: mapping.clone(),
             sensor_errors: args.sensor_errors,
             source_set: args.source_set.clone(),
         }),
@@ -178,15 +192,16 @@ fn batch(
     args: &CompareArgs,
     name: &str,
     sources: &[imuflow_compare::combine::AblationVariant],
-    data: &Path,
     variants: &[Variant],
     registry: &imuflow_graph::spec::Registry,
     launch: LaunchOptions,
 ) -> anyhow::Result<ExitCode> {
-    let split = Split::ALL
-        .into_iter()
-        .find(|s| s.name() == args.split)
-        .context("--split")?;
+    let split = Selection::parse(&args.split).context("--split")?;
+    let data = DataSource::from_args(&args.data, &args.mapping)?;
+    let exclusions = match &args.exclude {
+        Some(file) => Exclusions::read(file)?,
+        None => Exclusions::default(),
+    };
     // Refuse incomparable variants before the first clip, as a single comparison does.
     let probe = SinkPaths {
         mcap: String::new(),
@@ -202,10 +217,10 @@ fn batch(
             .out
             .clone()
             .unwrap_or_else(|| PathBuf::from(format!("out/{name}-{split}"))),
-        data: data.to_owned(),
-        split,
+        sources: data,
+        selection: split,
+        exclusions,
         limit: args.limit,
-        mapping: args.mapping.clone(),
         sensor_errors: args.sensor_errors,
         source_set: args.source_set.clone(),
         imuflow_exe: launch.imuflow_exe,
@@ -214,7 +229,7 @@ fn batch(
         fresh: args.fresh,
         fingerprint: batch::fingerprint(
             sources,
-            args.mapping.as_deref(),
+            &args.mapping,
             args.sensor_errors,
             &args.source_set,
         )?,

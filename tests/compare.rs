@@ -204,25 +204,11 @@ fn names_in_split(n: usize, split: imuflow_dataset::Split) -> Vec<String> {
         .collect()
 }
 
-#[test]
-fn batch_mode_scores_every_clip_pairs_the_variants_and_resumes() {
-    let sb = Sandbox::new("compare-batch");
+/// Two variants of the same user stage, once with its left knee bent 90°: worse on every clip by
+/// construction.
+fn straight_and_bent(sb: &Sandbox) -> (std::path::PathBuf, std::path::PathBuf) {
     let root = env!("CARGO_MANIFEST_DIR");
     let counter = example_exe("external_counter");
-    // Five clips of the test split (a real Bandai walk, enough clips for an interval) and one
-    // malformed clip in it.
-    let data = sb.path("clips");
-    std::fs::create_dir_all(&data).expect("clips dir");
-    let names = names_in_split(6, imuflow_dataset::Split::Test);
-    let walk = format!("{root}/libs/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
-    for name in &names[..5] {
-        std::fs::copy(&walk, data.join(name)).expect("copy clip");
-    }
-    let broken = &names[5];
-    std::fs::write(data.join(broken), "HIERARCHY\nROOT broken {\n").expect("write clip");
-    // A training clip the test split must not pick up.
-    let train = names_in_split(1, imuflow_dataset::Split::Train);
-    std::fs::write(data.join(&train[0]), "not read").expect("write clip");
     let variant = |name: &str, args: &str| {
         sb.graph(
             &format!("{name}.toml"),
@@ -246,9 +232,31 @@ params = {{ path = "{{dir}}/{name}.mcap" }}
             ),
         )
     };
-    // The same user stage, once with its left knee bent 90°: worse on every clip by construction.
-    let straight = variant("straight", "[]");
-    let bent = variant("bent", r#"["--bend-knee-deg", "90"]"#);
+    (
+        variant("straight", "[]"),
+        variant("bent", r#"["--bend-knee-deg", "90"]"#),
+    )
+}
+
+#[test]
+fn batch_mode_scores_every_clip_pairs_the_variants_and_resumes() {
+    let sb = Sandbox::new("compare-batch");
+    let root = env!("CARGO_MANIFEST_DIR");
+    // Five clips of the test split (a real Bandai walk, enough clips for an interval) and one
+    // malformed clip in it.
+    let data = sb.path("clips");
+    std::fs::create_dir_all(&data).expect("clips dir");
+    let names = names_in_split(6, imuflow_dataset::Split::Test);
+    let walk = format!("{root}/libs/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh");
+    for name in &names[..5] {
+        std::fs::copy(&walk, data.join(name)).expect("copy clip");
+    }
+    let broken = &names[5];
+    std::fs::write(data.join(broken), "HIERARCHY\nROOT broken {\n").expect("write clip");
+    // A training clip the test split must not pick up.
+    let train = names_in_split(1, imuflow_dataset::Split::Train);
+    std::fs::write(data.join(&train[0]), "not read").expect("write clip");
+    let (straight, bent) = straight_and_bent(&sb);
     let out_dir = sb.path("batch");
     let args = [
         "compare",
@@ -331,6 +339,160 @@ params = {{ path = "{{dir}}/{name}.mcap" }}
     assert!(!refused.status.success());
     assert!(
         text(&refused.stderr).contains("holds the results of another comparison"),
+        "{}",
+        text(&refused.stderr)
+    );
+    let left = sb.leftovers();
+    assert!(left.is_empty(), "{left:?}");
+}
+
+#[test]
+fn a_batch_mixes_data_sets_each_with_its_mapping_and_reports_each_on_its_own() {
+    let sb = Sandbox::new("compare-sources");
+    let root = env!("CARGO_MANIFEST_DIR");
+    let fixtures = format!("{root}/libs/motion/tests/fixtures");
+    // "home": Bandai walks named into the training split, which `--split all` runs all the same.
+    let home = sb.path("home");
+    std::fs::create_dir_all(&home).expect("home dir");
+    let names = names_in_split(2, imuflow_dataset::Split::Train);
+    for name in &names {
+        std::fs::copy(
+            format!("{fixtures}/bandai-walk-normal-trimmed.bvh"),
+            home.join(name),
+        )
+        .expect("copy clip");
+    }
+    // "away": another rig (the CMU / iClone walk) under a subfolder, and a clip the exclusion list
+    // leaves out (unreadable, so running it would fail the clip).
+    let away = sb.path("data/away");
+    std::fs::create_dir_all(away.join("bvh")).expect("away dir");
+    let cmu = format!("{fixtures}/cmu-007-03-walk-trimmed.bvh");
+    std::fs::copy(&cmu, away.join("bvh/007_03.bvh")).expect("copy clip");
+    std::fs::copy(&cmu, away.join("bvh/007_03b.bvh")).expect("copy clip");
+    std::fs::write(away.join("bvh/001_08.bvh"), "climbing").expect("write clip");
+    let exclude = sb.path("exclude.txt");
+    std::fs::write(&exclude, "# no floor\n001_08.bvh  # climbing\n").expect("exclude list");
+
+    let (straight, bent) = straight_and_bent(&sb);
+    let out_dir = sb.path("batch");
+    let arg = |p: &std::path::Path| p.to_str().expect("utf8").to_owned();
+    let bandai_map = format!("{root}/libs/motion/mappings/bandai-namco.toml");
+    let cmu_map = format!("{root}/libs/motion/mappings/cmu-iclone.toml");
+    let mut args: Vec<String> = vec!["compare".into(), arg(&straight), arg(&bent)];
+    for (data, mapping) in [(arg(&home), &bandai_map), (arg(&away), &cmu_map)] {
+        args.extend(["--data".into(), data, "--mapping".into(), mapping.clone()]);
+    }
+    args.extend(
+        [
+            "--split",
+            "all",
+            "--exclude",
+            &arg(&exclude),
+            "--out",
+            &arg(&out_dir),
+            "--no-progress",
+        ]
+        .map(String::from),
+    );
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let out = sb.run_within(&args, 180);
+    let stderr = text(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        text(&out.stdout).contains("4 clips scored, 0 not scored"),
+        "{}\n{stderr}",
+        text(&out.stdout)
+    );
+
+    let results: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out_dir.join("results.json")).expect("results.json"),
+    )
+    .expect("results.json is JSON");
+    assert_eq!(results["split"], "all");
+    assert_eq!(results["clips_excluded"][0], "away/bvh/001_08.bvh");
+    let mean_of = |metrics: &serde_json::Value, k: usize| {
+        metrics
+            .as_array()
+            .expect("metrics")
+            .iter()
+            .find(|m| m["metric"] == "joint position error")
+            .expect("joint position error")["stats"][k]["mean"]
+            .as_f64()
+            .expect("mean")
+    };
+    let sources = results["sources"].as_array().expect("sources");
+    assert_eq!(sources.len(), 2);
+    assert_eq!(
+        (&sources[0]["name"], &sources[1]["name"]),
+        (&"home".into(), &"away".into())
+    );
+    assert_eq!(sources[1]["mapping"], cmu_map.as_str());
+    assert_eq!(
+        (&sources[0]["clips_scored"], &sources[1]["clips_scored"]),
+        (&2.into(), &2.into())
+    );
+    // The pooled mean is the clip-weighted mean of the two data sets' means, for each variant, and
+    // the bent knee costs on both rigs.
+    for k in 0..2 {
+        let (h, a) = (
+            mean_of(&sources[0]["metrics"], k),
+            mean_of(&sources[1]["metrics"], k),
+        );
+        let pooled = mean_of(&results["metrics"], k);
+        assert!(
+            (pooled - (2.0 * h + 2.0 * a) / 4.0).abs() < 1e-9,
+            "{pooled} {h} {a}"
+        );
+    }
+    for source in sources {
+        assert!(mean_of(&source["metrics"], 1) > mean_of(&source["metrics"], 0) + 1.0);
+    }
+    let log = std::fs::read_to_string(out_dir.join("clips.jsonl")).expect("clips.jsonl");
+    let clips: Vec<serde_json::Value> = log
+        .lines()
+        .skip(1)
+        .map(|l| serde_json::from_str(l).expect("clip record"))
+        .collect();
+    let labelled: Vec<(&str, &str)> = clips
+        .iter()
+        .map(|c| {
+            (
+                c["source"].as_str().expect("source"),
+                c["clip"].as_str().expect("clip"),
+            )
+        })
+        .collect();
+    assert!(
+        labelled.contains(&("home", &format!("home/{}", names[0]))),
+        "{labelled:?}"
+    );
+    assert!(
+        labelled.contains(&("away", "away/bvh/007_03b.bvh")),
+        "{labelled:?}"
+    );
+    let report = std::fs::read_to_string(out_dir.join("report.md")).expect("report.md");
+    assert!(report.contains("on every clip"), "{report}");
+    assert!(
+        report.contains("| source | metric | straight | bent | clips |"),
+        "{report}"
+    );
+    assert!(
+        report.contains("| home | joint position error (cm) |"),
+        "{report}"
+    );
+    assert!(
+        report.contains("| away | joint position error (cm) |"),
+        "{report}"
+    );
+    assert!(report.contains("- `away/bvh/001_08.bvh`"), "{report}");
+
+    // Three mappings for two folders: refused before anything runs.
+    let mut wrong = args.clone();
+    wrong.extend(["--mapping", &cmu_map]);
+    let refused = sb.run(&wrong);
+    assert!(!refused.status.success());
+    assert!(
+        text(&refused.stderr).contains("3 --mapping files for 2 --data folders"),
         "{}",
         text(&refused.stderr)
     );

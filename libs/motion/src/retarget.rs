@@ -15,6 +15,11 @@
 //! frames are rolled or mirrored relative to the T-pose (Bandai Namco's are) need those twists; positions
 //! do not depend on them, local rotations and IMU orientations do. [`estimate_twists_deg`] measures them
 //! from a clip of ordinary motion, once per source skeleton.
+//!
+//! Bone directions are a poor guide where the source's bones do not run where the body model's do (an
+//! iClone spine's short joints zigzag, so each spine bone copied by direction bends ours): the mapping's
+//! `[rest_deg]` table turns such a joint's rest alignment further, Q_i = F_i·Rot(d_i, twist_i)·C_i, by the
+//! rotation that makes the source's T-pose the body model's identity there.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -25,7 +30,7 @@ use serde::Deserialize;
 use crate::bvh::{Bvh, BvhJoint, Channel};
 use imuflow_body::body_model::BodyModel;
 use imuflow_body::kinematics::{FkData, Pose, forward_kinematics, global_to_local_rotations};
-use imuflow_body::rotation::{euler_xyz_from_rotation, from_to, slerp};
+use imuflow_body::rotation::{euler_xyz_from_rotation, from_to, rotation_from_axis_angle, slerp};
 use imuflow_body::skeleton::{JointId, NUM_JOINTS};
 
 /// Length unit of a source file.
@@ -87,6 +92,16 @@ pub struct SourceSkeleton {
     /// Extra rotation (degrees) about each target bone applied to the rest alignment, resolving the twist
     /// that bone directions alone leave open (see [`estimate_twists_deg`]). Missing joints: 0.
     pub twist_deg: BTreeMap<JointId, f64>,
+    /// Extra rotation of a target joint's rest alignment after its bone direction and twist, as a
+    /// rotation vector in degrees (body model axes at the T-pose), for rigs whose bones do not run where
+    /// the body model's do: a spine whose short joints zigzag would otherwise be copied bone by bone
+    /// into a bent spine. Turning a joint by its measured rest rotation makes the rig's T-pose the
+    /// body model's identity there. Joints not listed: no turn.
+    pub rest_deg: BTreeMap<JointId, Vector3<f64>>,
+    /// Frames dropped from the start of every clip before retargeting: a pose a converter prepended
+    /// (a T-pose) is not motion, and the jump from it to the first real frame would be synthesized
+    /// into impossible accelerations.
+    pub skip_frames: usize,
 }
 
 #[derive(Deserialize)]
@@ -99,6 +114,10 @@ struct MappingFile {
     joints: BTreeMap<toml::Spanned<String>, String>,
     #[serde(default)]
     twist_deg: BTreeMap<toml::Spanned<String>, f64>,
+    #[serde(default)]
+    rest_deg: BTreeMap<toml::Spanned<String>, [f64; 3]>,
+    #[serde(default)]
+    skip_frames: usize,
 }
 
 /// Failure to load a joint-mapping file.
@@ -131,6 +150,16 @@ pub enum MappingError {
         line: usize,
         joint: JointId,
         value: f64,
+    },
+    /// A `[rest_deg]` value with a component that is not a finite number of degrees.
+    #[error(
+        "joint mapping '{file}':{line}: rest_deg.{joint} must be three finite numbers of degrees (got {value:?})"
+    )]
+    InvalidRest {
+        file: String,
+        line: usize,
+        joint: JointId,
+        value: [f64; 3],
     },
 }
 
@@ -180,9 +209,13 @@ pub enum RetargetError {
     /// The source legs have zero length, so the translation scale is undefined.
     #[error("{file}: source leg length is zero; cannot scale the root translation")]
     DegenerateLegs { file: String },
-    /// The BVH has no frames.
-    #[error("{file}: no frames to retarget")]
-    NoFrames { file: String },
+    /// The BVH has no frames, or none left after the mapping's `skip_frames`.
+    #[error("{file}: no frames to retarget ({frames} in the file, the mapping skips {skipped})")]
+    NoFrames {
+        file: String,
+        frames: usize,
+        skipped: usize,
+    },
 }
 
 /// Built-in mapping of the Bandai Namco Research motion dataset skeleton (22 joints, ZXY rotations,
@@ -228,6 +261,19 @@ impl SourceSkeleton {
             }
             twist_deg.insert(target, deg);
         }
+        let mut rest_deg = BTreeMap::new();
+        for (key, deg) in raw.rest_deg {
+            let (target, line) = target_joint(key)?;
+            if !deg.iter().all(|d| d.is_finite()) {
+                return Err(MappingError::InvalidRest {
+                    file: file.to_owned(),
+                    line,
+                    joint: target,
+                    value: deg,
+                });
+            }
+            rest_deg.insert(target, Vector3::from(deg));
+        }
         Ok(SourceSkeleton {
             origin: file.to_owned(),
             unit: raw.unit,
@@ -235,6 +281,8 @@ impl SourceSkeleton {
             joints,
             ignore: raw.ignore,
             twist_deg,
+            rest_deg,
+            skip_frames: raw.skip_frames,
         })
     }
 
@@ -264,6 +312,8 @@ impl SourceSkeleton {
                 .collect(),
             ignore: Vec::new(),
             twist_deg: BTreeMap::new(),
+            rest_deg: BTreeMap::new(),
+            skip_frames: 0,
         }
     }
 }
@@ -306,8 +356,8 @@ pub struct RetargetOptions {
     pub floor: FloorAlignment,
 }
 
-/// Retarget every frame of `bvh` onto `body`'s skeleton through `source`'s mapping. The clip keeps the
-/// BVH's frame rate (see [`resample`]).
+/// Retarget every frame of `bvh` (but the mapping's first `skip_frames`) onto `body`'s skeleton through
+/// `source`'s mapping. The clip keeps the BVH's frame rate (see [`resample`]).
 pub fn retarget_bvh(
     bvh: &Bvh,
     source: &SourceSkeleton,
@@ -315,18 +365,14 @@ pub fn retarget_bvh(
     options: &RetargetOptions,
 ) -> Result<MotionClip, RetargetError> {
     let plan = Plan::new(bvh, source, body)?;
-    if bvh.num_frames() == 0 {
-        return Err(RetargetError::NoFrames {
-            file: bvh.file.clone(),
-        });
-    }
+    let frames = motion_frames(bvh, source)?;
     let n = bvh.joints.len();
     let mut rot = vec![Rotation3::identity(); n];
     let mut pos = vec![Vector3::zeros(); n];
     let mut world = [Rotation3::identity(); NUM_JOINTS];
-    let mut poses = Vec::with_capacity(bvh.num_frames());
+    let mut poses = Vec::with_capacity(frames.len());
     let a = plan.model_from_source;
-    for f in 0..bvh.num_frames() {
+    for f in frames {
         let Some(frame) = bvh.frame(f) else { break };
         bvh.global_transforms(frame, &mut rot, &mut pos);
         for j in JointId::all() {
@@ -353,6 +399,22 @@ pub fn retarget_bvh(
         }
     }
     Ok(clip)
+}
+
+/// The frames of `bvh` that hold motion: all but the mapping's first `skip_frames`, never none.
+fn motion_frames(
+    bvh: &Bvh,
+    source: &SourceSkeleton,
+) -> Result<std::ops::Range<usize>, RetargetError> {
+    let frames = bvh.num_frames();
+    if frames <= source.skip_frames {
+        return Err(RetargetError::NoFrames {
+            file: bvh.file.clone(),
+            frames,
+            skipped: source.skip_frames,
+        });
+    }
+    Ok(source.skip_frames..frames)
 }
 
 /// Median over frames of min(left foot, right foot) joint height (m).
@@ -386,7 +448,9 @@ struct Plan {
     /// For joints with their own bone direction: the shortest rotation F_i taking the target rest bone
     /// direction to the source's (in M), and the target bone axis.
     own_alignment: [Option<OwnAlignment>; NUM_JOINTS],
-    /// Q_i = F_i · twist_i (or inherited from the parent for joints without a direction).
+    /// The mapping's `[rest_deg]` rotations C_i (identity where it has none).
+    rest_turn: [Rotation3<f64>; NUM_JOINTS],
+    /// Q_i = F_i · twist_i · C_i (or the parent's Q · C_i for joints without a direction).
     rest_alignment: [Rotation3<f64>; NUM_JOINTS],
     root_source: usize,
     /// Source file units -> target metres, including the leg-length ratio.
@@ -490,7 +554,11 @@ impl Plan {
                 .unwrap_or(0.0)
                 .to_radians()
         };
-        let rest_alignment = alignments(&own_alignment, twist_rad);
+        let mut rest_turn = [Rotation3::identity(); NUM_JOINTS];
+        for (j, deg) in &source.rest_deg {
+            rest_turn[j.index()] = rotation_from_axis_angle(&deg.map(f64::to_radians));
+        }
+        let rest_alignment = alignments(&own_alignment, twist_rad, &rest_turn);
 
         let source_leg = (source_rest[s_knee] - source_rest[s_hip]).norm()
             + (source_rest[s_ankle] - source_rest[s_knee]).norm();
@@ -503,6 +571,7 @@ impl Plan {
             model_from_source: a,
             source_of,
             own_alignment,
+            rest_turn,
             rest_alignment,
             root_source,
             translation_scale: u * body.leg_length_m() / source_leg,
@@ -510,18 +579,21 @@ impl Plan {
     }
 }
 
-/// Q_i = F_i · Rot(axis_i, twist_i) for joints with their own direction, else the parent's Q.
+/// Q_i = F_i · Rot(axis_i, twist_i) · C_i for joints with their own direction, else the parent's
+/// Q · C_i.
 fn alignments(
     own: &[Option<OwnAlignment>; NUM_JOINTS],
     twist_rad: impl Fn(JointId) -> f64,
+    rest_turn: &[Rotation3<f64>; NUM_JOINTS],
 ) -> [Rotation3<f64>; NUM_JOINTS] {
     let mut q = [Rotation3::identity(); NUM_JOINTS];
     for j in JointId::all() {
         let i = j.index();
-        q[i] = match &own[i] {
+        let base = match &own[i] {
             Some((f, axis)) => f * Rotation3::from_axis_angle(axis, twist_rad(j)),
             None => j.parent().map_or(Rotation3::identity(), |p| q[p.index()]),
         };
+        q[i] = base * rest_turn[i];
     }
     q
 }
@@ -529,7 +601,8 @@ fn alignments(
 /// Estimate, for every non-root joint with a bone direction, the twist (degrees) about the target bone
 /// that makes the retargeted local rotations of `bvh` closest to identity on average (maximizes
 /// Σ_frames trace(R_local), closed form `θ = atan2(Σ tr(M·[d]×), Σ (tr M − dᵀMd))` for M the local rotation
-/// without twist and d the bone axis), joint by joint from the root down. Ignores `source.twist_deg`.
+/// without twist and d the bone axis; with the mapping's rest rotation C, M is C times it), joint by joint
+/// from the root down. Ignores `source.twist_deg`; keeps `source.rest_deg`.
 ///
 /// Meant for building a mapping file once per source skeleton from a clip of ordinary motion (walking),
 /// not for per-clip use: skeletons with mirrored or rolled joint frames show twists near multiples of 90°.
@@ -546,8 +619,9 @@ pub fn estimate_twists_deg(
     let mut rot = vec![Rotation3::identity(); n];
     let mut pos = vec![Vector3::zeros(); n];
     // Source global rotations in M for the mapped joints, per frame.
-    let mut source_world: Vec<[Rotation3<f64>; NUM_JOINTS]> = Vec::with_capacity(bvh.num_frames());
-    for f in 0..bvh.num_frames() {
+    let frames = motion_frames(bvh, source)?;
+    let mut source_world: Vec<[Rotation3<f64>; NUM_JOINTS]> = Vec::with_capacity(frames.len());
+    for f in frames {
         let Some(frame) = bvh.frame(f) else { break };
         bvh.global_transforms(frame, &mut rot, &mut pos);
         let mut g = [Rotation3::identity(); NUM_JOINTS];
@@ -565,7 +639,7 @@ pub fn estimate_twists_deg(
         let (Some((f, axis)), Some(parent)) = (&plan.own_alignment[j.index()], j.parent()) else {
             continue;
         };
-        let q = alignments(&plan.own_alignment, |k| twists[k.index()]);
+        let q = alignments(&plan.own_alignment, |k| twists[k.index()], &plan.rest_turn);
         let (mut sum_sin, mut sum_cos) = (0.0, 0.0);
         let k = axis.into_inner().cross_matrix();
         for g in &source_world {
@@ -577,7 +651,10 @@ pub fn estimate_twists_deg(
                     (None, None) => Rotation3::identity(),
                 };
             }
-            let m = world[parent.index()].transpose().matrix() * g[j.index()].matrix() * f.matrix();
+            let m = plan.rest_turn[j.index()].matrix()
+                * world[parent.index()].transpose().matrix()
+                * g[j.index()].matrix()
+                * f.matrix();
             sum_sin += (m * k).trace();
             sum_cos += m.trace() - axis.dot(&(m * axis.into_inner()));
         }
@@ -923,6 +1000,64 @@ left_ankle = "LeftFoot"
 
         let e = SourceSkeleton::load(Path::new("/nonexistent/map.toml")).unwrap_err();
         assert!(e.to_string().contains("/nonexistent/map.toml"));
+    }
+
+    #[test]
+    fn rest_rotations_turn_their_joint_and_leave_the_other_bones_where_they_point() {
+        let bvh = Bvh::parse(A_POSE_Z_UP, "apose.bvh").unwrap();
+        let plain = SourceSkeleton::from_toml_str(A_POSE_MAP, "a.toml").unwrap();
+        let turned = SourceSkeleton::from_toml_str(
+            &format!("{A_POSE_MAP}[rest_deg]\npelvis = [0.0, 90.0, 0.0]\n"),
+            "t.toml",
+        )
+        .unwrap();
+        let body = body();
+        let opts = RetargetOptions {
+            floor: FloorAlignment::Keep,
+        };
+        let a = retarget_bvh(&bvh, &plain, &body, &opts).unwrap();
+        let b = retarget_bvh(&bvh, &turned, &body, &opts).unwrap();
+        let quarter = Axis::Y.rotation(FRAC_PI_2);
+        for (p, q) in a.poses.iter().zip(&b.poses) {
+            let mut wa = [Rotation3::identity(); NUM_JOINTS];
+            let mut wb = [Rotation3::identity(); NUM_JOINTS];
+            imuflow_body::kinematics::local_to_global_rotations(&p.parent_from_joint, &mut wa);
+            imuflow_body::kinematics::local_to_global_rotations(&q.parent_from_joint, &mut wb);
+            // The pelvis (the root: local = world) is turned by the rest rotation on its right ...
+            assert!(angle_between(&wb[0], &(wa[0] * quarter)) < 1e-9);
+            // ... and every joint with its own bone direction keeps its world rotation.
+            for j in [
+                JointId::LEFT_HIP,
+                JointId::LEFT_KNEE,
+                JointId::LEFT_SHOULDER,
+            ] {
+                assert!(angle_between(&wb[j.index()], &wa[j.index()]) < 1e-9, "{j}");
+            }
+            assert_eq!(p.root_in_world_m, q.root_in_world_m);
+        }
+
+        let e = SourceSkeleton::from_toml_str(
+            &format!("{A_POSE_MAP}[rest_deg]\nneck = [0.0, inf, 0.0]\n"),
+            "r.toml",
+        )
+        .unwrap_err();
+        assert!(
+            matches!(e, MappingError::InvalidRest { line: 13, .. }),
+            "{e}"
+        );
+        assert!(
+            e.to_string().starts_with("joint mapping 'r.toml':13:"),
+            "{e}"
+        );
+        let e = SourceSkeleton::from_toml_str(
+            &format!("{A_POSE_MAP}[rest_deg]\nneck = [0.0, 1.0]\n"),
+            "r.toml",
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("r.toml") && e.to_string().contains("line 13"),
+            "{e}"
+        );
     }
 
     #[test]

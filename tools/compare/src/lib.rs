@@ -8,11 +8,14 @@
 //!   replaced by the input, the graphs combined, the combined graph written, validated and launched.
 //! - [`single`]: one comparison on one input, then its report.
 //! - [`batch`]: every clip of a dataset split through the variants, means over clips and paired
-//!   differences with bootstrap intervals.
+//!   differences with bootstrap intervals, per data set when a batch mixes them.
+//! - [`clips`]: which clips a batch runs (`--data` folders and their mappings, `--split`,
+//!   `--exclude`, `--limit`).
 //! - [`report`], [`plots`]: scores of a finished comparison's recording (report.md, results.json,
 //!   the plots).
 
 pub mod batch;
+pub mod clips;
 pub mod combine;
 pub mod plots;
 pub mod report;
