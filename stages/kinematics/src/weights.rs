@@ -153,14 +153,47 @@ pub fn normalization(method: Method) -> &'static str {
     }
 }
 
-/// Write `tensors` (name → f32 tensor) with `metadata` as a safetensors file.
+/// Write `tensors` (name → f32 tensor) with `metadata` as a safetensors file. The provenance
+/// never names a machine's folders: every absolute path in it is written as its last component
+/// (the data set's or the file's name; [`without_machine_paths`]).
 pub fn save(
     path: &Path,
     tensors: &[(String, Tensor)],
     metadata: &WeightsMetadata,
 ) -> anyhow::Result<()> {
-    let meta = serde_json::to_string(metadata)?;
+    let mut metadata = metadata.clone();
+    without_machine_paths(&mut metadata.provenance);
+    let meta = serde_json::to_string(&metadata)?;
     save_with_metadata(path, tensors, Some(("imuflow", meta)))
+}
+
+/// Rewrites every string in `value` that is an absolute path (`/…`, `\\…`, `C:\…` or `C:/…`) to its
+/// last component, so weight files say which data set or file, not where it lay on the machine
+/// that trained them. Relative paths (`models/pip.safetensors`) and other text stay.
+pub fn without_machine_paths(value: &mut serde_json::Value) {
+    match value {
+        serde_json::Value::String(s) if is_absolute_path(s) => {
+            let name = s
+                .trim_end_matches(['/', '\\'])
+                .rsplit(['/', '\\'])
+                .next()
+                .unwrap_or_default();
+            *s = name.to_owned();
+        }
+        serde_json::Value::Array(items) => items.iter_mut().for_each(without_machine_paths),
+        serde_json::Value::Object(map) => map.values_mut().for_each(without_machine_paths),
+        _ => {}
+    }
+}
+
+fn is_absolute_path(s: &str) -> bool {
+    let b = s.as_bytes();
+    s.starts_with('/')
+        || s.starts_with("\\\\")
+        || (b.len() > 2
+            && b[0].is_ascii_alphabetic()
+            && b[1] == b':'
+            && (b[2] == b'\\' || b[2] == b'/'))
 }
 
 /// Write f32 tensors as safetensors, atomically (temporary file, then rename).
@@ -193,4 +226,48 @@ pub fn save_with_metadata(
         .with_context(|| format!("writing {}", tmp.display()))?;
     std::fs::rename(&tmp, path).with_context(|| format!("renaming to {}", path.display()))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod provenance_tests {
+    use super::*;
+
+    #[test]
+    fn absolute_paths_become_names_and_everything_else_stays() {
+        let mut p = serde_json::json!({
+            "data": "/work/ds/perturb",
+            "initialized_from": {"file": "/home/me/ckpt/gp-rc-e2.safetensors", "provenance": {
+                "data": "C:\\data\\bandai\\", "unix_dir": "/tmp/out/", "share": "\\\\host\\d\\set"}},
+            "relative": "models/pip.safetensors",
+            "command": "imuflow dataset build --bvh-dir <Bandai> --out <dir>",
+            "list": ["/a/b", 3, "x/y"],
+        });
+        without_machine_paths(&mut p);
+        assert_eq!(p["data"], "perturb");
+        assert_eq!(p["initialized_from"]["file"], "gp-rc-e2.safetensors");
+        assert_eq!(p["initialized_from"]["provenance"]["data"], "bandai");
+        assert_eq!(p["initialized_from"]["provenance"]["unix_dir"], "out");
+        assert_eq!(p["initialized_from"]["provenance"]["share"], "set");
+        assert_eq!(p["relative"], "models/pip.safetensors");
+        assert_eq!(
+            p["command"],
+            "imuflow dataset build --bvh-dir <Bandai> --out <dir>"
+        );
+        assert_eq!(p["list"], serde_json::json!(["b", 3, "x/y"]));
+    }
+
+    #[test]
+    fn the_shipped_weights_name_no_machine_path() {
+        for file in ["pip", "globalpose"] {
+            let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join(format!("../../models/{file}.safetensors"));
+            let bytes = std::fs::read(&path).expect("shipped weights");
+            let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).expect("header");
+            let text = &meta.metadata().as_ref().expect("metadata")["imuflow"];
+            let mut value: serde_json::Value = serde_json::from_str(text).expect("JSON");
+            let before = value.clone();
+            without_machine_paths(&mut value);
+            assert_eq!(value, before, "{file}: its provenance names a machine path");
+        }
+    }
 }
