@@ -45,11 +45,13 @@ fn kinds() -> Vec<Kind> {
             stated: None,
         },
         declared::<imuflow_imu_source::stage::ImuSourceParams>(imuflow_imu_source::SPEC),
+        declared::<imuflow_fusion::stage::FusionParams>(imuflow_fusion::SPEC),
         declared::<imuflow_calibration::stage::CalibrationParams>(imuflow_calibration::SPEC),
         declared::<imuflow_kinematics::stage::KinematicsParams>(imuflow_kinematics::SPEC),
         declared::<imuflow_contact_stage::stage::ContactParams>(imuflow_contact_stage::SPEC),
         declared::<imuflow_optimizer::stage::OptimizerParams>(imuflow_optimizer::SPEC),
         declared::<imuflow_validation::stage::ValidationParams>(imuflow_validation::SPEC),
+        declared::<imuflow_vmc::stage::VmcParams>(imuflow_vmc::SPEC),
         Kind {
             spec: imuflow_bench::SOURCE_SPEC,
             stated: None,

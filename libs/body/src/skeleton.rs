@@ -231,6 +231,17 @@ impl Imu {
         IMU_JOINTS[self as usize]
     }
 
+    /// Every IMU's [`Imu::name`], in IMU order: the site names of sensor files, tracker maps,
+    /// calibration files and logs.
+    pub const NAMES: [&'static str; NUM_IMUS] = [
+        Imu::LeftForearm.name(),
+        Imu::RightForearm.name(),
+        Imu::LeftLowerLeg.name(),
+        Imu::RightLowerLeg.name(),
+        Imu::Head.name(),
+        Imu::Pelvis.name(),
+    ];
+
     /// Lower-case snake_case name, also the key in models/body.toml.
     pub const fn name(self) -> &'static str {
         match self {

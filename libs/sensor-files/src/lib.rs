@@ -37,14 +37,7 @@ pub use recording::{SensorCounts, SensorRecording};
 
 /// The six sensor sites, in imuflow's IMU order (docs/architecture.md, "Conventions"); the
 /// layout's `[sensors.<site>]` names.
-pub const SITES: [&str; NUM_IMUS] = [
-    "left_forearm",
-    "right_forearm",
-    "left_lower_leg",
-    "right_lower_leg",
-    "head",
-    "pelvis",
-];
+pub const SITES: [&str; NUM_IMUS] = imuflow_body::Imu::NAMES;
 
 /// A recording's file format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -73,6 +73,20 @@ pub struct StepGeometry {
     pub heading_to_pelvis_rad: [f64; NUM_IMUS],
 }
 
+impl StepGeometry {
+    /// Nothing measured yet: identities and zeros.
+    fn unmeasured() -> StepGeometry {
+        StepGeometry {
+            stand_before: [Rotation3::identity(); NUM_IMUS],
+            stand_after: [Rotation3::identity(); NUM_IMUS],
+            displacement_m: [Vector3::zeros(); NUM_IMUS],
+            vertical_m: [0.0; NUM_IMUS],
+            offset_in_inertial_mps2: [Vector3::zeros(); NUM_IMUS],
+            heading_to_pelvis_rad: [0.0; NUM_IMUS],
+        }
+    }
+}
+
 /// A walking calibration with what it measured.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WalkingEstimate {
@@ -88,6 +102,17 @@ pub fn calibrate_walking(
     let geometry = measure_step(windows, config)?;
     let up = config.frame.up_in_inertial();
     let model_from_inertial = model_from_inertial(&up, &geometry.displacement_m[PELVIS]);
+    estimate_from(geometry, model_from_inertial, config)
+}
+
+/// The calibration a measured geometry gives with `R_MI`: per sensor the heading correction, `R_SB`
+/// (Eq. 24 for each stand, then their rotation average, reference §4 step 5; a single stand is
+/// both) and the accelerometer offset in M.
+fn estimate_from(
+    geometry: StepGeometry,
+    model_from_inertial: Rotation3<f64>,
+    config: &WalkingConfig,
+) -> Result<WalkingEstimate, Rejection> {
     let reference = config.pose.bone_orientations();
     let mut sensors = [SensorCalibration::IDENTITY; NUM_IMUS];
     for (k, cal) in sensors.iter_mut().enumerate() {
@@ -95,7 +120,6 @@ pub fn calibrate_walking(
         let sensor_model_from_inertial = imuflow_body::rotation::Axis::Y
             .rotation(cal.heading_correction_rad)
             * model_from_inertial;
-        // Eq. 24 for each stand, then their rotation average (reference §4 step 5).
         let estimate = |stand: &Rotation3<f64>| {
             (sensor_model_from_inertial * stand).transpose() * reference[k]
         };
@@ -143,14 +167,7 @@ pub fn measure_step(
     let up = config.frame.up_in_inertial();
     let gravity = -up.into_inner() * imuflow_body::GRAVITY_IN_MODEL_MPS2.norm();
 
-    let mut g = StepGeometry {
-        stand_before: [Rotation3::identity(); NUM_IMUS],
-        stand_after: [Rotation3::identity(); NUM_IMUS],
-        displacement_m: [Vector3::zeros(); NUM_IMUS],
-        vertical_m: [0.0; NUM_IMUS],
-        offset_in_inertial_mps2: [Vector3::zeros(); NUM_IMUS],
-        heading_to_pelvis_rad: [0.0; NUM_IMUS],
-    };
+    let mut g = StepGeometry::unmeasured();
     for k in 0..NUM_IMUS {
         g.stand_before[k] = stand_orientation(before, k)?;
         g.stand_after[k] = stand_orientation(after, k)?;
@@ -317,14 +334,7 @@ pub fn calibrate_walk_start(
     let up = walking.frame.up_in_inertial();
     let gravity = -up.into_inner() * imuflow_body::GRAVITY_IN_MODEL_MPS2.norm();
 
-    let mut g = StepGeometry {
-        stand_before: [Rotation3::identity(); NUM_IMUS],
-        stand_after: [Rotation3::identity(); NUM_IMUS],
-        displacement_m: [Vector3::zeros(); NUM_IMUS],
-        vertical_m: [0.0; NUM_IMUS],
-        offset_in_inertial_mps2: [Vector3::zeros(); NUM_IMUS],
-        heading_to_pelvis_rad: [0.0; NUM_IMUS],
-    };
+    let mut g = StepGeometry::unmeasured();
     // Each sensor's path from rest, and how a residual accelerometer bias would bend it.
     let mut raw_paths = Vec::with_capacity(NUM_IMUS);
     let mut bias_bases = Vec::with_capacity(NUM_IMUS);
@@ -397,29 +407,8 @@ pub fn calibrate_walk_start(
     let walked =
         Rotation3::from_axis_angle(&up, -config.walk_direction_rad) * g.displacement_m[PELVIS];
     let model_from_inertial = model_from_inertial(&up, &walked);
-    let reference = walking.pose.bone_orientations();
-    let mut sensors = [SensorCalibration::IDENTITY; NUM_IMUS];
-    for (k, cal) in sensors.iter_mut().enumerate() {
-        cal.heading_correction_rad = g.heading_to_pelvis_rad[k];
-        let sensor_model_from_inertial = imuflow_body::rotation::Axis::Y
-            .rotation(cal.heading_correction_rad)
-            * model_from_inertial;
-        // Eq. 24 on the stand.
-        cal.sensor_from_bone =
-            (sensor_model_from_inertial * g.stand_before[k]).transpose() * reference[k];
-        if walking.accel_offset {
-            cal.accel_offset_in_model_mps2 =
-                sensor_model_from_inertial * g.offset_in_inertial_mps2[k];
-        }
-    }
-    Ok(WalkingEstimate {
-        calibration: Calibration {
-            method: Method::Walking,
-            model_from_inertial,
-            sensors,
-        },
-        geometry: g,
-    })
+    // The stand after is the stand before (set above): Eq. 24 on the one stand.
+    estimate_from(g, model_from_inertial, walking)
 }
 
 /// Positions of sensor `k` from rest by double integration of its free acceleration (Eq. 17–18),

@@ -35,14 +35,7 @@ pub use stage::{SPEC, run};
 pub const NUM_IMUS: usize = imuflow_graph::frames::NUM_IMUS;
 
 /// The sensors' names in IMU order (as in models/body.toml and calibration files).
-pub const SENSOR_NAMES: [&str; NUM_IMUS] = [
-    "left_forearm",
-    "right_forearm",
-    "left_lower_leg",
-    "right_lower_leg",
-    "head",
-    "pelvis",
-];
+pub const SENSOR_NAMES: [&str; NUM_IMUS] = imuflow_body::Imu::NAMES;
 
 /// The name of IMU `i`.
 pub fn sensor_name(i: usize) -> &'static str {

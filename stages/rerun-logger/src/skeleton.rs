@@ -11,14 +11,7 @@ use crate::columns::{FrameTime, Log};
 use crate::plots::{ErrorSeries, Plots, Posed, TRUTH_FRAMES_KEPT, group_of};
 
 /// Sensor names in IMU order (docs/architecture.md).
-pub const SENSOR_NAMES: [&str; NUM_IMUS] = [
-    "left_forearm",
-    "right_forearm",
-    "left_lower_leg",
-    "right_lower_leg",
-    "head",
-    "pelvis",
-];
+pub const SENSOR_NAMES: [&str; NUM_IMUS] = imuflow_body::Imu::NAMES;
 /// Spacing of the sensors' display positions along x, m.
 const SENSOR_SPACING_M: f32 = 0.3;
 /// Length of the drawn axes, m.
