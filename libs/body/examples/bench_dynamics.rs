@@ -1,7 +1,7 @@
 //! Per-call timings of the dynamics (release build):
 //!
 //! ```sh
-//! CARGO_TARGET_DIR=/work/target-dyn cargo run --release -p imuflow-body --example bench_dynamics
+//! cargo run --release -p imuflow-body --example bench_dynamics
 //! ```
 //!
 //! Prints the median over repeated passes of 200 random states of: `set_state`, `M` (CRBA), `h` (RNEA),

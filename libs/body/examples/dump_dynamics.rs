@@ -2,7 +2,7 @@
 //! `scripts/verify/check_dynamics.py`.
 //!
 //! ```sh
-//! CARGO_TARGET_DIR=/work/target-dyn cargo run --release -p imuflow-body --example dump_dynamics -- out/dynamics
+//! cargo run --release -p imuflow-body --example dump_dynamics -- out/dynamics
 //! python scripts/verify/check_dynamics.py out/dynamics
 //! ```
 //!
