@@ -2,7 +2,11 @@
 //! `source.truth`): each format read back by an independent reader of it gives the recorded poses;
 //! bad input is named and leaves no file behind.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
+
+use common::{sample, truth_after_prelude};
 
 use imuflow_body::rotation::{angle_between, rotation_from_quat_wxyz};
 use imuflow_body::{BodyModel, BodyParams, JointId};
@@ -15,10 +19,6 @@ use imuflow_motion::retarget::{
 };
 use imuflow_recording::{Recorded, Recording};
 
-fn sample() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/sample/walk.mcap")
-}
-
 fn options(out: &Path, format: Format) -> ExportOptions {
     ExportOptions {
         input: sample(),
@@ -29,20 +29,6 @@ fn options(out: &Path, format: Format) -> ExportOptions {
         keep_all: false,
         stature_m: 1.75,
     }
-}
-
-/// The sample's truth frames outside the calibration prelude, read by the recording reader.
-fn truth_after_prelude() -> Vec<MotionFrame> {
-    let recording = Recording::load(&sample(), None, None).expect("the sample");
-    recording
-        .frames
-        .iter()
-        .filter_map(|f| match f {
-            Recorded::Truth(m) => Some(**m),
-            Recorded::Imu(_) => None,
-        })
-        .filter(|m| m.header.flags & (flags::PRELUDE | flags::CALIBRATING | flags::INVALID) == 0)
-        .collect()
 }
 
 fn assert_same_motion(truth: &[MotionFrame], poses: &[imuflow_body::Pose], rad: f64, m: f64) {

@@ -4,22 +4,20 @@
 //! its values against the recorded MotionFrames, and the joints' world positions composed from the
 //! file's own transforms against imuflow's forward kinematics.
 
+mod common;
+
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+use common::{sample, truth_after_prelude};
 
 use gltf::animation::Property;
 use gltf::animation::util::ReadOutputs;
 use imuflow_body::kinematics::{FkData, forward_kinematics};
 use imuflow_body::{BodyModel, BodyParams, JointId, Pose};
 use imuflow_export::{ExportOptions, Format, export, read_motion};
-use imuflow_graph::frames::{MotionFrame, flags};
 use imuflow_motion::retarget::LengthUnit;
-use imuflow_recording::{Recorded, Recording};
 use nalgebra::{Matrix4, Quaternion, UnitQuaternion, Vector3};
-
-fn sample() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/sample/walk.mcap")
-}
 
 fn export_glb(out: &Path, stature_m: f64) -> imuflow_export::Exported {
     export(&ExportOptions {
@@ -32,20 +30,6 @@ fn export_glb(out: &Path, stature_m: f64) -> imuflow_export::Exported {
         stature_m,
     })
     .expect("exports")
-}
-
-/// The sample's truth frames outside the calibration prelude, read by the recording reader.
-fn truth_after_prelude() -> Vec<MotionFrame> {
-    let recording = Recording::load(&sample(), None, None).expect("the sample");
-    recording
-        .frames
-        .iter()
-        .filter_map(|f| match f {
-            Recorded::Truth(m) => Some(**m),
-            Recorded::Imu(_) => None,
-        })
-        .filter(|m| m.header.flags & (flags::PRELUDE | flags::CALIBRATING | flags::INVALID) == 0)
-        .collect()
 }
 
 fn body(stature_m: f64) -> BodyModel {

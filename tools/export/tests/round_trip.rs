@@ -3,33 +3,16 @@
 //! (`imuflow_synth::Motion::load`, which takes a `.npz` as its motion) gives back, as the truth it
 //! publishes, the motion that was exported: the same frames, poses within 1e-4 rad and 0.1 mm.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::{sample, truth_after_prelude};
 
 use imuflow_body::JointId;
 use imuflow_body::rotation::{angle_between, rotation_from_quat_wxyz};
 use imuflow_export::{ExportOptions, Format, export};
-use imuflow_graph::frames::{MotionFrame, flags};
+use imuflow_graph::frames::flags;
 use imuflow_motion::retarget::LengthUnit;
-use imuflow_recording::{Recorded, Recording};
 use imuflow_synth::{Motion, Options};
-
-fn sample() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/sample/walk.mcap")
-}
-
-/// The sample's truth frames that an export keeps (the calibration prelude left out).
-fn exported_truth() -> Vec<MotionFrame> {
-    let recording = Recording::load(&sample(), None, None).expect("the sample");
-    recording
-        .frames
-        .iter()
-        .filter_map(|f| match f {
-            Recorded::Truth(m) => Some(**m),
-            Recorded::Imu(_) => None,
-        })
-        .filter(|m| m.header.flags & (flags::PRELUDE | flags::CALIBRATING | flags::INVALID) == 0)
-        .collect()
-}
 
 fn rotation(q: &[f32; 4]) -> nalgebra::Rotation3<f64> {
     rotation_from_quat_wxyz(&q.map(f64::from)).expect("a rotation")
@@ -49,7 +32,7 @@ fn the_synthesizer_reads_an_exported_npz_as_the_exported_motion() {
         stature_m: 1.75,
     })
     .expect("exports");
-    let truth = exported_truth();
+    let truth = truth_after_prelude();
     assert_eq!(done.frames, truth.len());
 
     // The stage's defaults: no prelude, the graph's 60 Hz (the rate the sample was recorded at).
