@@ -39,7 +39,8 @@
 //!   angular rate (only the firmware's inspection packets, which release builds do not send), so
 //!   the fusion stage derives it from consecutive orientations.
 //! - `sample_time_ns`: when the sample's first packet arrived (host clock, Unix epoch ns); tracker
-//!   packets carry no sample time. `header.capture_ns`: the arrival of the frame's first sample.
+//!   packets carry no sample time. `header.capture_ns`: the earliest arrival among the frame's
+//!   samples.
 //! - `seq`: frame counter from 0.
 //!
 //! A rotation that is not finite or whose norm is not within 0.9–1.1, or a specific force that is
@@ -180,8 +181,9 @@ impl Frames {
 
 /// Collects samples into frames: samples of different sites that arrive within
 /// [`MERGE_WINDOW`] of a frame's first one share it; a second sample of a site already in it
-/// closes it. The frame's `capture_ns` is its first sample's arrival; `seq` is left to the
-/// publisher.
+/// closes it. The frame's `capture_ns` is the earliest arrival among its samples (a rotation that
+/// waited for its acceleration may join after a later sample started the frame); `seq` is left to
+/// the publisher.
 #[derive(Debug, Default)]
 pub struct Assembler {
     current: Option<(RawImuFrame, Instant)>,
@@ -200,6 +202,7 @@ impl Assembler {
             f.header.capture_ns = sample.received_ns;
             (f, now)
         });
+        frame.header.capture_ns = frame.header.capture_ns.min(sample.received_ns);
         if !fill(frame, sample) {
             frame.header.flags |= flags::INVALID;
         }
