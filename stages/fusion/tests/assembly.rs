@@ -1,29 +1,16 @@
 //! The output grid without processes: numbering, origin, PRELUDE, empty stretches, on-board
 //! orientations, refused input and the parameters that change what is fused.
 
+mod common;
+
+use common::settings;
 use imuflow_fusion::FusionError;
 use imuflow_fusion::assembler::{Assembler, Origin, Settings};
-use imuflow_fusion::filter::VqfParams;
 use imuflow_fusion::quat::angle_between;
-use imuflow_fusion::sensor::{MagnetometerUse, OrientationSource, SensorSettings};
+use imuflow_fusion::sensor::{MagnetometerUse, OrientationSource};
 use imuflow_graph::frames::{ImuFrame, RawImuFrame, flags};
 
 const ALL: u32 = 0b111111;
-
-fn settings(origin: Origin) -> Settings {
-    Settings {
-        sensor: SensorSettings {
-            vqf: VqfParams::default(),
-            orientation: OrientationSource::Auto,
-            magnetometer: MagnetometerUse::Auto,
-            sensor_rate_hz: None,
-            max_gap_s: 0.05,
-            output_rate_hz: 60.0,
-        },
-        max_latency_s: 0.03,
-        origin,
-    }
-}
 
 /// Six sensors at rest (z up) sampled together at 100 Hz from source time `start_s` for
 /// `duration_s`, on sensor clocks 5 s behind the source, delivered 1 ms later; `edit` changes

@@ -3,9 +3,9 @@
 
 use std::time::Instant;
 
-use imuflow_fusion::assembler::{Assembler, Origin, Settings};
-use imuflow_fusion::filter::VqfParams;
-use imuflow_fusion::sensor::{MagnetometerUse, OrientationSource, SensorSettings};
+mod common;
+
+use imuflow_fusion::assembler::{Assembler, Origin};
 use imuflow_graph::frames::RawImuFrame;
 
 /// Six sensors at `rate_hz` for 60 s, every sample in its own raw frame (the most frames per
@@ -37,18 +37,7 @@ fn session(rate_hz: f64, magnetometer: bool) -> Vec<RawImuFrame> {
 fn per_sample_cost() {
     for (rate, magnetometer) in [(100.0, true), (200.0, true), (200.0, false), (400.0, true)] {
         let raw = session(rate, magnetometer);
-        let settings = Settings {
-            sensor: SensorSettings {
-                vqf: VqfParams::default(),
-                orientation: OrientationSource::Auto,
-                magnetometer: MagnetometerUse::Auto,
-                sensor_rate_hz: None,
-                max_gap_s: 0.05,
-                output_rate_hz: 60.0,
-            },
-            max_latency_s: 0.03,
-            origin: Origin::Zero,
-        };
+        let settings = common::settings(Origin::Zero);
         let mut best = f64::INFINITY;
         let mut frames = 0;
         for _ in 0..3 {

@@ -9,9 +9,9 @@
 //! cannot tell the constant transport delay from a clock offset, so its output at source time t
 //! is compared with the truth at t − 1 ms.
 
-use imuflow_fusion::assembler::{Assembler, Origin, Settings};
-use imuflow_fusion::filter::VqfParams;
-use imuflow_fusion::sensor::{MagnetometerUse, OrientationSource, SensorSettings};
+mod common;
+
+use imuflow_fusion::assembler::{Assembler, Origin};
 use imuflow_graph::frames::{ImuFrame, RawImuFrame, flags};
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
@@ -211,23 +211,8 @@ fn frames(per_sensor: &[Vec<Delivery>]) -> Vec<RawImuFrame> {
     out
 }
 
-fn settings() -> Settings {
-    Settings {
-        sensor: SensorSettings {
-            vqf: VqfParams::default(),
-            orientation: OrientationSource::Auto,
-            magnetometer: MagnetometerUse::Auto,
-            sensor_rate_hz: None,
-            max_gap_s: 0.05,
-            output_rate_hz: OUTPUT_HZ,
-        },
-        max_latency_s: 0.03,
-        origin: Origin::Zero,
-    }
-}
-
 fn run(raw: &[RawImuFrame]) -> (Assembler, Vec<ImuFrame>) {
-    let mut assembler = Assembler::new(settings());
+    let mut assembler = Assembler::new(common::settings(Origin::Zero));
     let mut out = Vec::new();
     for frame in raw {
         assembler.push(frame, &mut out).unwrap();
@@ -393,7 +378,7 @@ fn lost_duplicated_and_reordered_samples_are_counted_and_a_stopped_sensor_is_fla
         .unwrap();
     bad.gyroscope_radps[0][1] = f32::NAN;
 
-    let mut assembler = Assembler::new(settings());
+    let mut assembler = Assembler::new(common::settings(Origin::Zero));
     let mut out = Vec::new();
     let mut notices = Vec::new();
     for frame in &raw {

@@ -5,9 +5,11 @@
 
 use std::path::PathBuf;
 
+mod common;
+
 use imuflow_fusion::assembler::{Assembler, Origin, Settings};
 use imuflow_fusion::filter::{OrientationFilter, VqfParams};
-use imuflow_fusion::sensor::{MagnetometerUse, OrientationSource, SensorSettings};
+use imuflow_fusion::sensor::SensorSettings;
 use imuflow_graph::frames::{ImuFrame, RawImuFrame};
 
 const TOLERANCE: f64 = 1e-4;
@@ -159,18 +161,15 @@ fn the_filter_matches_the_authors_vqf_in_6d_and_9d() {
 fn the_stage_path_reproduces_the_reference_at_the_sensor_rate() {
     let input = input();
     let expected = Expected::load();
+    let base = common::settings(Origin::Zero);
     let settings = Settings {
         sensor: SensorSettings {
-            vqf: VqfParams::default(),
-            orientation: OrientationSource::Auto,
-            magnetometer: MagnetometerUse::Auto,
-            sensor_rate_hz: None,
-            max_gap_s: 0.05,
             output_rate_hz: 100.0,
+            ..base.sensor
         },
         // Long enough for the first frames to wait for the rate measurement (9 samples).
         max_latency_s: 0.2,
-        origin: Origin::Zero,
+        ..base
     };
     let mut assembler = Assembler::new(settings);
     let mut frames: Vec<ImuFrame> = Vec::new();
