@@ -4,6 +4,7 @@
 mod common;
 
 use std::collections::BTreeMap;
+use std::path::Path;
 
 use common::{Sandbox, example_exe, mcap_messages, text};
 use imuflow_graph::frames::{MotionFrame, frame_from_bytes};
@@ -534,6 +535,17 @@ fn ablation_files_expand_into_variants_and_bad_ones_are_named() {
                 "nophys-mirrored",
             ][..],
         ),
+        (
+            "weights",
+            &[
+                "pip-protocol",
+                "pip",
+                "gp-protocol",
+                "gp",
+                "nophys-protocol",
+                "nophys",
+            ][..],
+        ),
     ] {
         let path = format!("{root}/configs/ab/{file}.toml");
         let out = sb.run(&["compare", &path, "--print-graph"]);
@@ -560,6 +572,19 @@ fn ablation_files_expand_into_variants_and_bad_ones_are_named() {
     );
     assert!(nets.contains("[stages.calib]"), "{nets}");
     assert!(nets.contains("[stages.pip-nets-kin]") && nets.contains("models/pip.safetensors"));
+    // The weights ablation gives its protocol variants the protocol's files, and those exist.
+    let weights = text(
+        &sb.run(&[
+            "compare",
+            &format!("{root}/configs/ab/weights.toml"),
+            "--print-graph",
+        ])
+        .stdout,
+    );
+    assert_eq!(weights.matches("models/protocol/").count(), 3, "{weights}");
+    for file in ["pip", "globalpose"] {
+        assert!(Path::new(&format!("{root}/models/protocol/{file}.safetensors")).is_file());
+    }
     // The mirroring ablation turns the ensemble on in its mirrored variants' kinematics only.
     let mirrored = text(
         &sb.run(&[

@@ -187,16 +187,17 @@ def show_materials_in_workbench():
                 material.diffuse_color = node.inputs["Base Color"].default_value
 
 
-def render(scene, armature, objects, frame, out_png):
-    armature.hide_render = True
+def render(scene, objects, frame, out_png, view_deg=35.0):
+    """Frame `frame` of the imported glb (`objects`) rendered with Workbench to `out_png`, the
+    camera level with the pelvis, `view_deg` degrees off the body's forward (+z in M) to its left
+    (90: from the side)."""
     show_materials_in_workbench()
     scene.frame_set(frame)
     pelvis, rotation = glb_joint(objects["pelvis"])
-    # The camera looks at the pelvis from 35 degrees off the body's forward (+z in M), level.
     forward = rotation @ (BLENDER_FROM_MODEL @ Vector((0.0, 0.0, 1.0)))
     forward.z = 0.0
     forward = forward.normalized() if forward.length > 1e-6 else Vector((0.0, -1.0, 0.0))
-    view = Matrix.Rotation(math.radians(35.0), 3, "Z") @ forward
+    view = Matrix.Rotation(math.radians(view_deg), 3, "Z") @ forward
     bpy.ops.mesh.primitive_plane_add(size=6.0, location=(pelvis.x, pelvis.y, 0.0))
     floor = bpy.context.active_object
     floor_material = bpy.data.materials.new("floor")
@@ -250,7 +251,8 @@ def main():
             say(f"{kind}: FAILED, first over tolerance: {where}")
             failed = True
     frames = [f["index"] for f in expected["frames"]]
-    render(scene, armature, objects, frames[len(frames) // 2], out_png)
+    armature.hide_render = True
+    render(scene, objects, frames[len(frames) // 2], out_png)
     say(f"rendered frame {frames[len(frames) // 2]} of {glb_path} to {out_png}")
     return 1 if failed else 0
 

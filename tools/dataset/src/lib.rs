@@ -39,7 +39,8 @@ pub use shard::{
     ShardFile, ShardMetadata, SynthesisInfo,
 };
 pub use split::{
-    HELD_OUT_CONTENTS, Split, augmentation_seed, clip_key, content_of, fnv1a64, split_of,
+    HELD_OUT_CONTENTS, Split, SplitRule, augmentation_seed, clip_key, content_of, fnv1a64,
+    split_of, split_under,
 };
 
 use shard::{SequenceData, ShardAccumulator};
@@ -114,6 +115,10 @@ pub struct BuildOptions {
     pub stature_m: f64,
     /// Subject mass (kg).
     pub mass_kg: f64,
+    /// Where the held-out contents go: the holdout ([`SplitRule::Protocol`], the default) or
+    /// train/validation/test by hash like every other content ([`SplitRule::EveryContent`], for
+    /// the shipped weights).
+    pub split_rule: SplitRule,
     /// Show a progress bar.
     pub progress: bool,
 }
@@ -140,6 +145,7 @@ impl BuildOptions {
             max_shard_frames: DEFAULT_MAX_SHARD_FRAMES,
             stature_m: DEFAULT_STATURE_M,
             mass_kg: DEFAULT_MASS_KG,
+            split_rule: SplitRule::Protocol,
             progress: true,
         }
     }
@@ -345,6 +351,9 @@ struct SkippedInSplit<'a> {
 /// The rule recorded in `split.json`.
 pub const SPLIT_RULE: &str = "held-out contents (bow, dance-long, dance-short, guide, kick, punch, slash: the content in a Bandai file name <dataset>_<content>_<style>_<nnn>.bvh) -> holdout; else FNV-1a 64 of the clip's path relative to --bvh-dir (UTF-8, '/' separators) mod 100: 0-79 train, 80-89 validation, 90-99 test";
 
+/// The rule recorded in `split.json` of a build with [`SplitRule::EveryContent`].
+pub const SPLIT_RULE_EVERY_CONTENT: &str = "every content, the held-out ones (bow, dance-long, dance-short, guide, kick, punch, slash) included: FNV-1a 64 of the clip's path relative to --bvh-dir (UTF-8, '/' separators) mod 100: 0-79 train, 80-89 validation, 90-99 test";
+
 /// Build the dataset (see the crate docs). Shards and `split.json` of an earlier run in `out_dir` are
 /// removed first.
 pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
@@ -416,12 +425,12 @@ pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
     // motion leaks into training.
     let partners: Vec<(String, PathBuf)> = files
         .iter()
-        .filter(|(key, _)| split_of(key) == Split::Train)
+        .filter(|(key, _)| split_under(key, options.split_rule) == Split::Train)
         .cloned()
         .collect();
     let mut clip_state = ClipWork::new(partners, params);
     for (key, path) in &files {
-        let split = split_of(key);
+        let split = split_under(key, options.split_rule);
         pb.set_message(key.clone());
         match clip_state.process(key, path, split, &body, &source, options) {
             Ok(sequences) => {
@@ -487,7 +496,10 @@ pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
 
     let [train, validation, test, holdout] = written;
     let split_file = SplitFile {
-        rule: SPLIT_RULE,
+        rule: match options.split_rule {
+            SplitRule::Protocol => SPLIT_RULE,
+            SplitRule::EveryContent => SPLIT_RULE_EVERY_CONTENT,
+        },
         train,
         validation,
         test,

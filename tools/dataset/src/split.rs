@@ -93,11 +93,34 @@ pub fn clip_key(relative_path: &std::path::Path) -> String {
         .join("/")
 }
 
-/// The split of a clip: a held-out content ([`HELD_OUT_CONTENTS`]) → holdout; else
-/// `fnv1a64(key) % 100` below 80 → train, below 90 → validation, else test. Depends on the key
-/// alone, so adding or removing other clips never moves a clip.
+/// What happens to the held-out contents ([`HELD_OUT_CONTENTS`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SplitRule {
+    /// The protocol's rule: every clip of a held-out content goes to the holdout, so that the
+    /// holdout number measures motions the networks never saw. For weights that are measured.
+    #[default]
+    Protocol,
+    /// Every content is split by the hash alone, the held-out ones included: their clips with a
+    /// training hash are trained on, and the test split (hash 90–99) stays out as always. For
+    /// weights that ship: a user's networks should have seen a kick. The holdout split is empty.
+    EveryContent,
+}
+
+/// The split of a clip under the protocol's rule ([`SplitRule::Protocol`]): a held-out content
+/// ([`HELD_OUT_CONTENTS`]) → holdout; else `fnv1a64(key) % 100` below 80 → train, below 90 →
+/// validation, else test. Depends on the key alone, so adding or removing other clips never moves
+/// a clip.
 pub fn split_of(key: &str) -> Split {
-    if content_of(key).is_some_and(|c| HELD_OUT_CONTENTS.contains(&c)) {
+    split_under(key, SplitRule::Protocol)
+}
+
+/// The split of a clip under `rule`. A clip that is not of a held-out content gets the same split
+/// under either rule, so the validation and test splits of the other contents are the same clips.
+pub fn split_under(key: &str, rule: SplitRule) -> Split {
+    if rule == SplitRule::Protocol
+        && content_of(key).is_some_and(|c| HELD_OUT_CONTENTS.contains(&c))
+    {
         return Split::Holdout;
     }
     match fnv1a64(key.as_bytes()) % 100 {
@@ -126,6 +149,35 @@ mod tests {
         assert_eq!(fnv1a64(b""), 0xcbf2_9ce4_8422_2325);
         assert_eq!(fnv1a64(b"a"), 0xaf63_dc4c_8601_ec8c);
         assert_eq!(fnv1a64(b"foobar"), 0x8594_4171_f739_67e8);
+    }
+
+    #[test]
+    fn every_content_splits_the_held_out_contents_by_hash_and_moves_nothing_else() {
+        let mut held_out = [0usize; 4];
+        for content in HELD_OUT_CONTENTS {
+            for i in 0..200 {
+                let key = format!("dataset-1/data/dataset-1_{content}_style{i}_001.bvh");
+                assert_eq!(split_of(&key), Split::Holdout);
+                let split = split_under(&key, SplitRule::EveryContent);
+                // The hash alone decides: the split of the same hash without a held-out content.
+                let h = fnv1a64(key.as_bytes()) % 100;
+                let expected = if h < 80 {
+                    Split::Train
+                } else if h < 90 {
+                    Split::Validation
+                } else {
+                    Split::Test
+                };
+                assert_eq!(split, expected, "{key}");
+                held_out[split.index()] += 1;
+            }
+            let walk = format!("dataset-1/data/dataset-1_walk_{content}_001.bvh");
+            assert_eq!(split_under(&walk, SplitRule::EveryContent), split_of(&walk));
+        }
+        assert_eq!(held_out[Split::Holdout.index()], 0);
+        // 1,400 clips: each split's share near 80/10/10.
+        assert!((1_050..1_190).contains(&held_out[0]), "{held_out:?}");
+        assert!(held_out[1] > 90 && held_out[2] > 90, "{held_out:?}");
     }
 
     #[test]

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use imuflow_body::{BodyModel, BodyParams};
 use imuflow_dataset::{
     BuildOptions, DatasetError, FRAME_TENSORS, LICENCE, METADATA_KEY, OFFSETS_TENSOR,
-    ShardMetadata, Split, build, split_of,
+    ShardMetadata, Split, SplitRule, build, fnv1a64, split_of,
 };
 use imuflow_motion::bvh::Bvh;
 use imuflow_motion::retarget::{RetargetOptions, SourceSkeleton, resample, retarget_bvh};
@@ -285,6 +285,50 @@ fn limit_takes_the_first_clips_in_sorted_order() {
     assert_eq!(by_split.keys().collect::<Vec<_>>(), ["set-a/walk_01.bvh"]);
     for s in &summary.splits {
         assert_eq!(s.sequences, s.clips);
+    }
+}
+
+#[test]
+fn every_content_trains_on_the_held_out_contents_and_moves_no_other_clip() {
+    // Three held-out-content clips besides the walks; under the protocol all three are holdout.
+    let kicks = [
+        "x-bandai/dataset-1_kick_normal_001.bvh",
+        "x-bandai/dataset-1_bow_polite_002.bvh",
+        "x-bandai/dataset-1_punch_angry_003.bvh",
+    ];
+    let names: Vec<&str> = GOOD.iter().copied().chain(kicks).collect();
+    let input = input_dir(&names);
+    let (protocol, every) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let mut o = options(input.path(), protocol.path());
+    o.augment_copies = 0;
+    build(&o).unwrap();
+    o.out_dir = every.path().to_path_buf();
+    o.split_rule = SplitRule::EveryContent;
+    let summary = build(&o).unwrap();
+
+    let before = clips_by_split(&split_json(protocol.path()));
+    let v = split_json(every.path());
+    let after = clips_by_split(&v);
+    assert!(
+        v["rule"].as_str().unwrap().starts_with("every content"),
+        "{v}"
+    );
+    assert_eq!(summary.splits[Split::Holdout.index()].clips, 0);
+    assert!(v["holdout"].as_array().unwrap().is_empty());
+    for name in &names {
+        let held_out = kicks.contains(name);
+        assert_eq!(before[*name] == "holdout", held_out, "{name}");
+        if held_out {
+            // The hash alone decides, as for every other content (tools/dataset/README.md).
+            let expected = match fnv1a64(name.as_bytes()) % 100 {
+                0..80 => "train",
+                80..90 => "validation",
+                _ => "test",
+            };
+            assert_eq!(after[*name], expected, "{name}");
+        } else {
+            assert_eq!(after[*name], before[*name], "{name} moved");
+        }
     }
 }
 
