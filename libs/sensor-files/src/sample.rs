@@ -103,6 +103,11 @@ pub fn quaternion_from_euler_xyz(angles_rad: [f64; 3]) -> UnitQuaternion<f64> {
 /// over the intervals before and after a sample, log(R_{k−1}ᵀR_k)/Δt and log(R_kᵀR_{k+1})/Δt
 /// (both already in S_k: a rotation's axis is fixed by it). One-sided at the ends and next to
 /// a sample without orientation. Returns how many samples got a rate.
+///
+/// Deliberately not left to the fusion stage, which derives a rate for live streams without a
+/// gyroscope (SlimeVR, `no_gyroscope_mask`) from the turn since the previous sample only: a file
+/// has every sample's successor, and the centred rate lags its sample by nothing instead of half
+/// an interval.
 pub fn derive_gyroscope(samples: &mut [Sample]) -> usize {
     let rate = |a: &Sample, b: &Sample| -> Option<Vector3<f64>> {
         let (qa, qb) = (a.orientation?, b.orientation?);

@@ -211,7 +211,7 @@ fn synthesize(
         mass_kg: params.mass_kg,
         augment: params.augment,
         seed: params.seed,
-        central_stencil: params.stencil == "central",
+        central_stencil: stencil(params) == AccelStencil::Central,
         prelude: prelude_options(params, stage)?,
         sensors: sensor_setup(params, stage)?,
     };
@@ -274,13 +274,18 @@ fn raw_options(params: &ImuSourceParams, stage: &str) -> anyhow::Result<RawOptio
         loss: params.raw_loss,
         seed: params.seed,
         heading_deg: params.frame_heading_deg,
-        stencil: if params.stencil == "central" {
-            AccelStencil::Central
-        } else {
-            AccelStencil::SmoothedTransPose
-        },
+        stencil: stencil(params),
         ..RawOptions::default()
     })
+}
+
+/// The `stencil` parameter (a checked choice) as the synthesis's acceleration stencil, for the
+/// ideal and the raw sensors alike.
+fn stencil(params: &ImuSourceParams) -> AccelStencil {
+    match params.stencil.as_str() {
+        "central" => AccelStencil::Central,
+        _ => AccelStencil::SmoothedTransPose,
+    }
 }
 
 fn sensor_setup(
