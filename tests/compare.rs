@@ -513,6 +513,7 @@ fn ablation_files_expand_into_variants_and_bad_ones_are_named() {
         ("nets", &["pip-nets", "globalpose-nets"][..]),
         ("calibration", &["tpose", "walking"][..]),
         ("full", &["pip", "globalpose", "no-physics"][..]),
+        ("full-protocol", &["pip", "globalpose", "no-physics"][..]),
         (
             "limb-flexion",
             &[
@@ -582,6 +583,19 @@ fn ablation_files_expand_into_variants_and_bad_ones_are_named() {
         .stdout,
     );
     assert_eq!(weights.matches("models/protocol/").count(), 3, "{weights}");
+    let protocol = text(
+        &sb.run(&[
+            "compare",
+            &format!("{root}/configs/ab/full-protocol.toml"),
+            "--print-graph",
+        ])
+        .stdout,
+    );
+    assert_eq!(
+        protocol.matches("models/protocol/").count(),
+        3,
+        "{protocol}"
+    );
     for file in ["pip", "globalpose"] {
         assert!(Path::new(&format!("{root}/models/protocol/{file}.safetensors")).is_file());
     }

@@ -893,8 +893,20 @@ fn resume(
     Ok(state)
 }
 
-/// What the weights' provenance says about the split (tools/dataset/README.md, "Split").
-const SPLIT_PROVENANCE: &str = "train: FNV-1a clip hash mod 100 < 80, held-out contents excluded; validation 80-89 for model selection; test 90-99 and the holdout split (dataset-1's bow, dance, guide, kick, punch, slash) never read";
+/// What the weights' provenance says about the split: the rule the build wrote into its
+/// `split.json` (tools/dataset/README.md, "Split": the protocol's, or every content with
+/// `--every-content`), and which parts of it the run read.
+fn split_provenance(data: &Path) -> String {
+    let rule = std::fs::read_to_string(data.join("split.json"))
+        .ok()
+        .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
+        .and_then(|v| v["rule"].as_str().map(str::to_owned));
+    let read = "trained on its train split, epochs selected on its validation split; its test and holdout splits never read";
+    match rule {
+        Some(rule) => format!("{rule}; {read}"),
+        None => format!("unknown rule (the data folder has no split.json); {read}"),
+    }
+}
 
 /// The motion augmentations among the training sequences (`mirrored`, `speed 0.6`, ...; the
 /// recombinations as one entry), from the shards' metadata.
@@ -946,7 +958,7 @@ fn export(
             "dataset_format": first_meta.get("format"),
             "body_model": first_meta.get("body_model"),
             "synthesis": first_meta.get("synthesis"),
-            "split": SPLIT_PROVENANCE,
+            "split": split_provenance(&options.data),
             "motion_augmentations": motion_augmentations(train_set),
             "train_frames": train_set.frames,
             "epochs": state.epoch,

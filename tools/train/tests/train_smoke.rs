@@ -165,6 +165,13 @@ fn training_lowers_the_loss_resumes_and_exports_loadable_weights() {
     let text = weights.metadata.provenance.to_string();
     assert!(!text.contains(&dir.path().display().to_string()), "{text}");
     assert_eq!(from["steps"], rows_steps(&more.out), "{from}");
+    // The split it names is the build's own rule (its split.json), not one assumed.
+    let split = weights.metadata.provenance["split"].as_str().unwrap();
+    assert!(
+        split.starts_with(imuflow_dataset::SPLIT_RULE)
+            && split.contains("test and holdout splits never read"),
+        "{split}"
+    );
     // Other network sizes than the file's are refused by name.
     let mismatched = TrainOptions {
         checkpoint_dir: dir.path().join("ckpt-mismatched"),
