@@ -11,6 +11,10 @@ MotionFrame after the coordinate change written out here from the stage's README
 of the stage's code: a point (x, y, z) -> (-x, y, z), a rotation (w, x, y, z) -> (w, x, -y, -z),
 sent as (x, y, z, w). Frames are matched by /VMC/Ext/T, the seconds since the first frame's
 capture time, so a missing or repeated frame shows.
+
+A live graph drops a frame where a reader falls two frames behind (docs/architecture.md,
+"Delivery"), as it may on a busy machine; such drops are the graph's, counted in its summary, and
+are allowed up to 1 % of the frames. Every bundle the stage reports sent must arrive and match.
 """
 import glob
 import os
@@ -31,6 +35,8 @@ sys.path.insert(0, os.path.join(HERE, ".."))
 import imuflow  # noqa: E402
 
 FRAMES = 600  # 10 s at 60 Hz
+# Frames a live graph may drop on a busy machine (readers two frames behind), at most.
+LIVE_DROPS = FRAMES // 100
 # Unity HumanBodyBones name -> SMPL joint index (stages/vmc/README.md, "Bones").
 BONES = {
     "Hips": 0, "LeftUpperLeg": 1, "RightUpperLeg": 2, "Spine": 3, "LeftLowerLeg": 4,
@@ -146,6 +152,27 @@ def decode_frame(messages):
     return messages[0][1], bones, messages[-2][1], messages[-1][1][0]
 
 
+def sent_and_failed(log):
+    """(bundles sent, sends failed) from the stage's summary line."""
+    line = next((s for s in log.splitlines() if "VMC bundles sent to" in s), "")
+    assert line, log[-3000:]
+    sent = int(line.split("VMC bundles sent to")[0].split()[-1])
+    failed = int(line.split("(")[1].split()[0])
+    return sent, failed
+
+
+def time_base(received_t, expected_t):
+    """The recorded time of the stage's T = 0: the first frame the stage sent, which is the
+    recording's first unless a live drop took it from one of them."""
+    best = None
+    for j in range(min(LIVE_DROPS + 1, len(expected_t))):
+        base = expected_t[j] - received_t[0]
+        hits = sum(np.min(np.abs(expected_t - (t + base))) < 1e-3 for t in received_t)
+        if best is None or hits > best[0]:
+            best = (hits, base)
+    return best[1]
+
+
 def test_a_live_graph_streams_every_frame_to_python_osc():
     if not binary():
         print("skipped: IMUFLOW_BIN is not set (the binary to run graphs with)")
@@ -163,24 +190,32 @@ def test_a_live_graph_streams_every_frame_to_python_osc():
     assert done.returncode == 0, done.stderr[-3000:]
     assert not leftovers, leftovers
     log = done.stdout + done.stderr
-    assert f"{FRAMES} VMC bundles sent to 127.0.0.1:{port} (0 failed to send)" in log, log[-3000:]
-    assert len(recorded) == FRAMES, len(recorded)
-    assert (receiver.datagrams, receiver.not_bundles) == (FRAMES, 0), (receiver.datagrams,
-                                                                      receiver.not_bundles)
-    assert len(receiver.frames) == FRAMES, len(receiver.frames)
+    bundles_sent, failed = sent_and_failed(log)
+    assert f"VMC bundles sent to 127.0.0.1:{port}" in log, log[-3000:]
+    assert failed == 0 and bundles_sent >= FRAMES - LIVE_DROPS, (bundles_sent, failed)
+    assert len(recorded) >= FRAMES - LIVE_DROPS, len(recorded)
+    # Every bundle sent arrived, once, as a bundle.
+    assert (receiver.datagrams, receiver.not_bundles) == (bundles_sent, 0), (receiver.datagrams,
+                                                                     receiver.not_bundles)
+    assert len(receiver.frames) == bundles_sent, len(receiver.frames)
 
     capture = recorded["header.capture_ns"].astype(np.int64)
     expected_t = (capture - capture[0]) * 1e-9
+    base = time_base([decode_frame(m)[3] for m in receiver.frames], expected_t)
     matched = set()
+    # Frames the recorder dropped but the stage sent have nothing to match.
+    unmatched = 0
     worst_rotation = worst_root = worst_t = 0.0
     first_offsets = None
     for messages in receiver.frames:
         root, bones, ok, t = decode_frame(messages)
         assert root == ("root", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0), root
         assert ok == (1,), ok
-        k = int(np.argmin(np.abs(expected_t - t)))
-        worst_t = max(worst_t, abs(expected_t[k] - t))
-        assert abs(expected_t[k] - t) < 1e-3, (t, expected_t[k])
+        k = int(np.argmin(np.abs(expected_t - (t + base))))
+        if abs(expected_t[k] - (t + base)) >= 1e-3:
+            unmatched += 1
+            continue
+        worst_t = max(worst_t, abs(expected_t[k] - (t + base)))
         assert k not in matched, f"frame {k} (T = {t}) arrived twice"
         matched.add(k)
         frame = recorded[k]
@@ -194,8 +229,11 @@ def test_a_live_graph_streams_every_frame_to_python_osc():
         if first_offsets is None:
             first_offsets = offsets
         assert np.array_equal(offsets, first_offsets), "bone offsets are the body's rest offsets"
-    assert matched == set(range(FRAMES)), sorted(set(range(FRAMES)) - matched)[:10]
-    print(f"{FRAMES} frames received and matched; max |difference|: rotation components "
+    assert unmatched <= FRAMES - len(recorded), (unmatched, len(recorded))
+    assert len(matched) >= FRAMES - 2 * LIVE_DROPS, sorted(set(range(len(recorded))) - matched)[:10]
+    print(f"{len(matched)} of {FRAMES} frames received and matched "
+          f"({FRAMES - bundles_sent} dropped live, {unmatched} not recorded); "
+          f"max |difference|: rotation components "
           f"{worst_rotation:.2e}, Hips (root) position {worst_root:.2e} m, T {worst_t:.2e} s")
     assert worst_rotation < 1e-6 and worst_root == 0.0
 
@@ -221,14 +259,12 @@ def test_a_receiver_that_is_not_there_neither_stalls_nor_fails_the_graph():
         recorded = imuflow.open_recording(mcap).frames("source.truth")
     assert done.returncode == 0, done.stderr[-3000:]
     assert not leftovers, leftovers
-    assert len(recorded) == frames
+    assert len(recorded) >= frames - LIVE_DROPS
     log = done.stdout + done.stderr
     # The kernel's port-unreachable answers fail later sends on the connected socket: counted,
     # warned about once.
-    line = next((s for s in log.splitlines() if "VMC bundles sent to" in s), "")
-    sent = int(line.split("VMC bundles sent to")[0].split()[-1])
-    failed = int(line.split("(")[1].split()[0])
-    assert sent + failed == frames and failed > 0, line
+    sent, failed = sent_and_failed(log)
+    assert frames - LIVE_DROPS <= sent + failed <= frames and failed > 0, (sent, failed)
     assert log.count("cannot send to") == 1, log[-3000:]
 
 
