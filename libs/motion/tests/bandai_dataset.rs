@@ -3,26 +3,16 @@
 //! `IMUFLOW_BANDAI_DIR=/path/to/extracted cargo test -p imuflow-motion --test bandai_dataset -- --ignored`
 //! (the directory that `shared/data/bandai-namco-motion/extract.sh` filled).
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
+
+use common::bvh_files;
 
 use imuflow_body::kinematics::{FkData, forward_kinematics};
 use imuflow_body::{BodyModel, BodyParams, JointId};
 use imuflow_motion::bvh::Bvh;
 use imuflow_motion::retarget::{RetargetOptions, SourceSkeleton, retarget_bvh};
-
-fn bvh_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let p = e.path();
-        if p.is_dir() {
-            bvh_files(&p, out);
-        } else if p.extension().is_some_and(|x| x == "bvh") {
-            out.push(p);
-        }
-    }
-}
 
 #[test]
 #[ignore = "needs the extracted Bandai Namco data set (IMUFLOW_BANDAI_DIR)"]

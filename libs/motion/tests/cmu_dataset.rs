@@ -5,7 +5,11 @@
 //! numbers of `mappings/README.md`) and checks that every clip retargets with hinge knees and elbows,
 //! and that the clips `mappings/cmu-sample.exclude` leaves out are exactly those without a floor.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
+
+use common::bvh_files;
 
 use imuflow_body::kinematics::{FkData, forward_kinematics};
 use imuflow_body::limb_joints::{flexion, hinge_elbow, hinge_knee};
@@ -18,20 +22,6 @@ use imuflow_motion::retarget::{MotionClip, RetargetOptions, SourceSkeleton, reta
 /// alignment) in at least this share of frames. Jumps and runs leave it briefly (at most 16 % of
 /// the sample's kept clips); climbing and uneven terrain most of the time (59 % and more).
 const MAX_OFF_FLOOR: f64 = 0.25;
-
-fn bvh_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let p = e.path();
-        if p.is_dir() {
-            bvh_files(&p, out);
-        } else if p.extension().is_some_and(|x| x == "bvh") {
-            out.push(p);
-        }
-    }
-}
 
 /// The file names `cmu-sample.exclude` lists.
 fn excluded() -> Vec<String> {

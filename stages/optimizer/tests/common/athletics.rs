@@ -132,6 +132,19 @@ fn frames(secs: f64) -> usize {
     (secs / DT_S).round() as usize
 }
 
+/// Standing still for `secs` at horizontal position `at`.
+fn stand(out: &mut Vec<Pose>, physics: &PhysicsBody, secs: f64, at: Vector3<f64>) {
+    on_feet(
+        out,
+        physics,
+        Sagittal::STAND,
+        Sagittal::STAND,
+        secs,
+        smooth,
+        at,
+    );
+}
+
 /// Blends from `a` to `b` over `secs` with the lowest body part (the feet; the hands when they
 /// reach down in a squat) on the floor at horizontal position `at`.
 fn on_feet(
@@ -158,15 +171,7 @@ fn on_feet(
 pub fn back_flip(physics: &PhysicsBody) -> Vec<Pose> {
     let mut out = Vec::new();
     let origin = Vector3::zeros();
-    on_feet(
-        &mut out,
-        physics,
-        Sagittal::STAND,
-        Sagittal::STAND,
-        0.5,
-        smooth,
-        origin,
-    );
+    stand(&mut out, physics, 0.5, origin);
     on_feet(
         &mut out,
         physics,
@@ -203,15 +208,7 @@ pub fn back_flip(physics: &PhysicsBody) -> Vec<Pose> {
     let half = Sagittal::STAND.lerp(&Sagittal::CROUCH, 0.6);
     on_feet(&mut out, physics, Sagittal::STAND, half, 0.2, smooth, at);
     on_feet(&mut out, physics, half, Sagittal::STAND, 0.4, smooth, at);
-    on_feet(
-        &mut out,
-        physics,
-        Sagittal::STAND,
-        Sagittal::STAND,
-        0.5,
-        smooth,
-        at,
-    );
+    stand(&mut out, physics, 0.5, at);
     out
 }
 
@@ -220,15 +217,7 @@ pub fn back_flip(physics: &PhysicsBody) -> Vec<Pose> {
 pub fn forward_roll(physics: &PhysicsBody) -> Vec<Pose> {
     let mut out = Vec::new();
     let origin = Vector3::zeros();
-    on_feet(
-        &mut out,
-        physics,
-        Sagittal::STAND,
-        Sagittal::STAND,
-        0.5,
-        smooth,
-        origin,
-    );
+    stand(&mut out, physics, 0.5, origin);
     on_feet(
         &mut out,
         physics,
@@ -272,15 +261,7 @@ pub fn forward_roll(physics: &PhysicsBody) -> Vec<Pose> {
         smooth,
         at,
     );
-    on_feet(
-        &mut out,
-        physics,
-        Sagittal::STAND,
-        Sagittal::STAND,
-        0.5,
-        smooth,
-        at,
-    );
+    stand(&mut out, physics, 0.5, at);
     out
 }
 
