@@ -1,4 +1,4 @@
-//! `imuflow train` and `imuflow import-checkpoint`: the kinematics nets' command lines (the work
+//! `imuflow train`, `imuflow import-checkpoint` and `imuflow average-weights`: the kinematics nets' command lines (the work
 //! is in imuflow-kinematics; `imuflow eval` is in `eval_cmd`).
 
 use std::path::PathBuf;
@@ -128,6 +128,40 @@ pub fn import(args: ImportArgs) -> anyhow::Result<()> {
         args.out.display(),
         args.method.name(),
         args.checkpoint.display()
+    );
+    Ok(())
+}
+
+/// Options of `imuflow average-weights`.
+#[derive(Args)]
+pub struct AverageArgs {
+    /// The weight files (at least two) of one method and architecture, fine-tuned from one start
+    /// (e.g. a committed file and runs continued from it with `train --init-weights`).
+    #[arg(required = true, num_args = 2.., value_name = "FILE")]
+    inputs: Vec<PathBuf>,
+    /// The weight file to write.
+    #[arg(long, short, value_name = "FILE")]
+    out: PathBuf,
+}
+
+pub fn average(args: AverageArgs) -> anyhow::Result<()> {
+    // The command as run, for the provenance, with files named as the user named them (absolute
+    // paths as their names: weight files never carry a machine's folders).
+    let name = |p: &PathBuf| {
+        let mut v = serde_json::Value::String(p.display().to_string());
+        imuflow_kinematics::weights::without_machine_paths(&mut v);
+        v.as_str().unwrap_or_default().to_owned()
+    };
+    let command = std::iter::once("imuflow average-weights".to_owned())
+        .chain(args.inputs.iter().map(name))
+        .chain(["-o".to_owned(), name(&args.out)])
+        .collect::<Vec<_>>()
+        .join(" ");
+    imuflow_train::average::average_weights(&args.inputs, &args.out, &command)?;
+    println!(
+        "wrote {} (the mean of {} weight files)",
+        args.out.display(),
+        args.inputs.len()
     );
     Ok(())
 }

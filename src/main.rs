@@ -92,6 +92,8 @@ enum Command {
     Eval(eval_cmd::EvalArgs),
     /// Convert the authors' PyTorch checkpoint (PIP or GlobalPose) to an imuflow weight file.
     ImportCheckpoint(kinematics_cmd::ImportArgs),
+    /// Average weight files fine-tuned from one start (element-wise mean, equal weights).
+    AverageWeights(kinematics_cmd::AverageArgs),
     /// The body model.
     #[command(subcommand)]
     Body(BodyCommand),
@@ -324,6 +326,7 @@ fn main() -> ExitCode {
         }) => exit_code(export_urdf(&out, stature_m, mass_kg)),
         Command::Dataset(cmd) => dataset(cmd),
         Command::ImportCheckpoint(args) => exit_code(kinematics_cmd::import(args)),
+        Command::AverageWeights(args) => exit_code(kinematics_cmd::average(args)),
         Command::Eval(args) => exit_code(eval_cmd::eval(args)),
         Command::Train(args) => exit_code(kinematics_cmd::run(args)),
         Command::Bench(cmd) => exit_code(imuflow_bench::run(cmd, &registry::registry())),

@@ -258,7 +258,14 @@ mod provenance_tests {
 
     #[test]
     fn the_shipped_weights_name_no_machine_path() {
-        for file in ["pip", "globalpose", "protocol/pip", "protocol/globalpose"] {
+        for file in [
+            "pip",
+            "globalpose",
+            "protocol/pip",
+            "protocol/globalpose",
+            "ingredients/globalpose-every-seed9",
+            "ingredients/globalpose-every-seed13",
+        ] {
             let path = Path::new(env!("CARGO_MANIFEST_DIR"))
                 .join(format!("../../models/{file}.safetensors"));
             let bytes = std::fs::read(&path).expect("shipped weights");

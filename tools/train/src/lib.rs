@@ -6,7 +6,9 @@
 //!   read and predict.
 //! - [`train`]: training on the CPU (or a CUDA GPU with the `cuda` feature) with candle autograd.
 //! - [`import`]: the authors' PyTorch checkpoints to our weight files.
+//! - [`average`]: the element-wise mean of fine-tuned weight files (`imuflow average-weights`).
 
+pub mod average;
 pub mod data;
 pub mod import;
 pub mod train;
