@@ -1,5 +1,5 @@
-//! `imuflow train`, `imuflow import-checkpoint` and `imuflow average-weights`: the kinematics nets' command lines (the work
-//! is in imuflow-kinematics; `imuflow eval` is in `eval_cmd`).
+//! `imuflow train`, `imuflow import-checkpoint` and `imuflow average-weights`: the kinematics nets'
+//! command lines (the work is in imuflow-train; `imuflow eval` is in `eval_cmd`).
 
 use std::path::PathBuf;
 
