@@ -147,11 +147,8 @@ pub struct AverageArgs {
 pub fn average(args: AverageArgs) -> anyhow::Result<()> {
     // The command as run, for the provenance, with files named as the user named them (absolute
     // paths as their names: weight files never carry a machine's folders).
-    let name = |p: &PathBuf| {
-        let mut v = serde_json::Value::String(p.display().to_string());
-        imuflow_kinematics::weights::without_machine_paths(&mut v);
-        v.as_str().unwrap_or_default().to_owned()
-    };
+    let name =
+        |p: &PathBuf| imuflow_kinematics::weights::without_machine_path(&p.display().to_string());
     let command = std::iter::once("imuflow average-weights".to_owned())
         .chain(args.inputs.iter().map(name))
         .chain(["-o".to_owned(), name(&args.out)])

@@ -38,20 +38,20 @@ impl Weights {
     /// Load and check a weight file for `method`: every tensor present with the right shape, no foreign
     /// tensors, the metadata's method matching.
     pub fn load(path: &Path, method: Method) -> Result<Weights, WeightsError> {
+        let bytes = std::fs::read(path).map_err(|e| WeightsError::File {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        })?;
+        Weights::from_bytes(&bytes, path, method)
+    }
+
+    /// [`Weights::load`] on a file's bytes already read (`path` names it in errors).
+    pub fn from_bytes(bytes: &[u8], path: &Path, method: Method) -> Result<Weights, WeightsError> {
         let file_err = |message: String| WeightsError::File {
             path: path.display().to_string(),
             message,
         };
-        let bytes = std::fs::read(path).map_err(|e| file_err(e.to_string()))?;
-        let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
-            .map_err(|e| file_err(format!("not a safetensors file: {e}")))?;
-        let metadata: Option<WeightsMetadata> = header
-            .metadata()
-            .as_ref()
-            .and_then(|m| m.get("imuflow"))
-            .map(|s| serde_json::from_str(s))
-            .transpose()
-            .map_err(|e| file_err(format!("metadata 'imuflow' is not valid: {e}")))?;
+        let metadata = read_metadata(bytes).map_err(file_err)?;
         if let Some(meta) = &metadata
             && meta.method != method
         {
@@ -60,7 +60,7 @@ impl Weights {
                 found: meta.method.name().to_owned(),
             });
         }
-        let tensors = candle_core::safetensors::load_buffer(&bytes, &Device::Cpu)
+        let tensors = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)
             .map_err(|e| file_err(format!("reading tensors: {e}")))?;
         let nets = nets_from_tensors(method, &tensors)?;
         let metadata = metadata.unwrap_or_else(|| WeightsMetadata {
@@ -73,6 +73,20 @@ impl Weights {
         });
         Ok(Weights { metadata, nets })
     }
+}
+
+/// A weight file's `imuflow` metadata, `None` when it has none (an error message when the bytes are
+/// not safetensors or the metadata is not valid).
+pub fn read_metadata(bytes: &[u8]) -> Result<Option<WeightsMetadata>, String> {
+    let (_, header) = safetensors::SafeTensors::read_metadata(bytes)
+        .map_err(|e| format!("not a safetensors file: {e}"))?;
+    header
+        .metadata()
+        .as_ref()
+        .and_then(|m| m.get("imuflow"))
+        .map(|s| serde_json::from_str(s))
+        .transpose()
+        .map_err(|e| format!("metadata 'imuflow' is not valid: {e}"))
 }
 
 /// Build `method`'s nets from named tensors, with sizes read from the tensors and checked against
@@ -172,18 +186,24 @@ pub fn save(
 /// that trained them. Relative paths (`models/pip.safetensors`) and other text stay.
 pub fn without_machine_paths(value: &mut serde_json::Value) {
     match value {
-        serde_json::Value::String(s) if is_absolute_path(s) => {
-            let name = s
-                .trim_end_matches(['/', '\\'])
-                .rsplit(['/', '\\'])
-                .next()
-                .unwrap_or_default();
-            *s = name.to_owned();
-        }
+        serde_json::Value::String(s) => *s = without_machine_path(s),
         serde_json::Value::Array(items) => items.iter_mut().for_each(without_machine_paths),
         serde_json::Value::Object(map) => map.values_mut().for_each(without_machine_paths),
         _ => {}
     }
+}
+
+/// `s` as [`without_machine_paths`] writes it: an absolute path as its last component, anything
+/// else unchanged.
+pub fn without_machine_path(s: &str) -> String {
+    if !is_absolute_path(s) {
+        return s.to_owned();
+    }
+    s.trim_end_matches(['/', '\\'])
+        .rsplit(['/', '\\'])
+        .next()
+        .unwrap_or_default()
+        .to_owned()
 }
 
 fn is_absolute_path(s: &str) -> bool {

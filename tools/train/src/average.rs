@@ -88,26 +88,20 @@ pub fn average_weights(inputs: &[PathBuf], out: &Path, command: &str) -> anyhow:
 
 fn read_ingredient(path: &Path) -> anyhow::Result<Ingredient> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let st = safetensors::SafeTensors::deserialize(&bytes)
-        .with_context(|| format!("{}: not a safetensors file", path.display()))?;
-    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
-        .with_context(|| format!("{}: not a safetensors file", path.display()))?;
-    let metadata: WeightsMetadata = header
-        .metadata()
-        .as_ref()
-        .and_then(|m| m.get("imuflow"))
+    // The stage's reader checks what a user would load: the metadata, every net of the method
+    // present with the right shapes, nothing foreign.
+    let metadata = weights::read_metadata(&bytes)
+        .map_err(|message| anyhow::anyhow!("{}: {message}", path.display()))?
         .with_context(|| {
             format!(
                 "{}: no imuflow metadata (not a weight file of `imuflow train` or `import-checkpoint`)",
                 path.display()
             )
-        })
-        .and_then(|s| {
-            serde_json::from_str(s)
-                .with_context(|| format!("{}: metadata 'imuflow' is not valid", path.display()))
         })?;
-    // The stage's reader: every net of the method present with the right shapes, nothing foreign.
-    Weights::load(path, metadata.method).with_context(|| format!("reading {}", path.display()))?;
+    Weights::from_bytes(&bytes, path, metadata.method)
+        .with_context(|| format!("reading {}", path.display()))?;
+    let st = safetensors::SafeTensors::deserialize(&bytes)
+        .with_context(|| format!("{}: not a safetensors file", path.display()))?;
     let mut tensors = BTreeMap::new();
     for (name, view) in st.tensors() {
         if view.dtype() != safetensors::Dtype::F32 {

@@ -32,8 +32,9 @@ fn small_weights(dir: &Path, method: Method) -> PathBuf {
 fn read(path: &Path) -> (HashMap<String, Tensor>, WeightsMetadata) {
     let bytes = std::fs::read(path).unwrap();
     let tensors = candle_core::safetensors::load_buffer(&bytes, &Device::Cpu).unwrap();
-    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
-    let meta = serde_json::from_str(&header.metadata().as_ref().unwrap()["imuflow"]).unwrap();
+    let meta = weights::read_metadata(&bytes)
+        .unwrap()
+        .expect("imuflow metadata");
     (tensors, meta)
 }
 
