@@ -104,18 +104,8 @@ fn read_ingredient(path: &Path) -> anyhow::Result<Ingredient> {
         .with_context(|| format!("{}: not a safetensors file", path.display()))?;
     let mut tensors = BTreeMap::new();
     for (name, view) in st.tensors() {
-        if view.dtype() != safetensors::Dtype::F32 {
-            bail!(
-                "{}: tensor {name} is {:?}, not f32",
-                path.display(),
-                view.dtype()
-            );
-        }
-        let values: Vec<f32> = view
-            .data()
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .collect();
+        let values = crate::data::f32_values(&name, &view)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         if let Some(i) = values.iter().position(|v| !v.is_finite()) {
             bail!(
                 "{}: tensor {name} is not finite at element {i} ({})",

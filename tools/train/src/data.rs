@@ -14,6 +14,7 @@ use imuflow_body::skeleton::{CONTACT_JOINTS, FULL_JOINTS, LEAF_JOINTS, REDUCED_J
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
 use nalgebra::{Rotation3, Vector3};
 use safetensors::SafeTensors;
+use safetensors::tensor::TensorView;
 
 pub use imuflow_kinematics::features::{FPS, PIP_VELOCITY_SCALE};
 use imuflow_kinematics::features::{
@@ -248,6 +249,18 @@ pub struct Shard<'a> {
     _bytes: std::marker::PhantomData<&'a [u8]>,
 }
 
+/// A safetensors tensor's values, which must be f32 (as every tensor imuflow writes is).
+pub(crate) fn f32_values(name: &str, view: &TensorView) -> anyhow::Result<Vec<f32>> {
+    if view.dtype() != safetensors::Dtype::F32 {
+        bail!("tensor '{name}' is {:?}, expected F32", view.dtype());
+    }
+    Ok(view
+        .data()
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect())
+}
+
 impl<'a> Shard<'a> {
     /// Parses one shard file's bytes (safetensors, as `imuflow dataset build` writes them).
     pub fn parse(bytes: &'a [u8]) -> anyhow::Result<Shard<'a>> {
@@ -262,17 +275,12 @@ impl<'a> Shard<'a> {
             let t = st
                 .tensor(name)
                 .with_context(|| format!("tensor '{name}' missing"))?;
-            if t.dtype() != safetensors::Dtype::F32 {
-                bail!("tensor '{name}' is {:?}, expected F32", t.dtype());
-            }
+            let values = f32_values(name, &t)?;
             let n: usize = t.shape()[1..].iter().product();
             if n != per_frame {
                 bail!("tensor '{name}' has shape {:?}", t.shape());
             }
-            Ok(t.data()
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect())
+            Ok(values)
         };
         let offsets_t = st.tensor("clip_offsets").context("tensor 'clip_offsets'")?;
         let offsets: Vec<usize> = offsets_t
