@@ -8,7 +8,7 @@ use nalgebra::{UnitQuaternion, Vector3};
 
 use crate::error::Error;
 use crate::layout::{
-    Column, Layout, MissingAccelerometer, QuaternionColumns, SensorLayout, TimeLayout,
+    Column, Layout, MissingAccelerometer, Quantity, QuaternionColumns, SensorLayout, TimeLayout,
 };
 use crate::recording::{SensorRecording, Track, count, merge};
 use crate::sample::{
@@ -26,20 +26,60 @@ pub fn read(path: &Path, layout: &Layout) -> Result<SensorRecording, Error> {
     } else {
         path.parent().map(Path::to_owned).unwrap_or_default()
     };
+    let found = match &layout.files {
+        Some(files) if path.is_dir() => Some(crate::sites::find(path, files, layout)?),
+        Some(_) => {
+            return Err(Error::file(
+                path,
+                "the layout finds each sensor's file in a folder ([files] match): give the recording's folder",
+            ));
+        }
+        None => None,
+    };
+    let mut site_files: Vec<(usize, &SensorLayout, Vec<PathBuf>)> = Vec::new();
+    let mut missing: Vec<&str> = Vec::new();
+    let mut missing_files: Vec<String> = Vec::new();
+    for (i, sensor) in layout.sites() {
+        let files = match &found {
+            Some(found) => match &found[i] {
+                Some(entry) => files_in(sensor, entry),
+                None => {
+                    missing.push(SITES[i]);
+                    continue;
+                }
+            },
+            None => files_of(sensor, path, &base),
+        }
+        .map_err(|m| Error::file(path, format!("[sensors.{}]: {m}", SITES[i])))?;
+        if found.is_none() && !files[0].exists() {
+            missing.push(SITES[i]);
+            missing_files.push(files[0].display().to_string());
+            continue;
+        }
+        site_files.push((i, sensor, files));
+    }
+    if !missing.is_empty() {
+        return Err(missing_sites(
+            path,
+            layout,
+            &missing,
+            &missing_files,
+            &site_files,
+        ));
+    }
     let mut tables: BTreeMap<PathBuf, Table> = BTreeMap::new();
     let mut tracks: [Track; NUM_IMUS] = Default::default();
     let mut counts = [Default::default(); NUM_IMUS];
-    for (i, sensor) in layout.sites() {
-        let files = files_of(sensor, path, &base)
-            .map_err(|m| Error::file(path, format!("[sensors.{}]: {m}", SITES[i])))?;
+    for (i, sensor, files) in site_files {
         for f in &files {
             if !tables.contains_key(f) {
                 tables.insert(f.clone(), Table::read(f, &layout.table)?);
             }
         }
         let sensor_tables: Vec<&Table> = files.iter().filter_map(|f| tables.get(f)).collect();
-        let (mut track, unjoined) = read_sensor(layout, sensor, &sensor_tables)?;
-        let derived = if sensor.gyroscope.is_none() && sensor.has_orientation() {
+        let read = read_sensor(layout, sensor, &sensor_tables)?;
+        let mut track = read.track;
+        let derived = if !read.has.gyroscope && read.has.orientation {
             derive_gyroscope(&mut track.samples) as u64
         } else {
             0
@@ -47,13 +87,10 @@ pub fn read(path: &Path, layout: &Layout) -> Result<SensorRecording, Error> {
         if layout.units.magnetometer == MagnetometerUnit::Arbitrary {
             normalise_arbitrary_magnetometer(&mut track.samples);
         }
-        counts[i] = count(
-            &track,
-            sensor.magnetometer.is_some(),
-            sensor.has_orientation(),
-        );
+        counts[i] = count(&track, read.has.magnetometer, read.has.orientation);
         counts[i].derived_gyroscope = derived;
-        counts[i].unjoined_rows = unjoined;
+        counts[i].unjoined_rows = read.unjoined;
+        counts[i].lost = read.lost;
         tracks[i] = track;
     }
     let (frames, _) = merge(&tracks);
@@ -68,6 +105,84 @@ pub fn read(path: &Path, layout: &Layout) -> Result<SensorRecording, Error> {
     })
 }
 
+/// The refusal of a recording without some of the sites the layout lists: which ones, and what
+/// the folder does hold.
+fn missing_sites(
+    path: &Path,
+    layout: &Layout,
+    missing: &[&str],
+    missing_files: &[String],
+    present: &[(usize, &SensorLayout, Vec<PathBuf>)],
+) -> Error {
+    let have: Vec<&str> = present.iter().map(|(i, _, _)| SITES[*i]).collect();
+    let how = match &layout.files {
+        Some(f) if f.pattern.contains("{id}") => format!(
+            "no file matching [files] match = \"{}\" with a sensor id{} mapped to it",
+            f.pattern,
+            f.ids
+                .as_ref()
+                .map(|t| {
+                    let names: Vec<String> =
+                        t.list().iter().map(|p| p.display().to_string()).collect();
+                    format!(" by {} or the layout's `id`", names.join(" or "))
+                })
+                .unwrap_or_default()
+        ),
+        Some(f) => format!(
+            "no file or folder matching [files] match = \"{}\" with the site's name",
+            f.pattern
+        ),
+        None => format!("no file {}", missing_files.join(", ")),
+    };
+    Error::file(
+        path,
+        format!(
+            "no sensor for {} ({how}); found {}. imuflow needs all six sites ({}): a partial sensor set is not supported",
+            missing.join(", "),
+            if have.is_empty() {
+                "none of the sites".to_owned()
+            } else {
+                have.join(", ")
+            },
+            SITES.join(", ")
+        ),
+    )
+}
+
+/// The files a sensor reads when `[files] match` found its `entry`: the entry itself, or the
+/// sensor's `file`/`files` inside it when it is a folder.
+fn files_in(sensor: &SensorLayout, entry: &Path) -> Result<Vec<PathBuf>, String> {
+    let listed: Vec<PathBuf> = match (&sensor.files, &sensor.file) {
+        (Some(files), _) => files.clone(),
+        (None, Some(file)) => vec![file.clone()],
+        (None, None) if entry.is_dir() => {
+            return Err(format!(
+                "'{}' is a folder: give this sensor's `file` in it",
+                entry.display()
+            ));
+        }
+        (None, None) => return Ok(vec![entry.to_owned()]),
+    };
+    if !entry.is_dir() {
+        return Err(format!(
+            "'{}' is a file, but the layout names files in it (`file`/`files`)",
+            entry.display()
+        ));
+    }
+    Ok(listed.iter().map(|f| with_gz(entry.join(f))).collect())
+}
+
+/// `path`, or `path.gz` when only the compressed file is there.
+fn with_gz(path: PathBuf) -> PathBuf {
+    if path.exists() {
+        return path;
+    }
+    let mut gz = path.clone().into_os_string();
+    gz.push(".gz");
+    let gz = PathBuf::from(gz);
+    if gz.exists() { gz } else { path }
+}
+
 /// The files a sensor reads, resolved against the recording.
 fn files_of(sensor: &SensorLayout, path: &Path, base: &Path) -> Result<Vec<PathBuf>, String> {
     let listed: Vec<PathBuf> = match (&sensor.files, &sensor.file) {
@@ -78,7 +193,7 @@ fn files_of(sensor: &SensorLayout, path: &Path, base: &Path) -> Result<Vec<PathB
         }
         (None, None) => return Ok(vec![path.to_owned()]),
     };
-    Ok(listed.iter().map(|f| base.join(f)).collect())
+    Ok(listed.iter().map(|f| with_gz(base.join(f))).collect())
 }
 
 /// Which table and cell a column is read from, and its name for messages.
@@ -98,6 +213,36 @@ struct Cells {
     magnetometer: Option<[Cell; 3]>,
     quaternion: Option<Vec<Cell>>,
     euler_xyz: Option<[Cell; 3]>,
+    rotation_matrix: Option<[Cell; 9]>,
+}
+
+/// Which quantities a sensor's files turned out to hold (optional ones may be absent).
+#[derive(Debug, Clone, Copy, Default)]
+struct Has {
+    gyroscope: bool,
+    magnetometer: bool,
+    orientation: bool,
+}
+
+impl Cells {
+    fn has(&self) -> Has {
+        Has {
+            gyroscope: self.gyroscope.is_some(),
+            magnetometer: self.magnetometer.is_some(),
+            orientation: self.quaternion.is_some()
+                || self.euler_xyz.is_some()
+                || self.rotation_matrix.is_some(),
+        }
+    }
+}
+
+/// One sensor read: its track, rows of further files that joined no sample, samples lost (gaps
+/// in the packet counter or the time column) and what its files hold.
+struct SensorRead {
+    track: Track,
+    unjoined: u64,
+    lost: u64,
+    has: Has,
 }
 
 /// A row read: the sample so far (vectors in the file's sensor frame) and the free acceleration.
@@ -108,20 +253,25 @@ struct Read {
 }
 
 /// Reads one sensor: rows of its first table are its samples, rows of further tables join them.
-/// Returns the track and how many rows of further tables joined no sample.
 fn read_sensor(
     layout: &Layout,
     sensor: &SensorLayout,
     tables: &[&Table],
-) -> Result<(Track, u64), Error> {
+) -> Result<SensorRead, Error> {
     let time = layout
         .time_of(sensor)
         .ok_or_else(|| Error::file(&tables[0].path, "no [time] for this sensor"))?;
     let cells = locate(sensor, tables)?;
-    let mut reads = read_table(layout, time, &cells, tables, 0)?;
+    if cells.free_acceleration.is_some() && !cells.has().orientation {
+        return Err(Error::file(
+            &tables[0].path,
+            "free acceleration without an orientation column: it cannot be turned into the sensor frame",
+        ));
+    }
+    let (mut reads, lost) = read_table(layout, time, &cells, tables, 0)?;
     let mut unjoined = 0;
     for t in 1..tables.len() {
-        let extra = read_table(layout, time, &cells, tables, t)?;
+        let (extra, _) = read_table(layout, time, &cells, tables, t)?;
         unjoined += join(&mut reads, &extra, &cells, t, sensor.join_tolerance_s);
     }
     let remap = sensor
@@ -131,8 +281,8 @@ fn read_sensor(
         .map_err(|m| Error::file(&tables[0].path, m))?;
     let gravity = gravity_in_inertial(layout.units.up, layout.units.gravity_mps2);
     let gravity_only = layout.units.missing_accelerometer == MissingAccelerometer::Gravity
-        && sensor.accelerometer.is_none()
-        && sensor.free_acceleration.is_none();
+        && cells.accelerometer.is_none()
+        && cells.free_acceleration.is_none();
     let samples = reads
         .into_iter()
         .map(|r| {
@@ -155,7 +305,12 @@ fn read_sensor(
         })
         .collect();
     let offset_ns = (sensor.time_offset_s * 1e9).round() as i64;
-    Ok((Track { samples, offset_ns }, unjoined))
+    Ok(SensorRead {
+        track: Track { samples, offset_ns },
+        unjoined,
+        lost,
+        has: cells.has(),
+    })
 }
 
 /// Finds every column of `sensor` in the first of `tables` that has it (numbers: the first).
@@ -186,51 +341,106 @@ fn locate(sensor: &SensorLayout, tables: &[&Table]) -> Result<Cells, Error> {
             },
         })
     };
-    let three = |cs: &Option<[Column; 3]>| -> Result<Option<[Cell; 3]>, Error> {
-        cs.as_ref()
-            .map(|[a, b, c]| Ok([one(a)?, one(b)?, one(c)?]))
-            .transpose()
+    // An optional quantity whose columns are not all in the files is left out.
+    let there = |cs: &[&Column], q: Quantity| {
+        !sensor.is_optional(q) || cs.iter().all(|c| tables.iter().any(|t| t.has(c)))
     };
-    let quaternion = match &sensor.quaternion {
-        None => None,
-        Some(QuaternionColumns::One(c)) => Some(vec![one(c)?]),
-        Some(QuaternionColumns::Four(cs)) => {
-            Some(cs.iter().map(one).collect::<Result<Vec<_>, _>>()?)
+    let three = |cs: &Option<[Column; 3]>, q: Quantity| -> Result<Option<[Cell; 3]>, Error> {
+        match cs {
+            Some([a, b, c]) if there(&[a, b, c], q) => Ok(Some([one(a)?, one(b)?, one(c)?])),
+            _ => Ok(None),
         }
     };
+    // Orientations in this order: the first the files have is used.
+    let quaternion = match &sensor.quaternion {
+        Some(QuaternionColumns::One(c)) if there(&[c], Quantity::Quaternion) => Some(vec![one(c)?]),
+        Some(QuaternionColumns::Four(cs))
+            if there(&cs.iter().collect::<Vec<_>>(), Quantity::Quaternion) =>
+        {
+            Some(cs.iter().map(one).collect::<Result<Vec<_>, _>>()?)
+        }
+        _ => None,
+    };
+    let rotation_matrix = match &sensor.rotation_matrix {
+        Some(cs)
+            if quaternion.is_none()
+                && there(&cs.iter().collect::<Vec<_>>(), Quantity::RotationMatrix) =>
+        {
+            let cells = cs.iter().map(one).collect::<Result<Vec<_>, _>>()?;
+            cells.try_into().ok()
+        }
+        _ => None,
+    };
+    let euler_xyz = if quaternion.is_none() && rotation_matrix.is_none() {
+        three(&sensor.euler_xyz, Quantity::EulerXyz)?
+    } else {
+        None
+    };
     Ok(Cells {
-        accelerometer: three(&sensor.accelerometer)?,
-        free_acceleration: three(&sensor.free_acceleration)?,
-        gyroscope: three(&sensor.gyroscope)?,
-        magnetometer: three(&sensor.magnetometer)?,
+        accelerometer: three(&sensor.accelerometer, Quantity::Accelerometer)?,
+        free_acceleration: three(&sensor.free_acceleration, Quantity::FreeAcceleration)?,
+        gyroscope: three(&sensor.gyroscope, Quantity::Gyroscope)?,
+        magnetometer: three(&sensor.magnetometer, Quantity::Magnetometer)?,
         quaternion,
-        euler_xyz: three(&sensor.euler_xyz)?,
+        euler_xyz,
+        rotation_matrix,
     })
 }
 
-/// Reads the quantities `cells` places in table `t`, one `Read` per row, with the row's time.
+/// Reads the quantities `cells` places in table `t`, one `Read` per row, with the row's time;
+/// also returns how many samples the table lacks (gaps in the counter or the time column).
 fn read_table(
     layout: &Layout,
     time: &TimeLayout,
     cells: &Cells,
     tables: &[&Table],
     t: usize,
-) -> Result<Vec<Read>, Error> {
+) -> Result<(Vec<Read>, u64), Error> {
     let table = tables[t];
     let time_cell = time
         .column
         .as_ref()
         .map(|c| table.index(c).map(|i| (i, c.to_string())))
         .transpose()?;
-    let mut clock = Clock::new(time);
+    let counter_cell = time
+        .counter
+        .as_ref()
+        .map(|c| table.index(c).map(|i| (i, c.to_string())))
+        .transpose()?;
+    let rate_hz = match (&time.rate_from, time.rate_hz) {
+        (Some(text), fallback) => match rate_in(&table.preamble, text) {
+            Some(r) => Some(r),
+            None if fallback.is_some() => fallback,
+            None => {
+                return Err(Error::file(
+                    &table.path,
+                    format!(
+                        "no line above the header gives the rate ('{text}', [time] rate_from): set [time] rate_hz to the recording's rate"
+                    ),
+                ));
+            }
+        },
+        (None, r) => r,
+    };
+    let mut clock = Clock::new(time, rate_hz);
+    let mut counter = time.counter.as_ref().map(|_| Counter::new(time));
     let mut out = Vec::with_capacity(table.rows.len());
     for (k, row) in table.rows.iter().enumerate() {
         let at = |m: String| Error::line(&table.path, row.line, m);
-        let time_ns = match &time_cell {
-            Some((i, label)) => clock
+        let count = match (&counter_cell, counter.as_mut()) {
+            (Some((i, label)), Some(counter)) => Some(
+                counter
+                    .next(cell(row, *i, label, table.decimal).map_err(at)?, label)
+                    .map_err(at)?,
+            ),
+            _ => None,
+        };
+        let time_ns = match (&time_cell, count) {
+            (Some((i, label)), _) => clock
                 .next(&cell(row, *i, label, table.decimal).map_err(at)?, label)
                 .map_err(at)?,
-            None => clock.at_row(k),
+            (None, Some(count)) => clock.at_row(count),
+            (None, None) => clock.at_row(k as u64),
         };
         let mut r = Read {
             sample: Sample {
@@ -242,7 +452,91 @@ fn read_table(
         fill(&mut r, layout, cells, table, t, row).map_err(at)?;
         out.push(r);
     }
-    Ok(out)
+    let lost = match (counter, &time_cell) {
+        (Some(counter), _) => counter.lost,
+        (None, Some(_)) => lost_by_time(&out),
+        (None, None) => 0,
+    };
+    Ok((out, lost))
+}
+
+/// The first number after `text` on the first line of `preamble` that has it: MT Manager's
+/// `// Update Rate: 60.0Hz`, the DOT app's `OutputRate:,60Hz`.
+fn rate_in(preamble: &[String], text: &str) -> Option<f64> {
+    let line = preamble.iter().find(|l| l.contains(text))?;
+    let after = &line[line.find(text)? + text.len()..];
+    let start = after.find(|c: char| c.is_ascii_digit())?;
+    let digits: String = after[start..]
+        .chars()
+        .take_while(|c| c.is_ascii_digit() || *c == '.')
+        .collect();
+    digits.parse().ok().filter(|r: &f64| *r > 0.0)
+}
+
+/// Samples missing from a time column without a counter: a gap of more than 1.5 median
+/// intervals holds round(gap / median) − 1 lost samples (what a steady rate would have had).
+fn lost_by_time(reads: &[Read]) -> u64 {
+    let mut d: Vec<i64> = reads
+        .windows(2)
+        .map(|w| w[1].sample.time_ns - w[0].sample.time_ns)
+        .collect();
+    if d.len() < 2 {
+        return 0;
+    }
+    d.sort_unstable();
+    let median = d[d.len() / 2].max(1) as f64;
+    d.iter()
+        .filter(|&&g| g as f64 > 1.5 * median)
+        .map(|&g| ((g as f64 / median).round() as u64).saturating_sub(1))
+        .sum()
+}
+
+/// A packet counter: unwrapped across its wraps, each gap counted as lost packets.
+struct Counter {
+    wrap: f64,
+    last: Option<(f64, u64)>,
+    lost: u64,
+}
+
+impl Counter {
+    fn new(time: &TimeLayout) -> Counter {
+        Counter {
+            wrap: time.counter_wrap.unwrap_or(65536.0),
+            last: None,
+            lost: 0,
+        }
+    }
+
+    /// The row's count, unwrapped (the first row's raw value, then one more per packet).
+    fn next(&mut self, value: Option<f64>, label: &str) -> Result<u64, String> {
+        let Some(raw) = value else {
+            return Err(format!("packet counter column {label} is empty"));
+        };
+        if raw < 0.0 || raw.fract() != 0.0 || raw >= self.wrap {
+            return Err(format!(
+                "packet counter column {label}: {raw} is not a count below its wrap {}",
+                self.wrap
+            ));
+        }
+        let count = match self.last {
+            None => raw as u64,
+            Some((last_raw, last)) => {
+                let mut step = raw - last_raw;
+                if step == 0.0 {
+                    return Err(format!(
+                        "packet counter column {label} repeats {raw} (a duplicated row?)"
+                    ));
+                }
+                if step < 0.0 {
+                    step += self.wrap;
+                }
+                self.lost += step as u64 - 1;
+                last + step as u64
+            }
+        };
+        self.last = Some((raw, count));
+        Ok(count)
+    }
 }
 
 /// Reads the quantities of table `t` from `row` into `r`, converted to SI units.
@@ -279,6 +573,18 @@ fn fill(
     }
     if let Some(v) = vector(&cells.euler_xyz, u.angles.rad())? {
         r.sample.orientation = v.map(|a| quaternion_from_euler_xyz([a.x, a.y, a.z]));
+    }
+    if let Some(cs) = cells.rotation_matrix.as_ref().filter(|cs| cs[0].table == t) {
+        let parts = cs
+            .iter()
+            .map(|c| raw_cell(row, c).map(|text| (text, c.label.as_str())))
+            .collect::<Result<Vec<_>, _>>()?;
+        r.sample.orientation = match all::<9>(&parts, table.decimal)? {
+            Some(m) => Some(
+                rotation_from_matrix(m).map_err(|e| format!("columns {}..: {e}", cs[0].label))?,
+            ),
+            None => None,
+        };
     }
     if let Some(cs) = cells.quaternion.as_ref().filter(|cs| cs[0].table == t) {
         r.sample.orientation = quaternion(row, cs, table.decimal, u.quaternion_order)?;
@@ -333,6 +639,26 @@ fn quaternion(
             unit_quaternion(order.wxyz(q)).map_err(|m| format!("column {}: {m}", cs[0].label))
         }
     }
+}
+
+/// R_IS from its nine elements row by row; an error when they are far from a rotation (the
+/// wrong columns, or the matrix's transpose read as itself would still pass: order is the
+/// layout's to get right).
+fn rotation_from_matrix(m: [f64; 9]) -> Result<UnitQuaternion<f64>, String> {
+    let r = nalgebra::Matrix3::from_row_slice(&m);
+    // Exports round to about six digits; an error this large means the columns are not R.
+    let off = (r.transpose() * r - nalgebra::Matrix3::identity())
+        .abs()
+        .max();
+    if off > 0.05 || r.determinant() < 0.0 {
+        return Err(format!(
+            "{m:?} is not a rotation matrix (|RᵀR − I| = {off:.3}, det {:.3}): are these the matrix's columns, row by row?",
+            r.determinant()
+        ));
+    }
+    let rotation =
+        nalgebra::Rotation3::from_matrix_eps(&r, 1e-12, 100, nalgebra::Rotation3::identity());
+    Ok(UnitQuaternion::from_rotation_matrix(&rotation))
 }
 
 /// Three numbers, or `None` when any of them is missing.
@@ -411,19 +737,19 @@ struct Clock {
 }
 
 impl Clock {
-    fn new(time: &TimeLayout) -> Clock {
+    fn new(time: &TimeLayout, rate_hz: Option<f64>) -> Clock {
         Clock {
             ns_per_unit: time.unit.map_or(1e9, |u| u.ns()),
             wrap: time.wrap,
-            rate_hz: time.rate_hz,
+            rate_hz,
             wraps: 0.0,
             last_raw: None,
             last_ns: None,
         }
     }
 
-    /// Row `k` of a file without a time column.
-    fn at_row(&self, k: usize) -> i64 {
+    /// Row (or count) `k` of a file without a time column.
+    fn at_row(&self, k: u64) -> i64 {
         (k as f64 / self.rate_hz.unwrap_or(1.0) * 1e9).round() as i64
     }
 
@@ -516,6 +842,7 @@ fn take(into: &mut Read, from: &Read, cells: &Cells, t: usize) {
     }
     if here(cells.euler_xyz.as_ref().map(|c| &c[0]))
         || here(cells.quaternion.as_ref().map(|c| &c[0]))
+        || here(cells.rotation_matrix.as_ref().map(|c| &c[0]))
     {
         into.sample.orientation = from.sample.orientation;
     }
@@ -560,14 +887,17 @@ mod tests {
             unit: Some(TimeUnit::Microseconds),
             wrap: Some(100.0),
             rate_hz: None,
+            rate_from: None,
+            counter: None,
+            counter_wrap: None,
         };
-        let mut clock = Clock::new(&time);
+        let mut clock = Clock::new(&time, None);
         let got: Vec<i64> = [90.0, 99.0, 3.0, 50.0, 2.0]
             .iter()
             .map(|v| clock.next(&Some(*v), "t").unwrap())
             .collect();
         assert_eq!(got, [90_000, 99_000, 103_000, 150_000, 202_000]);
-        let mut plain = Clock::new(&TimeLayout { wrap: None, ..time });
+        let mut plain = Clock::new(&TimeLayout { wrap: None, ..time }, None);
         plain.next(&Some(5.0), "t").unwrap();
         assert!(
             plain

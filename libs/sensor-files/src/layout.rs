@@ -30,6 +30,42 @@ pub struct Layout {
     /// The sensors, by site name (`left_forearm`, ..., `pelvis`).
     #[serde(default)]
     pub sensors: BTreeMap<String, SensorLayout>,
+    /// How each sensor's file or folder is found in the recording folder when the export names
+    /// them by sensor id or by the vendor's name of the body part (rather than fixed names).
+    pub files: Option<FilesLayout>,
+}
+
+/// Per-sensor files or folders found by name: `match` is a pattern of names in the recording
+/// folder, with `{site}` (a name of the site: `left_lower_leg`, "Left Lower Leg", `LTibia`, ...)
+/// or `{id}` (the sensor's id, from its `id` key or the `ids` table) and `*` (any text).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FilesLayout {
+    /// The name pattern; letters match either case.
+    #[serde(rename = "match")]
+    pub pattern: String,
+    /// A file in the recording folder mapping sensor ids to sites: a CSV whose header names an
+    /// id column (`sensor_id`, `id`, `sensor`) and a site column (`segment`, `site`), or an
+    /// OpenSense `myIMUMappings.xml`. Rows for other body parts are ignored. Several names: the
+    /// first file that is there.
+    pub ids: Option<Paths>,
+}
+
+/// One path or several.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+pub enum Paths {
+    One(PathBuf),
+    Many(Vec<PathBuf>),
+}
+
+impl Paths {
+    pub fn list(&self) -> &[PathBuf] {
+        match self {
+            Paths::One(p) => std::slice::from_ref(p),
+            Paths::Many(ps) => ps,
+        }
+    }
 }
 
 /// How the text is laid out.
@@ -91,6 +127,12 @@ pub enum Delimiter {
     Semicolon,
     /// Any run of spaces and tabs.
     Whitespace,
+    /// One space per cell boundary: two spaces in a row are an empty cell (MT Manager's
+    /// space-separated export writes its empty cells so).
+    Space,
+    /// From the header line (or the first row without a header): tab, semicolon or comma, the
+    /// first of them the line has, else space. For exporters that let the user choose.
+    Detect,
 }
 
 /// Where a sample's time comes from: a column, or a fixed rate.
@@ -104,8 +146,16 @@ pub struct TimeLayout {
     /// The time column is a counter that wraps at this value (in `unit`), e.g. 4294967296 for
     /// a 32-bit microsecond counter; a step backwards then adds one wrap.
     pub wrap: Option<f64>,
-    /// No time column: row k of a file is at k / rate_hz seconds.
+    /// No time column: row k of a file is at k / rate_hz seconds (with `counter`: count k).
     pub rate_hz: Option<f64>,
+    /// The rate is the first number on the first line before the header that contains this
+    /// text (MT Manager: `// Update Rate: 60.0Hz`); `rate_hz`, if given, is used when no line has it.
+    pub rate_from: Option<String>,
+    /// A packet counter column: a gap in it is lost packets (counted); without a time `column`
+    /// the sample's time is its count / rate.
+    pub counter: Option<Column>,
+    /// The counter wraps at this value (default 65536, a 16-bit counter).
+    pub counter_wrap: Option<f64>,
 }
 
 /// Units and frame conventions.
@@ -226,12 +276,38 @@ pub struct SensorLayout {
     /// On-board orientation as Euler angles about x, y, z (roll, pitch, yaw):
     /// R_IS = Rz(z)·Ry(y)·Rx(x), the Xsens convention.
     pub euler_xyz: Option<[Column; 3]>,
+    /// On-board orientation R_IS as a rotation matrix, nine columns row by row (R11, R12, R13,
+    /// R21, ...).
+    pub rotation_matrix: Option<[Column; 9]>,
+    /// The sensor's id, for `{id}` in `[files] match`.
+    pub id: Option<String>,
+    /// Quantities read only when the file has their columns (one export, several variants).
+    #[serde(default)]
+    pub optional: Vec<Quantity>,
+}
+
+/// A quantity a sensor's columns hold.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Quantity {
+    Accelerometer,
+    FreeAcceleration,
+    Gyroscope,
+    Magnetometer,
+    Quaternion,
+    RotationMatrix,
+    EulerXyz,
 }
 
 impl SensorLayout {
     /// Whether the sensor has an on-board orientation.
     pub fn has_orientation(&self) -> bool {
-        self.quaternion.is_some() || self.euler_xyz.is_some()
+        self.quaternion.is_some() || self.euler_xyz.is_some() || self.rotation_matrix.is_some()
+    }
+
+    /// Whether `q` may be absent from the file.
+    pub fn is_optional(&self, q: Quantity) -> bool {
+        self.optional.contains(&q)
     }
 }
 
@@ -288,6 +364,32 @@ impl Layout {
         if !(self.units.gravity_mps2.is_finite() && self.units.gravity_mps2 > 0.0) {
             return fail("[units] gravity_mps2 must be a positive number".into());
         }
+        if let Some(files) = &self.files {
+            let (site, id) = (
+                files.pattern.contains("{site}"),
+                files.pattern.contains("{id}"),
+            );
+            if site == id {
+                return fail(format!(
+                    "[files] match = \"{}\": give `{{site}}` or `{{id}}` in the pattern, once",
+                    files.pattern
+                ));
+            }
+            if files.ids.is_some() && !id {
+                return fail("[files] ids: the ids need `{id}` in `match`".into());
+            }
+        }
+        let by_id = self
+            .files
+            .as_ref()
+            .is_some_and(|f| f.pattern.contains("{id}"));
+        for (name, sensor) in &self.sensors {
+            if sensor.id.is_some() && !by_id {
+                return fail(format!(
+                    "[sensors.{name}] id: an id needs [files] match with `{{id}}`"
+                ));
+            }
+        }
         for (name, sensor) in &self.sensors {
             self.check_sensor(sensor)
                 .map_err(|m| Error::file(path, format!("[sensors.{name}]: {m}")))?;
@@ -310,8 +412,19 @@ impl Layout {
             return Err("no [time] (a `column` with its `unit`, or a `rate_hz`)".into());
         };
         check_time(time)?;
-        if s.quaternion.is_some() && s.euler_xyz.is_some() {
-            return Err("give `quaternion` or `euler_xyz`, not both".into());
+        let required_orientations = [
+            (s.quaternion.is_some(), Quantity::Quaternion),
+            (s.rotation_matrix.is_some(), Quantity::RotationMatrix),
+            (s.euler_xyz.is_some(), Quantity::EulerXyz),
+        ]
+        .iter()
+        .filter(|(given, q)| *given && !s.is_optional(*q))
+        .count();
+        if required_orientations > 1 {
+            return Err(
+                "give one of `quaternion`, `rotation_matrix` or `euler_xyz` (others may be listed in `optional`)"
+                    .into(),
+            );
         }
         if s.accelerometer.is_some() && s.free_acceleration.is_some() {
             return Err("give `accelerometer` or `free_acceleration`, not both".into());
@@ -374,26 +487,42 @@ impl Layout {
         {
             out.extend(triple.iter());
         }
+        if let Some(m) = &s.rotation_matrix {
+            out.extend(m.iter());
+        }
         match &s.quaternion {
             Some(QuaternionColumns::One(c)) => out.push(c),
             Some(QuaternionColumns::Four(cs)) => out.extend(cs.iter()),
             None => {}
         }
-        if let Some(c) = self.time_of(s).and_then(|t| t.column.as_ref()) {
-            out.push(c);
+        if let Some(t) = self.time_of(s) {
+            out.extend(t.column.iter().chain(&t.counter));
         }
         out
     }
 }
 
 fn check_time(time: &TimeLayout) -> Result<(), String> {
-    match (&time.column, time.rate_hz) {
-        (Some(_), Some(_)) => Err("[time]: give `column` or `rate_hz`, not both".into()),
-        (None, None) => Err("[time]: give a `column` (with its `unit`) or a `rate_hz`".into()),
-        (Some(_), None) if time.unit.is_none() => {
+    let rate_given = time.rate_hz.is_some() || time.rate_from.is_some();
+    if time.counter_wrap.is_some() && time.counter.is_none() {
+        return Err("[time] counter_wrap needs a `counter`".into());
+    }
+    if time
+        .counter_wrap
+        .is_some_and(|w| !(w.is_finite() && w >= 2.0))
+    {
+        return Err("[time] counter_wrap must be a number >= 2".into());
+    }
+    match (&time.column, rate_given) {
+        (Some(_), true) => Err("[time]: give `column` or a rate, not both".into()),
+        (None, false) if time.counter.is_some() => {
+            Err("[time]: a `counter` as the time needs its rate (`rate_hz` or `rate_from`)".into())
+        }
+        (None, false) => Err("[time]: give a `column` (with its `unit`) or a `rate_hz`".into()),
+        (Some(_), false) if time.unit.is_none() => {
             Err("[time]: the time column needs its `unit` (s, ms, us or ns)".into())
         }
-        (None, Some(r)) if !(r.is_finite() && r > 0.0) => {
+        (None, true) if time.rate_hz.is_some_and(|r| !(r.is_finite() && r > 0.0)) => {
             Err("[time] rate_hz must be a positive number".into())
         }
         _ if time.wrap.is_some_and(|w| !(w.is_finite() && w > 0.0)) => {

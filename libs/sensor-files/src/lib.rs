@@ -24,6 +24,7 @@ pub mod mvn;
 mod mvnx;
 mod recording;
 pub mod sample;
+pub mod sites;
 mod table;
 pub mod units;
 
@@ -49,12 +50,23 @@ pub enum Format {
 }
 
 impl Format {
-    /// By extension: `.mvnx` is MVNX, anything else (files or folders) CSV/TSV.
+    /// By extension: `.mvnx` (or `.mvnx.gz`) is MVNX, anything else (files or folders) CSV/TSV.
     pub fn detect(path: &Path) -> Format {
-        let mvnx = path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("mvnx"));
+        let mvnx = plain_extension(path).eq_ignore_ascii_case("mvnx");
         if mvnx { Format::Mvnx } else { Format::Csv }
+    }
+}
+
+/// A file's extension as if it were not compressed: `csv` for `a.csv.gz`.
+pub(crate) fn plain_extension(path: &Path) -> String {
+    let ext = |p: &Path| {
+        p.extension()
+            .map(|e| e.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    match ext(path) {
+        e if e.eq_ignore_ascii_case("gz") => ext(&path.with_extension("")),
+        e => e,
     }
 }
 

@@ -30,6 +30,9 @@ pub struct SensorCounts {
     pub derived_gyroscope: u64,
     /// Rows of a sensor's further files that joined no sample (no sample within the tolerance).
     pub unjoined_rows: u64,
+    /// Samples lost: gaps in the packet counter (`[time] counter`), or without one gaps in the
+    /// time column longer than 1.5 median intervals (each holding round(gap / median) − 1).
+    pub lost: u64,
 }
 
 impl fmt::Display for SensorCounts {
@@ -42,6 +45,7 @@ impl fmt::Display for SensorCounts {
             (self.missing_orientation, "without orientation"),
             (self.derived_gyroscope, "gyroscope from orientation"),
             (self.unjoined_rows, "rows of further files joined no sample"),
+            (self.lost, "lost (gaps in the packet counter or the time)"),
         ];
         for (n, what) in extra.iter().filter(|(n, _)| *n > 0) {
             write!(f, ", {n} {what}")?;

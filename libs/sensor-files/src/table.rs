@@ -22,6 +22,9 @@ pub struct Table {
     pub rows: Vec<Row>,
     /// The decimal separator numbers use.
     pub decimal: char,
+    /// The lines before the header row (or the first data row), comments included: where
+    /// exporters write the device and the rate.
+    pub preamble: Vec<String>,
 }
 
 impl Table {
@@ -33,7 +36,6 @@ impl Table {
 
     /// Parses `text`; `path` names it in errors and picks an automatic delimiter.
     pub fn parse(text: &str, path: &Path, layout: &TableLayout) -> Result<Table, Error> {
-        let delimiter = resolve_delimiter(layout.delimiter, path)?;
         let mut lines = text
             .lines()
             .enumerate()
@@ -68,6 +70,14 @@ impl Table {
                 ));
             }
         }
+        let (first_line, first) = lines.peek().map_or((0, ""), |(n, l)| (*n, *l));
+        // Everything above the header (or the first row), comments and skipped lines included.
+        let preamble: Vec<String> = text
+            .lines()
+            .take(first_line.saturating_sub(1).min(PREAMBLE_LINES))
+            .map(str::to_owned)
+            .collect();
+        let delimiter = resolve_delimiter(layout.delimiter, path, first)?;
         let header = if layout.header {
             let Some((n, line)) = lines.next() else {
                 return Err(Error::file(path, "no header row: the file has no content"));
@@ -84,6 +94,7 @@ impl Table {
             header,
             rows,
             decimal: layout.decimal,
+            preamble,
         })
     }
 
@@ -130,15 +141,27 @@ fn list(header: &[String]) -> String {
     names.join(", ")
 }
 
-/// The delimiter to split with: the layout's, or by extension for `auto`.
-fn resolve_delimiter(delimiter: Delimiter, path: &Path) -> Result<Delimiter, Error> {
-    if delimiter != Delimiter::Auto {
-        return Ok(delimiter);
+/// Preamble lines kept at most (a file of comments only must not be copied whole).
+const PREAMBLE_LINES: usize = 64;
+
+/// The delimiter to split with: the layout's; by extension for `auto`; from the first line (the
+/// header) for `detect`.
+fn resolve_delimiter(delimiter: Delimiter, path: &Path, first: &str) -> Result<Delimiter, Error> {
+    match delimiter {
+        Delimiter::Auto => {}
+        Delimiter::Detect => {
+            let found = [
+                ('\t', Delimiter::Tab),
+                (';', Delimiter::Semicolon),
+                (',', Delimiter::Comma),
+            ]
+            .into_iter()
+            .find(|(c, _)| first.contains(*c));
+            return Ok(found.map_or(Delimiter::Space, |(_, d)| d));
+        }
+        other => return Ok(other),
     }
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
+    let ext = crate::plain_extension(path).to_ascii_lowercase();
     match ext.as_str() {
         "csv" => Ok(Delimiter::Comma),
         "tsv" | "tab" | "sto" | "mot" | "txt" => Ok(Delimiter::Tab),
@@ -158,7 +181,8 @@ fn split(line: &str, delimiter: Delimiter, path: &Path, n: usize) -> Result<Vec<
         Delimiter::Whitespace => {
             return Ok(line.split_whitespace().map(str::to_owned).collect());
         }
-        Delimiter::Comma | Delimiter::Auto => b',',
+        Delimiter::Comma | Delimiter::Auto | Delimiter::Detect => b',',
+        Delimiter::Space => b' ',
         Delimiter::Tab => b'\t',
         Delimiter::Semicolon => b';',
     };

@@ -413,7 +413,9 @@ fn every_shipped_layout_loads_and_places_all_six_sites() {
             "movella-dot.toml",
             "noraxon.toml",
             "opensense-sto.toml",
-            "x-io.toml"
+            "x-imu3.toml",
+            "x-io.toml",
+            "xsens-mt-manager.toml"
         ]
     );
     for name in names {
