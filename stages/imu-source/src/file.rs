@@ -9,9 +9,29 @@ use std::time::{Duration, Instant};
 
 use imuflow_graph::StageContext;
 use imuflow_graph::frames::MotionFrame;
-use imuflow_sensor_files::{SensorRecording, resample_truth};
+use imuflow_sensor_files::{SITES, SensorRecording, resample_truth};
 
 use crate::publisher::Publisher;
+
+/// Refuses a recording without samples of some of the six sites (a layout that leaves sites
+/// out, a lower-body set): the estimators need all six, and a site that never delivers would
+/// only show up later as INVALID frames or a calibration that waits forever.
+pub fn check_sites(recording: &SensorRecording) -> anyhow::Result<()> {
+    let missing: Vec<&str> = SITES
+        .iter()
+        .zip(&recording.counts)
+        .filter(|(_, c)| c.samples == 0)
+        .map(|(site, _)| *site)
+        .collect();
+    if missing.is_empty() {
+        return Ok(());
+    }
+    anyhow::bail!(
+        "no samples of {}: imuflow needs all six sites ({}); a partial sensor set is not supported",
+        missing.join(", "),
+        SITES.join(", ")
+    )
+}
 
 /// Publishes `recording` (paced by its capture times when `realtime`); `limit` > 0 ends the
 /// stream after that many raw frames (and the truth with it).
@@ -68,4 +88,27 @@ pub fn run(
         out.publish_raw(&f, started)?;
     }
     out.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_recording_without_some_sites_is_refused_naming_them() {
+        let mut r = SensorRecording::default();
+        for (i, c) in r.counts.iter_mut().enumerate() {
+            // Lower body only: the legs (2, 3) and the pelvis (5).
+            c.samples = if [2, 3, 5].contains(&i) { 10 } else { 0 };
+        }
+        let e = check_sites(&r).unwrap_err().to_string();
+        assert!(
+            e.contains("no samples of left_forearm, right_forearm, head:"),
+            "{e}"
+        );
+        for c in r.counts.iter_mut() {
+            c.samples = 10;
+        }
+        check_sites(&r).unwrap();
+    }
 }
