@@ -190,6 +190,12 @@ pub fn run() -> anyhow::Result<()> {
             };
             let recording = imuflow_sensor_files::read(&path, format, params.layout.as_deref())
                 .with_context(|| format!("stage '{stage}': cannot read the recording"))?;
+            file::check_sites(&recording).with_context(|| {
+                format!(
+                    "stage '{stage}': cannot use the recording '{}'",
+                    path.display()
+                )
+            })?;
             file::run(ctx, &recording, realtime, params.frames)
         }
         other => bail!(
