@@ -97,6 +97,11 @@ impl Log {
         self.rec
     }
 
+    /// The stream, for what goes straight to it (a blueprint) while calls are gathered.
+    pub fn stream(&self) -> &RecordingStream {
+        &self.rec
+    }
+
     /// The time of the following calls.
     pub fn now(&self) -> FrameTime {
         self.now

@@ -32,8 +32,9 @@
 //! (`columns.rs`); a live viewer gets them call by call.
 //!
 //! A single run's recording carries a blueprint (`blueprint.rs`): the scene and a
-//! view that follows the estimate's pelvis (entity `follow`), a legend (`legend`, markdown), and
-//! tabs of time series (the errors against the truth first). Fixed colours: `motion` blue,
+//! view that follows the estimate's pelvis (entity `follow`, with a camera fixed in its frame), a
+//! legend (`legend`, markdown), and tabs of time series (the errors against the truth first, once
+//! a truth pose came; the IMU sensors' axes in their input's tab). Fixed colours: `motion` blue,
 //! `kinematics` pink (drawn at the estimate's root), `truth` green, `validation` orange.
 //!
 //! Groups (A/B comparisons, `imuflow compare`): an input named `<group>__<what>` is logged under

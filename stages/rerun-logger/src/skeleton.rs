@@ -65,6 +65,8 @@ pub(crate) struct SkeletonDrawer {
     waiting_kinematics: WaitingKinematics,
     /// `truth = "beside"`: the truth is drawn with the followed estimate of its seq, moved beside it.
     pub truth_beside: bool,
+    /// Whether a truth pose came (an input named `truth` can stay empty: a file of real sensors).
+    pub truth_seen: bool,
 }
 
 impl SkeletonDrawer {
@@ -78,6 +80,7 @@ impl SkeletonDrawer {
             estimate_roots: Default::default(),
             waiting_kinematics: Default::default(),
             truth_beside: false,
+            truth_seen: false,
         }
     }
 
@@ -91,6 +94,7 @@ impl SkeletonDrawer {
         let Ok(pose) = Pose::from_wire(&f.local_pose_wxyz, &f.root_position_m) else {
             return Ok(()); // not a pose (e.g. an all-zero invalid frame): draw nothing
         };
+        self.truth_seen |= input == "truth";
         forward_kinematics(&self.body.skeleton, &pose, &mut self.fk);
         let joints: [[f32; 3]; NUM_JOINTS] =
             self.fk.joint_in_world_m.map(|p| p.cast::<f32>().into());
@@ -118,11 +122,10 @@ impl SkeletonDrawer {
             )?;
         }
         if input == FOLLOWED {
-            // The follow view's origin: the estimate's pelvis, on the floor's height axis.
             let root = joints[JointId::ROOT.index()];
             rec.log(
                 FOLLOW_ENTITY,
-                &rerun::Transform3D::from_translation([root[0], 0.0, root[2]]),
+                &rerun::Transform3D::from_translation(follow_translation(root)),
             )?;
             if self.truth_beside {
                 self.log_truth_beside(rec, f.header.seq, root)?;
@@ -284,6 +287,13 @@ fn at_root(joints: &RelativeJoints, root: [f32; 3]) -> [[f32; 3]; NUM_JOINTS] {
     joints.map(|p| [p[0] + root[0], p[1] + root[1], p[2] + root[2]])
 }
 
+/// The follow view's origin for an estimate whose root is at `root`: the point on the floor below
+/// it (y = 0, the floor the views draw), so that the view's eye, fixed in this frame, moves with
+/// the body along the floor and does not bob with the pelvis.
+fn follow_translation(root: [f32; 3]) -> [f32; 3] {
+    [root[0], 0.0, root[2]]
+}
+
 /// `joints` moved horizontally so that their root stands [`TRUTH_BESIDE_M`] along +x from
 /// `estimate_root` (heights kept: both stand on the same floor).
 fn placed_beside(
@@ -429,6 +439,12 @@ mod tests {
         assert_eq!(rgb("kinematics"), Some([204, 121, 167, 255]));
         assert_eq!(rgb("my_filter"), None);
         assert_eq!(rgb("other/motion"), None);
+    }
+
+    #[test]
+    fn the_follow_origin_is_the_floor_point_below_the_root() {
+        // Hand-derived: 12 m along z and 0.4 m to the left, the pelvis 0.93 m up.
+        assert_eq!(follow_translation([0.4, 0.93, 12.0]), [0.4, 0.0, 12.0]);
     }
 
     #[test]

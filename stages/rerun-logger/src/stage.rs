@@ -138,9 +138,11 @@ pub fn run() -> anyhow::Result<()> {
         && inputs
             .iter()
             .any(|(e, f)| e == FOLLOWED && *f == FrameType::Motion);
-    if groups.is_empty() {
+    let single_run = groups.is_empty();
+    if single_run {
         blueprint::log_legend(&rec, &inputs, truth_beside)?;
-        blueprint::send_single_run(&rec, &inputs)?;
+        // Without the errors tab until a truth pose is logged (see `log_frames`).
+        blueprint::send_single_run(&rec, &inputs, false)?;
     } else {
         let overlaid = params.views == "overlaid";
         blueprint::send_grouped(&rec, &groups, overlaid, &inputs)?;
@@ -162,7 +164,7 @@ pub fn run() -> anyhow::Result<()> {
         _ => Log::call_by_call(rec),
     };
     let logged = if ctx.ready()? {
-        log_frames(&mut ctx, &mut log, &inputs, live, &mut drawer)
+        log_frames(&mut ctx, &mut log, &inputs, live, single_run, &mut drawer)
     } else {
         Ok(())
     };
@@ -194,12 +196,14 @@ pub fn run() -> anyhow::Result<()> {
 }
 
 /// Logs each frame as it arrives, at its own time, until every input has ended: the frame's
-/// type decides what draws it; every type's small fields and INVALID flag are plotted.
+/// type decides what draws it; every type's small fields and INVALID flag are plotted. A single
+/// run's layout gets its errors tab with the first truth pose.
 fn log_frames(
     ctx: &mut StageContext,
     rec: &mut Log,
     inputs: &[(String, FrameType)],
     live: bool,
+    single_run: bool,
     drawer: &mut SkeletonDrawer,
 ) -> anyhow::Result<()> {
     let mut plots = Plots::default();
@@ -249,7 +253,11 @@ fn log_frames(
             }
             FrameType::Motion => {
                 if let Some(f) = frame_ref::<MotionFrame>(held) {
+                    let had_truth = drawer.truth_seen;
                     drawer.log_motion(rec, name, f)?;
+                    if single_run && drawer.truth_seen && !had_truth {
+                        blueprint::send_single_run(rec.stream(), inputs, true)?;
+                    }
                 }
             }
             FrameType::Kinematics => {
