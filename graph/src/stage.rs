@@ -847,9 +847,13 @@ fn spawn_heartbeat(position: Arc<AtomicU64>) {
 /// Frames of an input that never arrived before `header`, given the last `seq` received (counting
 /// from frame 0 when none was). END_OF_STREAM carries the `seq` after its producer's last frame,
 /// so frames lost just before the end count too.
+/// Frames of an input that never arrived before `header`'s: the gap in `seq`. An input that ends
+/// before it delivered anything (an output its producer never wrote, such as the truth of a
+/// source without one) lost nothing: its END_OF_STREAM's `seq` is the producer's frame count.
 fn missed_before(last_seq: Option<u64>, header: &FrameHeader) -> u64 {
     match last_seq {
         Some(last) => header.seq.saturating_sub(last + 1),
+        None if header.is_end() => 0,
         None => header.seq,
     }
 }
@@ -1015,5 +1019,7 @@ mod tests {
         // END_OF_STREAM's seq is one past the producer's last frame.
         assert_eq!(missed_before(Some(9), &header(10, flags::END_OF_STREAM)), 0);
         assert_eq!(missed_before(Some(9), &header(12, flags::END_OF_STREAM)), 2); // 10 and 11
+        // An input whose producer never wrote it (a source without truth) ends without a gap.
+        assert_eq!(missed_before(None, &header(1513, flags::END_OF_STREAM)), 0);
     }
 }

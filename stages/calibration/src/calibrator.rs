@@ -27,10 +27,19 @@ use crate::stage::CalibrationParams;
 use crate::stillness::{StillnessConfig, StillnessDetector};
 use crate::tpose::{TposeConfig, calibrate_tpose};
 use crate::walking::{
-    StepWindows, WalkStartConfig, WalkStartWindows, WalkingConfig, calibrate_walk_start,
-    calibrate_walking, measure_step,
+    StepWindows, WalkDirection, WalkStartConfig, WalkStartWindows, WalkingConfig,
+    calibrate_walk_start, calibrate_walking, measure_step,
 };
 use crate::{NUM_IMUS, sensor_name};
+
+/// The least of a natural start's stand's end left out of its averages (s): where the stillness
+/// test first failed, a sudden motion began at most a few samples earlier.
+const STAND_END_SKIP_S: f64 = 0.05;
+/// The least of a natural start's stand kept for its averages (s), where the stand allows.
+const STAND_AVERAGE_MIN_S: f64 = 0.25;
+
+/// The shortest `walk_stand_s` the stage takes (its parameter's lower bound), s.
+pub const MIN_WALK_STAND_S: f64 = 0.2;
 
 /// Everything a session needs; [`CalibratorConfig::default`] holds the stage's defaults (its
 /// parameters, [`CalibrationParams`]).
@@ -70,8 +79,9 @@ pub struct CalibratorConfig {
     pub walk_stand_s: f64,
     /// Walking integrated after that stand (s).
     pub walk_s: f64,
-    /// Direction of that walk relative to facing (rad, right-handed about up: 0 forward).
-    pub walk_direction_rad: f64,
+    /// Direction of that walk relative to facing (rad, right-handed about up: 0 forward); `None`:
+    /// from the legs.
+    pub walk_direction_rad: Option<f64>,
     pub min_walk_m: f64,
     pub max_walk_mismatch_m: f64,
     pub max_walk_vertical_m: f64,
@@ -110,6 +120,7 @@ impl CalibratorConfig {
         WalkStartConfig {
             walking: self.walking(),
             walk_direction_rad: self.walk_direction_rad,
+            walk_s: self.walk_s,
             min_walk_m: self.min_walk_m,
             max_walk_mismatch_m: self.max_walk_mismatch_m,
             max_walk_vertical_m: self.max_walk_vertical_m,
@@ -141,6 +152,8 @@ pub enum Event {
     Calibrated {
         seq: u64,
         calibration: Box<Calibration>,
+        /// A natural start: which way the walk went relative to facing, and who said so.
+        walk_direction: Option<WalkDirection>,
     },
     /// An attempt must be redone.
     Rejected { seq: u64, reason: Rejection },
@@ -185,17 +198,41 @@ impl Clock {
 
 /// Follows still runs for the natural start: remembers the last one that lasted a stand's length
 /// and ended, and forgets it when a new one of that length begins (the subject stopped again).
+///
+/// A run's frames are the still *samples*: a frame is still when the stillness window ending at it
+/// is, so the run's samples start a window before its first still frame. A person who stood for
+/// 0.5 s stood for 0.5 s, not for 0.5 s less the window.
 #[derive(Debug, Default)]
 struct WalkStartTracker {
+    /// First still sample of the current run.
     run_start: Option<u64>,
     stand: Option<Range<u64>>,
+    /// The longest still run so far (samples), for the refusal's "what was found".
+    longest: Option<Range<u64>>,
 }
 
 impl WalkStartTracker {
-    /// Takes frame `index`'s stillness; the stand the motion at `index` follows, if any.
-    fn push(&mut self, index: u64, still: bool, stand_frames: u64) -> Option<Range<u64>> {
+    /// Takes frame `index`'s stillness (its window: `window_frames` samples ending at `index`);
+    /// the stand the motion at `index` follows, if any.
+    fn push(
+        &mut self,
+        index: u64,
+        still: bool,
+        stand_frames: u64,
+        window_frames: u64,
+    ) -> Option<Range<u64>> {
         if still {
-            let start = *self.run_start.get_or_insert(index);
+            let start = *self
+                .run_start
+                .get_or_insert((index + 1).saturating_sub(window_frames.max(1)));
+            let run = start..index + 1;
+            if self
+                .longest
+                .as_ref()
+                .is_none_or(|l| l.end - l.start < run.end - run.start)
+            {
+                self.longest = Some(run);
+            }
             if index + 1 - start >= stand_frames {
                 self.stand = None;
             }
@@ -225,7 +262,13 @@ pub struct Calibrator {
     capacity: usize,
     frames: u64,
     holds: u64,
+    /// Per sensor, the first frame in which it was usable. The frames before are a fusing
+    /// source's start-up (no sample of a sensor before its first), not bad samples.
+    first_usable: [Option<u64>; NUM_IMUS],
+    /// Per sensor, frames after its first usable one in which it was unusable.
     invalid_frames: [u64; NUM_IMUS],
+    /// Natural starts attempted (a stand of `walk_stand_s`, then `walk_s` of walking).
+    walk_attempts: u64,
     last_rejection: Option<Rejection>,
 }
 
@@ -262,7 +305,9 @@ impl Calibrator {
             capacity,
             frames: 0,
             holds: 0,
+            first_usable: [None; NUM_IMUS],
             invalid_frames: [0; NUM_IMUS],
+            walk_attempts: 0,
             last_rejection: None,
         }
     }
@@ -292,15 +337,23 @@ impl Calibrator {
             self.buffer.pop_front();
         }
         self.buffer.push_back(sample);
-        let mut event = self
+        let hold = self
             .segmenter
             .push(index, still)
             .and_then(|hold| self.on_hold(&hold, sample.seq));
-        if event.is_none() {
-            event = self.on_walk(index, still, sample.seq);
-        }
+        // A hold is reported on a still frame, a natural start's attempt on a moving one: never
+        // both at once.
+        let event = self.on_walk(index, still, sample.seq).or(hold);
         self.write_output(frame, &sample, out);
         event
+    }
+
+    /// Writes `frame`'s output with the calibration as it is now (flagged CALIBRATING | INVALID
+    /// when there is none), without taking the frame into the session: offline, the frames held
+    /// while calibrating are released calibrated by the calibration accepted after them.
+    pub fn calibrate_held(&self, frame: &ImuFrame, out: &mut BodyImuFrame) {
+        let sample = Sample::from_frame(frame, 0.0);
+        self.write_output(frame, &sample, out);
     }
 
     /// Ends the session: the calibration, or why there is none.
@@ -313,9 +366,12 @@ impl Calibrator {
     }
 
     fn count_invalid(&mut self, sample: &Sample) {
-        for (k, n) in self.invalid_frames.iter_mut().enumerate() {
-            if sample.valid_mask & (1 << k) == 0 {
-                *n += 1;
+        for k in 0..NUM_IMUS {
+            let usable = sample.valid_mask & (1 << k) != 0;
+            match self.first_usable[k] {
+                None if usable => self.first_usable[k] = Some(self.frames),
+                Some(_) if !usable => self.invalid_frames[k] += 1,
+                _ => {}
             }
         }
     }
@@ -401,6 +457,7 @@ impl Calibrator {
                 Event::Calibrated {
                     seq,
                     calibration: Box::new(calibration),
+                    walk_direction: None,
                 }
             }
             Err(reason) => {
@@ -415,17 +472,28 @@ impl Calibrator {
     fn on_walk(&mut self, index: u64, still: bool, seq: u64) -> Option<Event> {
         let config = self.config;
         let stand_frames = config.frames(config.walk_stand_s);
-        let stand = self.walk_start.push(index, still, stand_frames)?;
+        let window_frames = config.frames(config.still_window_s);
+        let stand = self
+            .walk_start
+            .push(index, still, stand_frames, window_frames)?;
         if config.method != Method::Walking || !config.walk_start || self.calibration.is_some() {
             return None;
         }
         if index + 1 - stand.end != config.frames(config.walk_s) {
             return None;
         }
+        self.walk_attempts += 1;
         self.buffer.make_contiguous();
-        // The stand's end is where the stillness test saw motion start; its window lags, so skip
-        // that much of the stand's end for the averages, and integrate from a margin before it.
-        let skip = config.frames(config.still_window_s);
+        // The stand's end is where the stillness test saw motion start; the motion may have
+        // begun slowly up to a window before it. Skip that much of the stand's end for the
+        // averages where the stand is long enough, else less, down to STAND_END_SKIP_S, keeping
+        // STAND_AVERAGE_MIN_S to average (a 0.3 s stand kept 3 samples otherwise: measured in
+        // the calibration README); integrate the walk from a margin before the stand's end.
+        let window = config.frames(config.still_window_s);
+        let keep = config.frames(STAND_AVERAGE_MIN_S);
+        let skip = (stand.end - stand.start)
+            .saturating_sub(keep)
+            .clamp(config.frames(STAND_END_SKIP_S).min(window), window);
         let stand_window = self.average_window(&stand, skip);
         let walk_window = stand
             .end
@@ -435,9 +503,13 @@ impl Calibrator {
             stand: self.slice(stand_window),
             walk: self.slice(walk_window),
         };
-        let result =
-            calibrate_walk_start(&windows, &config.walk_start_config()).map(|e| e.calibration);
-        Some(self.accept(result, seq))
+        let result = calibrate_walk_start(&windows, &config.walk_start_config());
+        let direction = result.as_ref().ok().and_then(|e| e.walk_direction);
+        let mut event = self.accept(result.map(|e| e.calibration), seq);
+        if let Event::Calibrated { walk_direction, .. } = &mut event {
+            *walk_direction = direction;
+        }
+        Some(event)
     }
 
     /// The three windows of a stand–motion–stand (`None` for a first stand).
@@ -485,45 +557,118 @@ impl Calibrator {
         held.get(start..end).unwrap_or_default()
     }
 
+    /// Why there is no calibration: one line per cause, each naming the rule of the method in
+    /// use, what the data held, and the parameter that would change it.
     fn reason(&self) -> String {
         let config = &self.config;
         if self.frames == 0 {
-            return "no frames arrived".into();
+            return "- no frames arrived".into();
         }
-        let invalid: Vec<String> = self
-            .invalid_frames
-            .iter()
-            .enumerate()
-            .filter(|(_, n)| **n > 0)
-            .map(|(k, n)| format!("{} in {n}", sensor_name(k)))
+        let rate = config.nominal_rate_hz;
+        let secs = |frames: u64| frames as f64 / rate;
+        let mut causes = Vec::new();
+        let never: Vec<&str> = (0..NUM_IMUS)
+            .filter(|&k| self.first_usable[k].is_none())
+            .map(sensor_name)
             .collect();
-        let attempt = self
-            .last_rejection
-            .as_ref()
-            .map(|r| format!("last attempt rejected: {r}"));
-        let stands = match config.method {
-            Method::Walking if self.holds > 0 => format!(
-                "saw {} still stand(s) but no accepted stand, one step forward, stand (each stand at least {} s, the step at most {} s)",
-                self.holds, config.hold_s, config.max_step_s
-            ),
-            _ => format!(
-                "no still period of {} s in {:.1} s of data (stillness: mean gyro < {} rad/s, accelerometer std < {} m/s² over {} s)",
-                config.hold_s,
-                self.frames as f64 / config.nominal_rate_hz,
-                config.still_gyro_radps,
-                config.still_accel_std_mps2,
-                config.still_window_s
-            ),
-        };
-        let mut parts = Vec::new();
-        if !invalid.is_empty() {
-            parts.push(format!(
-                "unusable samples (NaN, infinite, zero quaternion or valid bit cleared) of {} out of {} frames",
-                invalid.join(", "),
+        if !never.is_empty() {
+            causes.push(format!(
+                "{} never had a usable sample (missing, NaN, infinite or a zero quaternion) in {} \
+                 frames: is the sensor mapped to that site, and did it record?",
+                never.join(", "),
                 self.frames
             ));
+            return format!("- {}", causes.join(""));
         }
-        parts.push(attempt.unwrap_or(stands));
-        parts.join("; ")
+        if let Some(rejection) = &self.last_rejection {
+            causes.push(format!("last attempt rejected: {rejection}"));
+        }
+        let longest = self.walk_start.longest.clone();
+        let longest_text = match &longest {
+            Some(run) => format!(
+                "the longest still period was {:.2} s (at {:.1}–{:.1} s)",
+                secs(run.end - run.start),
+                secs(run.start),
+                secs(run.end)
+            ),
+            None => "no still period at all".to_owned(),
+        };
+        let stillness = format!(
+            "still: every sensor's mean angular rate < still_gyro_radps = {} rad/s and its \
+             accelerometer std < still_accel_std_mps2 = {} m/s² over still_window_s = {} s",
+            config.still_gyro_radps, config.still_accel_std_mps2, config.still_window_s
+        );
+        match config.method {
+            Method::Walking => {
+                if config.walk_start {
+                    let rule = format!(
+                        "natural start (a still period of walk_stand_s = {} s, then walk_s = {} s \
+                         of walking)",
+                        config.walk_stand_s, config.walk_s
+                    );
+                    let found = match &longest {
+                        _ if self.walk_attempts > 0 => format!(
+                            "{} attempt(s), none accepted (the last attempt's reason is above)",
+                            self.walk_attempts
+                        ),
+                        Some(run) if secs(run.end - run.start) >= config.walk_stand_s => format!(
+                            "{longest_text}, but walk_s = {} s of walking never followed a stand \
+                             (the data ended, or the subject stood still again first)",
+                            config.walk_s
+                        ),
+                        Some(run) if secs(run.end - run.start) >= MIN_WALK_STAND_S => format!(
+                            "{longest_text}; walk_stand_s = {:.2} would take it ({stillness})",
+                            (secs(run.end - run.start) * 100.0).floor() / 100.0
+                        ),
+                        Some(_) => format!(
+                            "{longest_text}, shorter than any walk_stand_s allows \
+                             ({MIN_WALK_STAND_S} s): stand still before walking ({stillness})"
+                        ),
+                        None => format!("{longest_text} ({stillness})"),
+                    };
+                    causes.push(format!("{rule}: {found}"));
+                }
+                causes.push(format!(
+                    "stand–step–stand (two stands of hold_s = {} s, at most max_step_s = {} s of \
+                     motion between): {} stand(s) seen{}",
+                    config.hold_s,
+                    config.max_step_s,
+                    self.holds,
+                    if self.holds == 1 {
+                        ", no step and second stand after it"
+                    } else {
+                        ""
+                    }
+                ));
+            }
+            Method::Tpose if self.holds == 0 => causes.push(format!(
+                "tpose: no still period of hold_s = {} s in {:.1} s of data: {longest_text} \
+                 ({stillness})",
+                config.hold_s,
+                secs(self.frames)
+            )),
+            Method::Tpose | Method::None => {}
+        }
+        let invalid: Vec<String> = (0..NUM_IMUS)
+            .filter(|&k| self.invalid_frames[k] > 0)
+            .map(|k| {
+                let since = self.first_usable[k].unwrap_or(0);
+                format!(
+                    "{} in {} of {} frames",
+                    sensor_name(k),
+                    self.invalid_frames[k],
+                    self.frames - since
+                )
+            })
+            .collect();
+        if !invalid.is_empty() {
+            causes.push(format!(
+                "unusable samples after a sensor's first (lost, NaN, infinite or a zero \
+                 quaternion; each breaks stillness and spoils an attempt): {}",
+                invalid.join(", ")
+            ));
+        }
+        let lines: Vec<String> = causes.iter().map(|c| format!("- {c}")).collect();
+        lines.join("\n")
     }
 }

@@ -12,7 +12,7 @@ pub enum Rejection {
     NoSamples { phase: &'static str },
     #[error(
         "sensor {sensor}: gravity is {angle_deg:.0}° away from the up axis of `frame = \"{frame}\"` \
-         (at most {max_deg}°): is the inertial-frame convention right?"
+         (max_gravity_deg = {max_deg}°): is the inertial-frame convention right?"
     )]
     GravityMismatch {
         sensor: &'static str,
@@ -22,7 +22,7 @@ pub enum Rejection {
     },
     #[error(
         "sensor {sensor} turned {angle_deg:.1}° between the stand before and the stand after the \
-         motion (at most {max_deg}°): stand in the same pose before and after the step"
+         motion (max_pose_change_deg = {max_deg}°): stand in the same pose before and after the step"
     )]
     PoseChanged {
         sensor: &'static str,
@@ -30,17 +30,19 @@ pub enum Rejection {
         max_deg: f64,
     },
     #[error(
-        "sensor {sensor} moved {vertical_m:.2} m vertically during the step or walk (at most \
+        "sensor {sensor} moved {vertical_m:.2} m vertically during the step or walk ({param} = \
          {max_m} m): calibrate on flat ground"
     )]
     NotLevel {
         sensor: &'static str,
         vertical_m: f64,
         max_m: f64,
+        /// The parameter that bounds it (`max_vertical_m` or `max_walk_vertical_m`).
+        param: &'static str,
     },
     #[error(
-        "the pelvis moved {length_m:.2} m between the stands ({min_m}..{max_m} m expected): take \
-         one step forward"
+        "the pelvis moved {length_m:.2} m between the stands (min_step_m..max_step_m = \
+         {min_m}..{max_m} m): take one step forward"
     )]
     StepLength {
         length_m: f64,
@@ -49,7 +51,7 @@ pub enum Rejection {
     },
     #[error(
         "sensor {sensor} moved {length_m:.2} m but the pelvis {pelvis_m:.2} m (they may differ by \
-         at most {max_m} m): stand in the same pose before and after the step"
+         max_step_mismatch_m = {max_m} m): stand in the same pose before and after the step"
     )]
     StepMismatch {
         sensor: &'static str,
@@ -58,23 +60,28 @@ pub enum Rejection {
         max_m: f64,
     },
     #[error(
-        "the motion between the two stands lasted {secs:.1} s (at most {max_s} s): take a single \
-         step"
+        "the motion between the two stands lasted {secs:.1} s (max_step_s = {max_s} s): take a \
+         single step"
     )]
     MotionTooLong { secs: f64, max_s: f64 },
     #[error(
-        "the pelvis moved {length_m:.2} m in the walk after the stand (at least {min_m} m): walk \
-         on after standing still"
+        "the pelvis moved {length_m:.2} m in the walk_s = {walk_s} s after the stand (min_walk_m \
+         = {min_m} m): walk on after standing still"
     )]
-    WalkTooShort { length_m: f64, min_m: f64 },
+    WalkTooShort {
+        length_m: f64,
+        min_m: f64,
+        walk_s: f64,
+    },
     #[error(
-        "the walk after the stand turned {turn_deg:.0}° (at most {max_deg}°): walk straight for \
-         the first few seconds"
+        "the walk after the stand turned {turn_deg:.0}° (max_walk_turn_deg = {max_deg}°): walk \
+         straight for the first few seconds"
     )]
     WalkTurned { turn_deg: f64, max_deg: f64 },
     #[error(
         "sensor {sensor}'s path differs from the pelvis's by {rms_m:.2} m RMS once turned onto \
-         it (at most {max_m} m): is it worn on the body, and did the walk start from standing?"
+         it (max_walk_mismatch_m = {max_m} m): is it worn on the body, and did the walk start from \
+         standing?"
     )]
     WalkMismatch {
         sensor: &'static str,
@@ -104,8 +111,7 @@ pub enum FileError {
 /// The stream ended before any calibration was accepted.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error(
-    "the stream ended after {frames} frames without a completed {method} calibration; last reason: \
-     {reason}"
+    "the stream ended after {frames} frames without a completed {method} calibration:\n{reason}"
 )]
 pub struct NotCalibrated {
     pub method: &'static str,

@@ -3,16 +3,20 @@
 
 use std::path::PathBuf;
 
+use std::collections::VecDeque;
+
 use anyhow::{Context, bail};
-use imuflow_graph::frames::{BodyImuFrame, ImuFrame};
+use imuflow_graph::frames::{BodyImuFrame, FrameHeader, ImuFrame, flags};
 use imuflow_graph::params::StageParams;
 use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::stage::Params;
-use imuflow_graph::{FrameType, StageContext};
+use imuflow_graph::transport::Output;
+use imuflow_graph::{FrameType, Mode, StageContext};
 
 use crate::calibration::{Calibration, Method};
 use crate::calibrator::{Calibrator, CalibratorConfig, Event};
 use crate::convention::{InertialFrame, ReferencePose};
+use crate::walking::WalkDirection;
 use crate::{NUM_IMUS, file, sensor_name};
 
 imuflow_graph::stage_params! {
@@ -69,13 +73,15 @@ imuflow_graph::stage_params! {
         /// walking: also calibrate from a stand followed by natural walking (no step, no stand
         /// after); the heading corrections come from the walk
         walk_start: bool = true, bool;
-        /// walking (natural start): a still period this long counts as the stand before walking, s
-        walk_stand_s: f64 = 0.75, float(0.2, 60.0);
+        /// walking (natural start): standing still this long counts as the stand before walking
+        /// (the still samples, the stillness window included), s
+        walk_stand_s: f64 = 0.3, float(crate::calibrator::MIN_WALK_STAND_S, 60.0);
         /// walking (natural start): walking integrated after the stand, s
         walk_s: f64 = 3.0, float(0.5, 30.0);
         /// walking (natural start): direction of that walk relative to the way the subject faces,
-        /// right-handed about up: 0 forward, 90 left, -90 right, 180 backwards
-        walk_direction_deg: f64 = 0, float(-360.0, 360.0);
+        /// right-handed about up: 0 forward, 90 left, -90 right, 180 backwards; unset, the legs
+        /// tell (a warning when a set direction contradicts them)
+        walk_direction_deg: Option<f64> = computed("from the legs"), float(-360.0, 360.0);
         /// walking (natural start): shortest pelvis displacement over the walk, m
         min_walk_m: f64 = 0.5, float(0.0, 100.0);
         /// walking (natural start): largest RMS distance of a sensor's path from the pelvis's, m
@@ -84,6 +90,11 @@ imuflow_graph::stage_params! {
         max_walk_vertical_m: f64 = 0.3, float(0.0, 100.0);
         /// walking (natural start): largest turn of the walking direction, deg
         max_walk_turn_deg: f64 = 25, float(0.0, 180.0);
+        /// offline: hold the frames until the calibration is accepted, then release them
+        /// calibrated, so a recording is estimated from its first frame (live graphs never hold)
+        backfill: bool = true, bool;
+        /// offline: the most a backfill holds, s; older frames go out uncalibrated
+        backfill_max_s: f64 = 600, float(1.0, 86400.0);
     }
 }
 
@@ -125,7 +136,7 @@ impl CalibrationParams {
             walk_start: self.walk_start,
             walk_stand_s: self.walk_stand_s,
             walk_s: self.walk_s,
-            walk_direction_rad: self.walk_direction_deg.to_radians(),
+            walk_direction_rad: self.walk_direction_deg.map(f64::to_radians),
             min_walk_m: self.min_walk_m,
             max_walk_mismatch_m: self.max_walk_mismatch_m,
             max_walk_vertical_m: self.max_walk_vertical_m,
@@ -203,21 +214,120 @@ pub fn run() -> anyhow::Result<()> {
         ctx.finish(&mut [&mut output])?;
         return Ok(());
     }
+    let live = ctx.mode() == Mode::Live;
+    // A prompt is for a subject standing there: live only. With the natural start on, walking on
+    // calibrates, so it does not ask for a step.
+    let stand_prompt = match (live, params.walk_start) {
+        (false, _) => None,
+        (true, true) => Some("standing still: now walk straight on for a few seconds"),
+        (true, false) => Some("standing still: now take one step forward and stand still again"),
+    };
+    let mut backfill = Backfill {
+        holding: params.backfill && !live && calibrator.calibration().is_none(),
+        max_frames: (params.backfill_max_s * ctx.graph().rate_hz).ceil() as usize,
+        held: VecDeque::new(),
+    };
     while let Some(step) = ctx.next()? {
         let frame = *ctx.get(&input);
         let mut body = BodyImuFrame::default();
         if let Some(event) = calibrator.push(&frame, &mut body) {
-            on_event(&stage, &event, calibrator.calibration(), save_to.as_deref())?;
+            on_event(
+                &stage,
+                &event,
+                calibrator.calibration(),
+                save_to.as_deref(),
+                stand_prompt,
+            )?;
             keep_for_restart(&event, calibrator.calibration(), kept.as_deref());
+        }
+        if backfill.hold(step.header(), frame, &calibrator, &mut output)? {
+            continue;
         }
         output
             .publish(step.header(), |f| *f = body)
             .with_context(|| format!("stage '{stage}': publishing frame {}", step.seq))?;
     }
+    // Whatever is still held goes out, calibrated if the calibration came at the very end.
+    backfill.release(&calibrator, &mut output)?;
     // END_OF_STREAM goes downstream even when the calibration never completed.
     let outcome = calibrator.finish().map(|_| ());
     ctx.finish(&mut [&mut output])?;
     outcome.with_context(|| format!("stage '{stage}'"))
+}
+
+/// Offline, the frames that arrive before the calibration is accepted: held, then released
+/// calibrated (by the calibration accepted later), so a recording is estimated from its first
+/// frame. Live graphs never hold: a subject calibrating live sees the avatar once calibrated.
+/// A synthesizing source's calibration prelude (frames flagged PRELUDE, which no score counts)
+/// is not held: it is the calibration's, not the recording's, and passing it on as before keeps
+/// every session whose calibration ends inside its prelude exactly as it was.
+struct Backfill {
+    holding: bool,
+    max_frames: usize,
+    held: VecDeque<(FrameHeader, ImuFrame)>,
+}
+
+impl Backfill {
+    /// Takes the step's input frame while no calibration is accepted (true: held, publish
+    /// nothing now). Once one is, releases what it held, calibrated, before the step's own frame.
+    fn hold(
+        &mut self,
+        header: FrameHeader,
+        frame: ImuFrame,
+        calibrator: &Calibrator,
+        output: &mut Output<BodyImuFrame>,
+    ) -> anyhow::Result<bool> {
+        if !self.holding {
+            return Ok(false);
+        }
+        let prelude = frame.header.flags & flags::PRELUDE != 0;
+        if calibrator.calibration().is_none() && !(prelude && self.held.is_empty()) {
+            self.held.push_back((header, frame));
+            if self.held.len() > self.max_frames {
+                // Past the bound the oldest frame goes out as it is now: uncalibrated.
+                self.release_one(calibrator, output)?;
+            }
+            return Ok(true);
+        }
+        if calibrator.calibration().is_some() {
+            self.release(calibrator, output)?;
+            self.holding = false;
+        }
+        Ok(false)
+    }
+
+    fn release(
+        &mut self,
+        calibrator: &Calibrator,
+        output: &mut Output<BodyImuFrame>,
+    ) -> anyhow::Result<()> {
+        if !self.held.is_empty() && calibrator.calibration().is_some() {
+            tracing::info!(
+                "the {} frames before the calibration was accepted go out calibrated by it",
+                self.held.len()
+            );
+        }
+        while !self.held.is_empty() {
+            self.release_one(calibrator, output)?;
+        }
+        Ok(())
+    }
+
+    fn release_one(
+        &mut self,
+        calibrator: &Calibrator,
+        output: &mut Output<BodyImuFrame>,
+    ) -> anyhow::Result<()> {
+        let Some((header, frame)) = self.held.pop_front() else {
+            return Ok(());
+        };
+        let mut body = BodyImuFrame::default();
+        calibrator.calibrate_held(&frame, &mut body);
+        output
+            .publish(header, |f| *f = body)
+            .with_context(|| format!("publishing held frame {}", header.seq))?;
+        Ok(())
+    }
 }
 
 fn on_event(
@@ -225,13 +335,13 @@ fn on_event(
     event: &Event,
     current: Option<&Calibration>,
     save_to: Option<&std::path::Path>,
+    stand_prompt: Option<&str>,
 ) -> anyhow::Result<()> {
     match event {
-        Event::Stand { seq } => tracing::info!(
-            stage,
-            seq,
-            "standing still: now take one step forward and stand still again"
-        ),
+        Event::Stand { seq } => match stand_prompt {
+            Some(prompt) => tracing::info!(stage, seq, "{prompt}"),
+            None => tracing::debug!(stage, seq, "a stand of hold_s"),
+        },
         Event::Rejected { seq, reason } => tracing::warn!(stage, seq, "redo calibration: {reason}"),
         Event::HeadingUpdateSkipped { seq, reason } => {
             tracing::debug!(
@@ -240,13 +350,20 @@ fn on_event(
                 "stand-motion-stand not used for a heading update: {reason}"
             )
         }
-        Event::Calibrated { seq, calibration } => {
+        Event::Calibrated {
+            seq,
+            calibration,
+            walk_direction,
+        } => {
             tracing::info!(
                 stage,
                 seq,
                 "{} calibration accepted",
                 calibration.method.name()
             );
+            if let Some(direction) = walk_direction {
+                log_walk_direction(stage, direction);
+            }
             log_calibration(stage, calibration);
         }
         Event::HeadingUpdated {
@@ -295,6 +412,47 @@ fn keep_for_restart(event: &Event, current: Option<&Calibration>, path: Option<&
         tracing::warn!(
             "cannot keep the calibration for a restart in {}: {e:#}",
             path.display()
+        );
+    }
+}
+
+/// Which way the natural start's walk went, and on whose word; a warning when a set
+/// `walk_direction_deg` contradicts the legs.
+fn log_walk_direction(stage: &str, d: &WalkDirection) {
+    let deg = |rad: f64| rad.to_degrees().round();
+    let legs = match d.from_legs_rad {
+        Some(rad) => format!(
+            "the legs say {} ({:+.0}°, {:+.0}° before rounding; mean shank lean {:.1}°)",
+            WalkDirection::name(rad),
+            deg(rad),
+            deg(d.legs_rad),
+            d.lean.asin().to_degrees()
+        ),
+        None => format!(
+            "the legs cannot tell (mean shank lean {:.1}°)",
+            d.lean.asin().to_degrees()
+        ),
+    };
+    if let Some((given, from_legs)) = d.contradiction() {
+        tracing::warn!(
+            stage,
+            "walk_direction_deg = {} ({}) but the legs say {} ({:+.0}°): used the setting; \
+             unset it to follow the legs",
+            deg(given),
+            WalkDirection::name(given),
+            WalkDirection::name(from_legs),
+            deg(from_legs)
+        );
+    } else if d.given_rad.is_none() && d.from_legs_rad.is_none() {
+        tracing::warn!(
+            stage,
+            "the walk's direction: {legs}; assumed forward (set walk_direction_deg if not)"
+        );
+    } else {
+        tracing::info!(
+            stage,
+            "the walk went {} relative to facing: {legs}",
+            WalkDirection::name(d.used_rad)
         );
     }
 }

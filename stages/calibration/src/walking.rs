@@ -92,6 +92,49 @@ impl StepGeometry {
 pub struct WalkingEstimate {
     pub calibration: Calibration,
     pub geometry: StepGeometry,
+    /// A natural start: which way the walk went relative to facing (a step: always forward).
+    pub walk_direction: Option<WalkDirection>,
+}
+
+/// Which way a natural start's walk went relative to where the body faced, right-handed about up
+/// (rad: 0 forward, π/2 to the left, ±π backwards, −π/2 to the right).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WalkDirection {
+    /// What the legs say, to the nearest of the four (`None`: the shanks hardly leaned, so they
+    /// cannot tell).
+    pub from_legs_rad: Option<f64>,
+    /// The legs' angle before rounding.
+    pub legs_rad: f64,
+    /// The shanks' mean lean over the walk (sine of the angle from vertical).
+    pub lean: f64,
+    /// What the configuration said (`walk_direction_deg`), if it said anything.
+    pub given_rad: Option<f64>,
+    /// What was used: the given direction, else the legs', else forward.
+    pub used_rad: f64,
+}
+
+impl WalkDirection {
+    /// The given direction and the legs' disagree by more than this (rad): worth a warning.
+    pub const CONTRADICTION_RAD: f64 = std::f64::consts::FRAC_PI_4;
+    /// The shanks' mean lean below which the legs cannot tell (sine: about 1.7°).
+    pub const MIN_LEAN: f64 = 0.03;
+
+    /// The given direction, when the legs confidently say another.
+    pub fn contradiction(&self) -> Option<(f64, f64)> {
+        let (given, legs) = (self.given_rad?, self.from_legs_rad?);
+        let gap = (given - legs).sin().atan2((given - legs).cos()).abs();
+        (gap > Self::CONTRADICTION_RAD).then_some((given, legs))
+    }
+
+    /// The direction's name, for the log.
+    pub fn name(rad: f64) -> &'static str {
+        match ((rad.to_degrees() / 90.0).round() as i64).rem_euclid(4) {
+            0 => "forward",
+            1 => "to the left",
+            2 => "backwards",
+            _ => "to the right",
+        }
+    }
 }
 
 /// Calibrates from one stand–step–stand, or says why it must be redone.
@@ -102,7 +145,7 @@ pub fn calibrate_walking(
     let geometry = measure_step(windows, config)?;
     let up = config.frame.up_in_inertial();
     let model_from_inertial = model_from_inertial(&up, &geometry.displacement_m[PELVIS]);
-    estimate_from(geometry, model_from_inertial, config)
+    estimate_from(geometry, model_from_inertial, config, None)
 }
 
 /// The calibration a measured geometry gives with `R_MI`: per sensor the heading correction, `R_SB`
@@ -112,6 +155,7 @@ fn estimate_from(
     geometry: StepGeometry,
     model_from_inertial: Rotation3<f64>,
     config: &WalkingConfig,
+    walk_direction: Option<WalkDirection>,
 ) -> Result<WalkingEstimate, Rejection> {
     let reference = config.pose.bone_orientations();
     let mut sensors = [SensorCalibration::IDENTITY; NUM_IMUS];
@@ -139,6 +183,7 @@ fn estimate_from(
             sensors,
         },
         geometry,
+        walk_direction,
     })
 }
 
@@ -199,6 +244,7 @@ pub fn measure_step(
                 sensor: sensor_name(k),
                 vertical_m: g.vertical_m[k],
                 max_m: config.max_vertical_m,
+                param: "max_vertical_m",
             });
         }
     }
@@ -290,8 +336,11 @@ pub struct WalkStartConfig {
     /// The stand's pose, frame convention, offset and gravity check.
     pub walking: WalkingConfig,
     /// Direction of the walk relative to the way the subject faces, right-handed about up (rad):
-    /// 0 forward, π/2 to the left, π backwards.
-    pub walk_direction_rad: f64,
+    /// 0 forward, π/2 to the left, π backwards; `None`: found from the legs ([`WalkDirection`]).
+    pub walk_direction_rad: Option<f64>,
+    /// Length of the walk integrated after the stand (s; the caller cuts the window, this names it
+    /// in refusals).
+    pub walk_s: f64,
     /// Shortest pelvis displacement over the integrated walk (m).
     pub min_walk_m: f64,
     /// Largest RMS distance between a sensor's path, turned by its heading correction, and the
@@ -387,6 +436,7 @@ pub fn calibrate_walk_start(
                 sensor: sensor_name(k),
                 vertical_m: g.vertical_m[k],
                 max_m: config.max_walk_vertical_m,
+                param: "max_walk_vertical_m",
             });
         }
         g.displacement_m[k] = horizontal(&end, &up);
@@ -403,12 +453,69 @@ pub fn calibrate_walk_start(
     }
     g.heading_to_pelvis_rad[PELVIS] = 0.0;
 
-    // Forward is the walk's direction turned back by the walk's direction relative to facing.
-    let walked =
-        Rotation3::from_axis_angle(&up, -config.walk_direction_rad) * g.displacement_m[PELVIS];
+    // Forward is the walk's direction turned back by the walk's direction relative to facing:
+    // as given, else as the legs say.
+    let direction = walk_direction(walk, &g, &up, config.walk_direction_rad);
+    let walked = Rotation3::from_axis_angle(&up, -direction.used_rad) * g.displacement_m[PELVIS];
     let model_from_inertial = model_from_inertial(&up, &walked);
     // The stand after is the stand before (set above): Eq. 24 on the one stand.
-    estimate_from(g, model_from_inertial, walking)
+    estimate_from(g, model_from_inertial, walking, Some(direction))
+}
+
+/// Which way the walk went relative to facing, from the legs (imuflow's own; neither paper
+/// needs it, their calibration asks for a step forward).
+///
+/// Knees flex only backwards, so over a walk in any direction a shank spends its largest tilts
+/// with the knee ahead of the ankle (late stance, early swing: about 40–50° against 10–20° the
+/// other way at heel strike), and its mean lean points where the body faces. Standing in the
+/// N-pose the shank is vertical, so its long axis in the sensor frame is `R̄_ISᵀ·up` from the
+/// stand; during the walk that axis in I is `R_IS(t)·R̄_ISᵀ·up`, and its horizontal part, turned
+/// into the pelvis's inertial frame by the sensor's heading correction, is the lean toward where
+/// the knee is. The angle from the mean lean of both shanks to the pelvis's direction of travel is
+/// the walk's direction relative to facing, rounded to forward, left, backwards or right (the
+/// travel direction itself is the more precise of the two).
+fn walk_direction(
+    walk: &[Sample],
+    g: &StepGeometry,
+    up: &Unit<Vector3<f64>>,
+    given_rad: Option<f64>,
+) -> WalkDirection {
+    let shanks = [
+        imuflow_body::Imu::LeftLowerLeg.index(),
+        imuflow_body::Imu::RightLowerLeg.index(),
+    ];
+    let mut sum = Vector3::zeros();
+    let mut n = 0usize;
+    for &k in &shanks {
+        let axis_in_sensor = g.stand_before[k].transpose() * up.into_inner();
+        let to_pelvis = Rotation3::from_axis_angle(up, g.heading_to_pelvis_rad[k]);
+        for s in walk {
+            let axis = s.sensors[k].inertial_from_sensor * axis_in_sensor;
+            sum += to_pelvis * horizontal(&axis, up);
+            n += 1;
+        }
+    }
+    let lean_vector = sum / n.max(1) as f64;
+    let travel = g.displacement_m[PELVIS];
+    let legs_rad = signed_angle_about(up, &lean_vector, &travel);
+    let lean = lean_vector.norm();
+    let quarter = std::f64::consts::FRAC_PI_2;
+    let from_legs_rad = (lean >= WalkDirection::MIN_LEAN).then(|| {
+        let snapped = (legs_rad / quarter).round() * quarter;
+        // ±π both mean backwards: say π.
+        if snapped <= -std::f64::consts::PI + 1e-9 {
+            std::f64::consts::PI
+        } else {
+            snapped
+        }
+    });
+    WalkDirection {
+        from_legs_rad,
+        legs_rad,
+        lean,
+        given_rad,
+        used_rad: given_rad.or(from_legs_rad).unwrap_or(0.0),
+    }
 }
 
 /// Positions of sensor `k` from rest by double integration of its free acceleration (Eq. 17–18),
@@ -601,6 +708,7 @@ fn check_walk(
         return Err(Rejection::WalkTooShort {
             length_m,
             min_m: config.min_walk_m,
+            walk_s: config.walk_s,
         });
     }
     // The second half of the walk should go the same way as the whole of it.

@@ -154,10 +154,10 @@ fn the_natural_start_can_be_turned_off() {
     assert!(session.calibrated_at().is_none());
 }
 
-#[test]
-fn a_walk_to_the_side_gives_forward_with_walk_direction() {
-    // The sample's walk with its path turned 90° to the left of where the body faces: a walk to
-    // the left (the kinematics stay consistent; only the calibration's "forward" is at stake).
+/// The sample's walk with its path turned by `turn_deg` (right-handed about up) against where the
+/// body faces: 90 a walk to the left, -90 to the right (the legs keep their forward gait; only the
+/// calibration's "forward" is at stake).
+fn slid(turn_deg: f64) -> imuflow_motion::retarget::MotionClip {
     let mut clip = sample_walk_clip();
     let start = clip.poses[0].root_in_world_m;
     let heading = imuflow_body::rotation::Axis::Y;
@@ -165,42 +165,132 @@ fn a_walk_to_the_side_gives_forward_with_walk_direction() {
     // The body's facing direction at the start, in the horizontal plane.
     let forward = facing * nalgebra::Vector3::z();
     let yaw = forward.x.atan2(forward.z);
-    let to_left = heading.rotation(std::f64::consts::FRAC_PI_2);
-    let along = heading.rotation(yaw) * to_left * heading.rotation(-yaw);
+    let along =
+        heading.rotation(yaw) * heading.rotation(turn_deg.to_radians()) * heading.rotation(-yaw);
     for pose in &mut clip.poses {
         let d = pose.root_in_world_m - start;
         let moved = along * nalgebra::Vector3::new(d.x, 0.0, d.z);
         pose.root_in_world_m =
             nalgebra::Vector3::new(start.x + moved.x, pose.root_in_world_m.y, start.z + moved.z);
     }
+    clip
+}
+
+/// The sample's walk played backwards: a walk backwards (backward gait is close to forward gait
+/// reversed in time; the knees still flex backwards).
+fn reversed() -> imuflow_motion::retarget::MotionClip {
+    let mut clip = sample_walk_clip();
+    clip.poses.reverse();
+    clip
+}
+
+/// Bone errors over the rest of the walk (deg) and the direction event, for `clip` behind a
+/// natural start calibrated with `config`.
+fn walk_with(
+    clip: imuflow_motion::retarget::MotionClip,
+    config: CalibratorConfig,
+    seed: u64,
+) -> (
+    Vec<f64>,
+    Option<imuflow_calibration::walking::WalkDirection>,
+) {
     let motion = synthesize(
         clip,
         natural_start(),
-        setup(InertialFrame::ZUp, 10.0, 15.0),
-        false,
+        setup(InertialFrame::ZUp, 10.0 + 30.0 * seed as f64, 15.0),
+        true,
+        seed,
+    );
+    let session = run(config, &motion);
+    let at = session.calibrated_at().unwrap_or_else(|| {
+        panic!(
+            "seed {seed}: {}",
+            session
+                .calibrator
+                .finish()
+                .err()
+                .map(|e| e.to_string())
+                .unwrap_or_default()
+        )
+    });
+    let direction = session.events.iter().find_map(|(_, e)| match e {
+        Event::Calibrated { walk_direction, .. } => *walk_direction,
+        _ => None,
+    });
+    let body = body();
+    let mut errors = Vec::new();
+    for t in at..motion.len() {
+        let truth = true_bones(&body, &motion.clip.poses[t]);
+        errors.extend((0..NUM_IMUS).map(|k| bone_error_deg(&session.outputs[t], &truth, k)));
+    }
+    (errors, direction)
+}
+
+#[test]
+fn the_legs_tell_which_way_the_walk_went() {
+    // Forward, to the left, to the right and backwards, with the reference noise and no direction
+    // given: the legs find it and the bones come out right.
+    type Case = (
+        &'static str,
+        fn() -> imuflow_motion::retarget::MotionClip,
+        f64,
+    );
+    let cases: [Case; 4] = [
+        ("forward", sample_walk_clip, 0.0),
+        ("left", || slid(90.0), 90.0),
+        ("right", || slid(-90.0), -90.0),
+        ("backwards", reversed, 180.0),
+    ];
+    for (name, clip, expected_deg) in cases {
+        let mut bones = Vec::new();
+        for seed in 0..2 {
+            let (errors, direction) = walk_with(clip(), config(), seed);
+            let d = direction.expect("a natural start reports its direction");
+            eprintln!(
+                "{name}, seed {seed}: legs {:.1}° (lean {:.3}), used {:.0}°",
+                d.legs_rad.to_degrees(),
+                d.lean,
+                d.used_rad.to_degrees()
+            );
+            let found = d.from_legs_rad.expect("the legs can tell").to_degrees();
+            assert!(
+                (found - expected_deg).abs() < 1e-6,
+                "{name}, seed {seed}: the legs said {found}°"
+            );
+            bones.extend(errors);
+        }
+        let (median, max) = median_max(&bones);
+        eprintln!("{name}: bones median {median:.2}°, max {max:.2}°");
+        // Measured (2 seeds each, over the ~10 s after calibrating, the noise model's mounting
+        // and heading drift included): forward 2.2 / 5.3°, left 1.9 / 5.4°, right 2.6 / 6.2°,
+        // backwards 3.1 / 10.5° (its worst late in the walk). A wrong direction costs > 15°.
+        assert!(
+            median < 3.5 && max < 11.0,
+            "{name}: bones median {median:.2}°, max {max:.2}°"
+        );
+    }
+}
+
+#[test]
+fn a_direction_that_contradicts_the_legs_is_used_and_flagged() {
+    // Told "forward" on a walk to the left: the setting wins (a user who knows better), the event
+    // says the legs disagree, and the bones show what the wrong direction costs.
+    let (errors, direction) = walk_with(
+        slid(90.0),
+        CalibratorConfig {
+            walk_direction_rad: Some(0.0),
+            ..config()
+        },
         5,
     );
-    let bone_median = |config: CalibratorConfig| {
-        let session = run(config, &motion);
-        let at = session.calibrated_at().expect("calibrated");
-        let body = body();
-        let mut errors = Vec::new();
-        for t in at..motion.len() {
-            let truth = true_bones(&body, &motion.clip.poses[t]);
-            errors.extend((0..NUM_IMUS).map(|k| bone_error_deg(&session.outputs[t], &truth, k)));
-        }
-        median_max(&errors).0
-    };
-    let told = bone_median(CalibratorConfig {
-        walk_direction_rad: 90f64.to_radians(),
-        ..config()
-    });
-    let not_told = bone_median(config());
-    assert!(told < 3.0, "walk_direction 90°: bone median {told:.1}°");
-    // Told nothing, forward is 90° off: the bones' motion is then turned the wrong way.
+    let d = direction.expect("direction");
+    let (given, legs) = d.contradiction().expect("a contradiction");
+    assert_eq!((given, legs.to_degrees().round()), (0.0, 90.0));
+    assert_eq!(d.used_rad, 0.0);
+    let (median, _) = median_max(&errors);
     assert!(
-        not_told > 15.0,
-        "walk_direction 0° on a walk to the left: {not_told:.1}°"
+        median > 15.0,
+        "forward assumed on a walk to the left: {median:.1}°"
     );
 }
 
@@ -244,4 +334,81 @@ fn relaxed_elbows_need_the_relaxed_pose() {
     assert!(straight_assumed_bent_stood > 15.0);
     assert!(relaxed_assumed_bent_stood < 3.0);
     assert!(relaxed_assumed_straight_stood > 15.0);
+}
+
+/// What a natural start's stand of `stand_s` (then a 0.4 s start into the walk) gives with the
+/// reference noise: per seed, the heading-correction errors and the bone errors over the rest of
+/// the walk (deg), or the refusal.
+fn stand_errors(
+    stand_s: f64,
+    seeds: std::ops::Range<u64>,
+    config: CalibratorConfig,
+) -> Result<(Vec<f64>, Vec<f64>), String> {
+    let (mut heading, mut bones) = (Vec::new(), Vec::new());
+    for seed in seeds {
+        let motion = synthesize(
+            sample_walk_clip(),
+            PreludeOptions {
+                stand_s,
+                blend_s: 0.4,
+                ..natural_start()
+            },
+            setup(InertialFrame::ZUp, 40.0 + 25.0 * seed as f64, 15.0),
+            true,
+            seed,
+        );
+        let session = run(config, &motion);
+        let Some(at) = session.calibrated_at() else {
+            return Err(format!(
+                "seed {seed}: {}",
+                session
+                    .calibrator
+                    .finish()
+                    .err()
+                    .map(|e| e.to_string())
+                    .unwrap_or_default()
+            ));
+        };
+        heading.extend(heading_errors_deg(&session, &motion));
+        let body = body();
+        for t in at..motion.len() {
+            let truth = true_bones(&body, &motion.clip.poses[t]);
+            bones.extend((0..NUM_IMUS).map(|k| bone_error_deg(&session.outputs[t], &truth, k)));
+        }
+    }
+    Ok((heading, bones))
+}
+
+/// The measurement behind `walk_stand_s`'s default (calibration README, "How short a stand"):
+/// heading and bone errors as the stand before walking shortens. Run with `--ignored
+/// --nocapture`; it prints a table.
+#[test]
+#[ignore = "a measurement (about a minute in release): prints the stand-length table"]
+fn stand_length_sweep() {
+    let config = CalibratorConfig {
+        walk_stand_s: 0.2,
+        ..config()
+    };
+    eprintln!("| stand (s) | heading median / p95 / max (deg) | bones median / p95 / max (deg) |");
+    for stand_s in [0.2, 0.3, 0.4, 0.5, 0.75, 1.0, 1.5] {
+        match stand_errors(stand_s, 0..16, config) {
+            Ok((heading, bones)) => {
+                let q = |v: &[f64], p: f64| {
+                    let mut v = v.to_vec();
+                    v.sort_by(f64::total_cmp);
+                    v[((v.len() - 1) as f64 * p).round() as usize]
+                };
+                eprintln!(
+                    "| {stand_s} | {:.2} / {:.2} / {:.2} | {:.2} / {:.2} / {:.2} |",
+                    q(&heading, 0.5),
+                    q(&heading, 0.95),
+                    q(&heading, 1.0),
+                    q(&bones, 0.5),
+                    q(&bones, 0.95),
+                    q(&bones, 1.0)
+                );
+            }
+            Err(why) => eprintln!("| {stand_s} | refused: {} |", why.replace('\n', " / ")),
+        }
+    }
 }
