@@ -35,6 +35,9 @@ use crate::{NUM_IMUS, sensor_name};
 /// The least of a natural start's stand's end left out of its averages (s): where the stillness
 /// test first failed, a sudden motion began at most a few samples earlier.
 const STAND_END_SKIP_S: f64 = 0.05;
+/// The least of a natural start's stand kept for the accelerometer offset (s), where the stand
+/// allows: its noise costs more than the orientations'.
+const OFFSET_AVERAGE_MIN_S: f64 = 0.75;
 /// The least of a natural start's stand kept for its averages (s), where the stand allows.
 const STAND_AVERAGE_MIN_S: f64 = 0.25;
 
@@ -485,15 +488,21 @@ impl Calibrator {
         self.walk_attempts += 1;
         self.buffer.make_contiguous();
         // The stand's end is where the stillness test saw motion start; the motion may have
-        // begun slowly up to a window before it. Skip that much of the stand's end for the
-        // averages where the stand is long enough, else less, down to STAND_END_SKIP_S, keeping
-        // STAND_AVERAGE_MIN_S to average (a 0.3 s stand kept 3 samples otherwise: measured in
-        // the calibration README); integrate the walk from a margin before the stand's end.
+        // begun slowly up to a window before it. The orientations are averaged skipping that
+        // much of the stand's end where the stand is long enough, else less, down to
+        // STAND_END_SKIP_S, keeping STAND_AVERAGE_MIN_S (a 0.3 s stand kept 3 samples
+        // otherwise); the accelerometer offset, whose noise matters more, up to STAND_END_SKIP_S
+        // before the end (both measured in the calibration README, "How short a stand"). The
+        // walk is integrated from a margin before the stand's end.
         let window = config.frames(config.still_window_s);
         let keep = config.frames(STAND_AVERAGE_MIN_S);
+        let end_skip = config.frames(STAND_END_SKIP_S).min(window);
         let skip = (stand.end - stand.start)
             .saturating_sub(keep)
-            .clamp(config.frames(STAND_END_SKIP_S).min(window), window);
+            .clamp(end_skip, window);
+        let offset_skip = (stand.end - stand.start)
+            .saturating_sub(config.frames(OFFSET_AVERAGE_MIN_S))
+            .clamp(end_skip, window);
         let stand_window = self.average_window(&stand, skip);
         let walk_window = stand
             .end
@@ -501,6 +510,7 @@ impl Calibrator {
             .max(stand.start)..index + 1;
         let windows = WalkStartWindows {
             stand: self.slice(stand_window),
+            offset_stand: self.slice(self.average_window(&stand, offset_skip)),
             walk: self.slice(walk_window),
         };
         let result = calibrate_walk_start(&windows, &config.walk_start_config());

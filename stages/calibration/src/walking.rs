@@ -357,6 +357,10 @@ pub struct WalkStartConfig {
 pub struct WalkStartWindows<'a> {
     /// Still samples at the end of the stand (averaged).
     pub stand: &'a [Sample],
+    /// Still samples for the accelerometer offset: the stand's end up to just before the motion
+    /// began (more of them than `stand`: on short stands the noise of a shorter average costs
+    /// more heading accuracy than a slow start's first accelerations, measured).
+    pub offset_stand: &'a [Sample],
     /// The samples integrated: from inside the stand (at rest) into the walk.
     pub walk: &'a [Sample],
 }
@@ -391,7 +395,8 @@ pub fn calibrate_walk_start(
         g.stand_before[k] = stand_orientation(stand, k)?;
         g.stand_after[k] = g.stand_before[k];
         if walking.accel_offset {
-            g.offset_in_inertial_mps2[k] = mean_free_acceleration(stand.iter(), k, &gravity);
+            let still = valid(windows.offset_stand, "stand before walking")?;
+            g.offset_in_inertial_mps2[k] = mean_free_acceleration(still.iter(), k, &gravity);
         }
         raw_paths.push(integrate_path(
             walk,
