@@ -352,3 +352,32 @@ fn a_fusing_sources_start_up_is_not_reported_as_bad_samples() {
         "{msg}"
     );
 }
+
+#[test]
+fn a_flat_sensor_is_refused_naming_its_site() {
+    // A sensor that reports the same reading throughout (dead, or lying on a table) looks still
+    // for ever: the natural start's walk then finds its path is not the body's, and says which.
+    let motion = synthesize(
+        sample_walk_clip(),
+        imuflow_synth::prelude::PreludeOptions {
+            stand_s: 1.0,
+            ..prelude(PreludeKind::Stand)
+        },
+        setup(InertialFrame::ZUp, 0.0, 15.0),
+        false,
+        8,
+    );
+    let first = motion.imu_frame(0).expect("frame");
+    let flat = frames(&motion).map(|mut f| {
+        f.orientation_wxyz[3] = first.orientation_wxyz[3];
+        f.specific_force_mps2[3] = first.specific_force_mps2[3];
+        f.angular_rate_radps[3] = first.angular_rate_radps[3];
+        f
+    });
+    let session = run_frames(walking(InertialFrame::ZUp), flat);
+    let msg = failure(&session);
+    assert!(
+        msg.contains("right_lower_leg") && msg.contains("is it worn on the body"),
+        "{msg}"
+    );
+}
