@@ -19,6 +19,36 @@ fn config() -> CalibratorConfig {
     walking(InertialFrame::ZUp)
 }
 
+/// Bone errors (deg) of `sensors` in every frame from `at` on.
+fn bone_errors_from(
+    session: &Session,
+    motion: &imuflow_synth::Motion,
+    at: usize,
+    sensors: std::ops::Range<usize>,
+) -> Vec<f64> {
+    let body = body();
+    let mut errors = Vec::new();
+    for t in at..motion.len() {
+        let truth = true_bones(&body, &motion.clip.poses[t]);
+        errors.extend(
+            sensors
+                .clone()
+                .map(|k| bone_error_deg(&session.outputs[t], &truth, k)),
+        );
+    }
+    errors
+}
+
+/// Why a session did not calibrate (its refusal), for a failing test's message.
+fn refusal(session: &Session) -> String {
+    session
+        .calibrator
+        .finish()
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default()
+}
+
 /// Heading-correction errors and the bone errors over the rest of the walk (deg), for one seed.
 fn errors(seed: u64, offset_deg: f64, augment: bool) -> (Vec<f64>, Vec<f64>) {
     let motion = synthesize(
@@ -33,12 +63,7 @@ fn errors(seed: u64, offset_deg: f64, augment: bool) -> (Vec<f64>, Vec<f64>) {
         panic!(
             "seed {seed}: not calibrated: {:?}; {}",
             session.rejections(),
-            session
-                .calibrator
-                .finish()
-                .err()
-                .map(|e| e.to_string())
-                .unwrap_or_default()
+            refusal(&session)
         )
     });
     let found = session
@@ -50,12 +75,7 @@ fn errors(seed: u64, offset_deg: f64, augment: bool) -> (Vec<f64>, Vec<f64>) {
     let heading = (0..NUM_IMUS)
         .map(|k| wrap(found[k] - truth[k]).abs().to_degrees())
         .collect();
-    let body = body();
-    let mut bones = Vec::new();
-    for t in at..motion.len() {
-        let truth = true_bones(&body, &motion.clip.poses[t]);
-        bones.extend((0..NUM_IMUS).map(|k| bone_error_deg(&session.outputs[t], &truth, k)));
-    }
+    let bones = bone_errors_from(&session, &motion, at, 0..NUM_IMUS);
     (heading, bones)
 }
 
@@ -202,27 +222,14 @@ fn walk_with(
         seed,
     );
     let session = run(config, &motion);
-    let at = session.calibrated_at().unwrap_or_else(|| {
-        panic!(
-            "seed {seed}: {}",
-            session
-                .calibrator
-                .finish()
-                .err()
-                .map(|e| e.to_string())
-                .unwrap_or_default()
-        )
-    });
+    let at = session
+        .calibrated_at()
+        .unwrap_or_else(|| panic!("seed {seed}: {}", refusal(&session)));
     let direction = session.events.iter().find_map(|(_, e)| match e {
         Event::Calibrated { walk_direction, .. } => *walk_direction,
         _ => None,
     });
-    let body = body();
-    let mut errors = Vec::new();
-    for t in at..motion.len() {
-        let truth = true_bones(&body, &motion.clip.poses[t]);
-        errors.extend((0..NUM_IMUS).map(|k| bone_error_deg(&session.outputs[t], &truth, k)));
-    }
+    let errors = bone_errors_from(&session, &motion, at, 0..NUM_IMUS);
     (errors, direction)
 }
 
@@ -309,12 +316,7 @@ fn forearm_error_deg(elbow_deg: f64, pose: imuflow_calibration::ReferencePose) -
     );
     let session = run(CalibratorConfig { pose, ..config() }, &motion);
     let at = session.calibrated_at().expect("calibrated");
-    let body = body();
-    let mut errors = Vec::new();
-    for t in at..motion.len() {
-        let truth = true_bones(&body, &motion.clip.poses[t]);
-        errors.extend((0..2).map(|k| bone_error_deg(&session.outputs[t], &truth, k)));
-    }
+    let errors = bone_errors_from(&session, &motion, at, 0..2);
     median_max(&errors).0
 }
 
@@ -359,22 +361,10 @@ fn stand_errors(
         );
         let session = run(config, &motion);
         let Some(at) = session.calibrated_at() else {
-            return Err(format!(
-                "seed {seed}: {}",
-                session
-                    .calibrator
-                    .finish()
-                    .err()
-                    .map(|e| e.to_string())
-                    .unwrap_or_default()
-            ));
+            return Err(format!("seed {seed}: {}", refusal(&session)));
         };
         heading.extend(heading_errors_deg(&session, &motion));
-        let body = body();
-        for t in at..motion.len() {
-            let truth = true_bones(&body, &motion.clip.poses[t]);
-            bones.extend((0..NUM_IMUS).map(|k| bone_error_deg(&session.outputs[t], &truth, k)));
-        }
+        bones.extend(bone_errors_from(&session, &motion, at, 0..NUM_IMUS));
     }
     Ok((heading, bones))
 }
