@@ -272,6 +272,9 @@ pub struct Calibrator {
     invalid_frames: [u64; NUM_IMUS],
     /// Natural starts attempted (a stand of `walk_stand_s`, then `walk_s` of walking).
     walk_attempts: u64,
+    /// A capture day's calibration whose `R_SB` every accepted calibration keeps
+    /// ([`Calibrator::with_mounting`]).
+    mounting: Option<Calibration>,
     last_rejection: Option<Rejection>,
 }
 
@@ -311,6 +314,7 @@ impl Calibrator {
             first_usable: [None; NUM_IMUS],
             invalid_frames: [0; NUM_IMUS],
             walk_attempts: 0,
+            mounting: None,
             last_rejection: None,
         }
     }
@@ -319,6 +323,18 @@ impl Calibrator {
     pub fn with_calibration(config: CalibratorConfig, calibration: Calibration) -> Calibrator {
         let mut c = Calibrator::new(config);
         c.calibration = Some(calibration);
+        c
+    }
+
+    /// A session that calibrates from the data but keeps `mounting`'s sensor-to-bone rotations
+    /// (`R_SB`): a lab's workflow, one careful calibration per capture day applied to every
+    /// recording of that day, each recording's headings (`R_MI`, the heading corrections) and
+    /// accelerometer offsets found from its own start. `R_SB` is how a sensor sits on its bone,
+    /// the same in any inertial frame while the sensors stay where they were strapped; a
+    /// recording's own stand then only has to be long enough to integrate from.
+    pub fn with_mounting(config: CalibratorConfig, mounting: Calibration) -> Calibrator {
+        let mut c = Calibrator::new(config);
+        c.mounting = Some(mounting);
         c
     }
 
@@ -455,7 +471,12 @@ impl Calibrator {
 
     fn accept(&mut self, result: Result<Calibration, Rejection>, seq: u64) -> Event {
         match result {
-            Ok(calibration) => {
+            Ok(mut calibration) => {
+                if let Some(mounting) = &self.mounting {
+                    for (sensor, kept) in calibration.sensors.iter_mut().zip(&mounting.sensors) {
+                        sensor.sensor_from_bone = kept.sensor_from_bone;
+                    }
+                }
                 self.calibration = Some(calibration.clone());
                 Event::Calibrated {
                     seq,

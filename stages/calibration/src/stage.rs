@@ -29,6 +29,11 @@ imuflow_graph::stage_params! {
         from_file: Option<PathBuf>, path;
         /// write the accepted calibration (and later heading updates) to this JSON file
         save_to: Option<PathBuf>, path;
+        /// with from_file: file takes the whole calibration; recording keeps the file's sensor
+        /// mountings (R_SB) and finds the headings and offsets from this recording's own start
+        /// (one calibration per capture day; needed with 6D fusion, whose headings differ per
+        /// recording)
+        headings: String = "file", choice(&["file", "recording"]);
         /// sensors' inertial-frame convention: model (I = M), z-up (Xsens-like), z-down
         /// (Noitom-like)
         frame: InertialFrame = "model", choice(&InertialFrame::NAMES);
@@ -193,6 +198,13 @@ pub fn run() -> anyhow::Result<()> {
         Some(path) if ctx.restarts() > 0 && path.exists() => Some(path.clone()),
         _ => path_param(&params.from_file),
     };
+    if params.headings == "recording" && from_file.is_none() {
+        bail!(
+            "stage '{stage}': params.headings = \"recording\" keeps the sensor mountings of a \
+             calibration file: set params.from_file (the capture day's calibration) or \
+             headings = \"file\""
+        );
+    }
     let mut calibrator = match &from_file {
         Some(path) => {
             let calibration =
@@ -204,7 +216,16 @@ pub fn run() -> anyhow::Result<()> {
                 path.display()
             );
             log_calibration(&stage, &calibration);
-            Calibrator::with_calibration(config, calibration)
+            // A restart reloads what this run had reached, whole.
+            if params.headings == "recording" && Some(path) != kept.as_ref() {
+                tracing::info!(
+                    stage,
+                    "keeping its sensor mountings (R_SB); headings and offsets from this recording"
+                );
+                Calibrator::with_mounting(config, calibration)
+            } else {
+                Calibrator::with_calibration(config, calibration)
+            }
         }
         None => Calibrator::new(config),
     };
@@ -499,7 +520,11 @@ mod tests {
         assert_eq!(at(Method::Walking, None), ReferencePose::N);
         assert_eq!(at(Method::Tpose, Some(ReferencePose::N)), ReferencePose::N);
         assert_eq!(
-            SPEC.params[5].default, "t for tpose, n for walking",
+            SPEC.params
+                .iter()
+                .find(|p| p.name == "pose")
+                .map(|p| p.default),
+            Some("t for tpose, n for walking"),
             "the text names what config_at computes"
         );
     }
