@@ -397,16 +397,14 @@ fn read_table(
     t: usize,
 ) -> Result<(Vec<Read>, u64), Error> {
     let table = tables[t];
-    let time_cell = time
-        .column
-        .as_ref()
-        .map(|c| table.index(c).map(|i| (i, c.to_string())))
-        .transpose()?;
-    let counter_cell = time
-        .counter
-        .as_ref()
-        .map(|c| table.index(c).map(|i| (i, c.to_string())))
-        .transpose()?;
+    // A column's index in the table and its name for messages.
+    let find = |c: &Option<Column>| {
+        c.as_ref()
+            .map(|c| table.index(c).map(|i| (i, c.to_string())))
+            .transpose()
+    };
+    let time_cell = find(&time.column)?;
+    let counter_cell = find(&time.counter)?;
     let rate_hz = match (&time.rate_from, time.rate_hz) {
         (Some(text), fallback) => match rate_in(&table.preamble, text) {
             Some(r) => Some(r),

@@ -428,7 +428,7 @@ impl Calibrator {
 
     fn try_tpose(&mut self, hold: &Hold, seq: u64) -> Event {
         let window = self.average_window(&hold.hold, 0);
-        let result = calibrate_tpose(self.slice(window), &self.config.tpose());
+        let result = calibrate_tpose(self.slice(window), &self.config.tpose()).map(|c| (c, None));
         self.accept(result, seq)
     }
 
@@ -436,9 +436,8 @@ impl Calibrator {
         let result = match self.step_windows(hold) {
             None => return Event::Stand { seq },
             Some(Err(reason)) => Err(reason),
-            Some(Ok(w)) => {
-                calibrate_walking(&self.windows(&w), &self.config.walking()).map(|e| e.calibration)
-            }
+            Some(Ok(w)) => calibrate_walking(&self.windows(&w), &self.config.walking())
+                .map(|e| (e.calibration, e.walk_direction)),
         };
         self.accept(result, seq)
     }
@@ -469,9 +468,15 @@ impl Calibrator {
         })
     }
 
-    fn accept(&mut self, result: Result<Calibration, Rejection>, seq: u64) -> Event {
+    /// Takes an attempt's outcome: a calibration (with a natural start's walking direction, for
+    /// the log) or why it must be redone.
+    fn accept(
+        &mut self,
+        result: Result<(Calibration, Option<WalkDirection>), Rejection>,
+        seq: u64,
+    ) -> Event {
         match result {
-            Ok(mut calibration) => {
+            Ok((mut calibration, walk_direction)) => {
                 if let Some(mounting) = &self.mounting {
                     for (sensor, kept) in calibration.sensors.iter_mut().zip(&mounting.sensors) {
                         sensor.sensor_from_bone = kept.sensor_from_bone;
@@ -481,7 +486,7 @@ impl Calibrator {
                 Event::Calibrated {
                     seq,
                     calibration: Box::new(calibration),
-                    walk_direction: None,
+                    walk_direction,
                 }
             }
             Err(reason) => {
@@ -515,32 +520,26 @@ impl Calibrator {
         // otherwise); the accelerometer offset, whose noise matters more, up to STAND_END_SKIP_S
         // before the end (both measured in the calibration README, "How short a stand"). The
         // walk is integrated from a margin before the stand's end.
-        let window = config.frames(config.still_window_s);
-        let keep = config.frames(STAND_AVERAGE_MIN_S);
-        let end_skip = config.frames(STAND_END_SKIP_S).min(window);
-        let skip = (stand.end - stand.start)
-            .saturating_sub(keep)
-            .clamp(end_skip, window);
-        let offset_skip = (stand.end - stand.start)
-            .saturating_sub(config.frames(OFFSET_AVERAGE_MIN_S))
-            .clamp(end_skip, window);
-        let stand_window = self.average_window(&stand, skip);
+        let end_skip = config.frames(STAND_END_SKIP_S).min(window_frames);
+        let skip_keeping = |keep_s: f64| {
+            (stand.end - stand.start)
+                .saturating_sub(config.frames(keep_s))
+                .clamp(end_skip, window_frames)
+        };
+        let stand_window = self.average_window(&stand, skip_keeping(STAND_AVERAGE_MIN_S));
+        let offset_window = self.average_window(&stand, skip_keeping(OFFSET_AVERAGE_MIN_S));
         let walk_window = stand
             .end
             .saturating_sub(config.margin_frames())
             .max(stand.start)..index + 1;
         let windows = WalkStartWindows {
             stand: self.slice(stand_window),
-            offset_stand: self.slice(self.average_window(&stand, offset_skip)),
+            offset_stand: self.slice(offset_window),
             walk: self.slice(walk_window),
         };
-        let result = calibrate_walk_start(&windows, &config.walk_start_config());
-        let direction = result.as_ref().ok().and_then(|e| e.walk_direction);
-        let mut event = self.accept(result.map(|e| e.calibration), seq);
-        if let Event::Calibrated { walk_direction, .. } = &mut event {
-            *walk_direction = direction;
-        }
-        Some(event)
+        let result = calibrate_walk_start(&windows, &config.walk_start_config())
+            .map(|e| (e.calibration, e.walk_direction));
+        Some(self.accept(result, seq))
     }
 
     /// The three windows of a stand–motion–stand (`None` for a first stand).
@@ -597,24 +596,24 @@ impl Calibrator {
         }
         let rate = config.nominal_rate_hz;
         let secs = |frames: u64| frames as f64 / rate;
-        let mut causes = Vec::new();
         let never: Vec<&str> = (0..NUM_IMUS)
             .filter(|&k| self.first_usable[k].is_none())
             .map(sensor_name)
             .collect();
         if !never.is_empty() {
-            causes.push(format!(
-                "{} never had a usable sample (missing, NaN, infinite or a zero quaternion) in {} \
-                 frames: is the sensor mapped to that site, and did it record?",
+            return format!(
+                "- {} never had a usable sample (missing, NaN, infinite or a zero quaternion) in \
+                 {} frames: is the sensor mapped to that site, and did it record?",
                 never.join(", "),
                 self.frames
-            ));
-            return format!("- {}", causes.join(""));
+            );
         }
+        let mut causes = Vec::new();
         if let Some(rejection) = &self.last_rejection {
             causes.push(format!("last attempt rejected: {rejection}"));
         }
         let longest = self.walk_start.longest.clone();
+        let longest_s = longest.as_ref().map(|run| secs(run.end - run.start));
         let longest_text = match &longest {
             Some(run) => format!(
                 "the longest still period was {:.2} s (at {:.1}–{:.1} s)",
@@ -637,19 +636,19 @@ impl Calibrator {
                          of walking)",
                         config.walk_stand_s, config.walk_s
                     );
-                    let found = match &longest {
+                    let found = match longest_s {
                         _ if self.walk_attempts > 0 => format!(
                             "{} attempt(s), none accepted (the last attempt's reason is above)",
                             self.walk_attempts
                         ),
-                        Some(run) if secs(run.end - run.start) >= config.walk_stand_s => format!(
+                        Some(s) if s >= config.walk_stand_s => format!(
                             "{longest_text}, but walk_s = {} s of walking never followed a stand \
                              (the data ended, or the subject stood still again first)",
                             config.walk_s
                         ),
-                        Some(run) if secs(run.end - run.start) >= MIN_WALK_STAND_S => format!(
+                        Some(s) if s >= MIN_WALK_STAND_S => format!(
                             "{longest_text}; walk_stand_s = {:.2} would take it ({stillness})",
-                            (secs(run.end - run.start) * 100.0).floor() / 100.0
+                            (s * 100.0).floor() / 100.0
                         ),
                         Some(_) => format!(
                             "{longest_text}, shorter than any walk_stand_s allows \

@@ -1,9 +1,8 @@
 //! The `calibration` stage process: reads `imu`, writes `body_imu`, logs what the calibration
 //! does, saves / loads calibration files.
 
-use std::path::PathBuf;
-
 use std::collections::VecDeque;
+use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use imuflow_graph::frames::{BodyImuFrame, FrameHeader, ImuFrame, flags};

@@ -383,6 +383,7 @@ pub fn calibrate_walk_start(
     let walking = &config.walking;
     let stand = valid(windows.stand, "stand before walking")?;
     let walk = valid(windows.walk, "walk")?;
+    let still = valid(windows.offset_stand, "stand before walking")?;
     check_gravity(stand, walking.frame, walking.max_gravity_deg)?;
     let up = walking.frame.up_in_inertial();
     let gravity = -up.into_inner() * imuflow_body::GRAVITY_IN_MODEL_MPS2.norm();
@@ -395,7 +396,6 @@ pub fn calibrate_walk_start(
         g.stand_before[k] = stand_orientation(stand, k)?;
         g.stand_after[k] = g.stand_before[k];
         if walking.accel_offset {
-            let still = valid(windows.offset_stand, "stand before walking")?;
             g.offset_in_inertial_mps2[k] = mean_free_acceleration(still.iter(), k, &gravity);
         }
         raw_paths.push(integrate_path(

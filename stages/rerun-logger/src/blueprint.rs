@@ -154,6 +154,62 @@ fn scene_contents(inputs: &[(String, FrameType)]) -> Vec<String> {
     contents
 }
 
+/// The errors tab: the followed estimate against the truth (SIP, joint position and root
+/// distance) and its latency from the source.
+fn errors_tab() -> rerun::blueprint::ContainerLike {
+    use rerun::blueprint::{TimeSeriesView, Vertical};
+    let error = |title: &str, series: &str| {
+        TimeSeriesView::new(title)
+            .with_contents([format!("+ /plots/error_vs_truth/{FOLLOWED}/{series}")])
+            .into()
+    };
+    Vertical::new([
+        error("SIP error vs truth (deg)", "sip_deg"),
+        error("joint position error vs truth (cm)", "joint_position_cm"),
+        error("root distance from truth (m)", "root_distance_m"),
+        TimeSeriesView::new("latency, source to estimate (ms)")
+            .with_contents(["+ /plots/latency_ms/**"])
+            .into(),
+    ])
+    .with_name("errors")
+    .into()
+}
+
+/// An input's tab: its plotted series, beside a physics estimate's joint torques or an IMU
+/// input's sensor axes.
+fn input_tab(name: &str, frame: FrameType) -> rerun::blueprint::ContainerLike {
+    use rerun::blueprint::{BarChartView, Horizontal, Spatial3DView, TimeSeriesView, Vertical};
+    let plotted = match frame {
+        FrameType::Imu | FrameType::BodyImu => "IMU signals",
+        _ => "fields",
+    };
+    let series = TimeSeriesView::new(format!("{name}: {plotted}"))
+        .with_origin(format!("/plots/{name}"))
+        .with_contents(["+ $origin/**"]);
+    match frame {
+        FrameType::Motion => Horizontal::new([
+            series.into(),
+            BarChartView::new(format!("{name}: joint torque (N·m)"))
+                .with_origin(format!("/plots/{name}/torque_norm_nm"))
+                .into(),
+        ])
+        .with_name(name)
+        .into(),
+        // The sensors' axes, side by side: out of the scene (see `scene_contents`).
+        FrameType::Imu | FrameType::BodyImu => Horizontal::new([
+            Spatial3DView::new(format!("{name}: sensors"))
+                .with_origin(format!("/{name}"))
+                .with_contents(["+ $origin/**"])
+                .into(),
+            series.into(),
+        ])
+        .with_column_shares([1.0, 2.0])
+        .with_name(name)
+        .into(),
+        _ => Vertical::new([series.into()]).with_name(name).into(),
+    }
+}
+
 /// The layout of a single run, derived from its inputs and whether a truth pose was logged yet:
 /// the scene and a view that follows the estimate side by side (with the legend), above tabs of
 /// time series ([`single_run_tabs`]). Sent before the first frame, and again when the first truth
@@ -165,8 +221,8 @@ pub(crate) fn send_single_run(
 ) -> anyhow::Result<()> {
     use rerun::blueprint::components::PanelState;
     use rerun::blueprint::{
-        BarChartView, Blueprint, BlueprintPanel, ContainerLike, Horizontal, SelectionPanel,
-        Spatial3DView, Tabs, TextDocumentView, TimePanel, TimeSeriesView, Vertical,
+        Blueprint, BlueprintPanel, ContainerLike, Horizontal, SelectionPanel, Spatial3DView, Tabs,
+        TextDocumentView, TimePanel, Vertical,
     };
     let has = |name: &str| inputs.iter().any(|(e, _)| e == name);
     let contents = scene_contents(inputs);
@@ -213,69 +269,13 @@ pub(crate) fn send_single_run(
         3 => vec![3.0, 3.0, 1.2],
         _ => vec![5.0, 1.2],
     };
-    let mut tabs: Vec<ContainerLike> = Vec::new();
-    for tab in single_run_tabs(inputs, truth_seen) {
-        let (name, frame) = match tab {
-            Tab::Errors => {
-                tabs.push(
-                    Vertical::new([
-                        TimeSeriesView::new("SIP error vs truth (deg)")
-                            .with_contents([format!("+ /plots/error_vs_truth/{FOLLOWED}/sip_deg")])
-                            .into(),
-                        TimeSeriesView::new("joint position error vs truth (cm)")
-                            .with_contents([format!(
-                                "+ /plots/error_vs_truth/{FOLLOWED}/joint_position_cm"
-                            )])
-                            .into(),
-                        TimeSeriesView::new("root distance from truth (m)")
-                            .with_contents([format!(
-                                "+ /plots/error_vs_truth/{FOLLOWED}/root_distance_m"
-                            )])
-                            .into(),
-                        TimeSeriesView::new("latency, source to estimate (ms)")
-                            .with_contents(["+ /plots/latency_ms/**"])
-                            .into(),
-                    ])
-                    .with_name("errors")
-                    .into(),
-                );
-                continue;
-            }
-            Tab::Input(name, frame) => (name, frame),
-        };
-        let plotted = match frame {
-            FrameType::Imu | FrameType::BodyImu => "IMU signals",
-            _ => "fields",
-        };
-        let series = TimeSeriesView::new(format!("{name}: {plotted}"))
-            .with_origin(format!("/plots/{name}"))
-            .with_contents(["+ $origin/**"]);
-        let tab: ContainerLike = match frame {
-            FrameType::Motion => Horizontal::new([
-                series.into(),
-                BarChartView::new(format!("{name}: joint torque (N·m)"))
-                    .with_origin(format!("/plots/{name}/torque_norm_nm"))
-                    .into(),
-            ])
-            .with_name(name.as_str())
-            .into(),
-            // The sensors' axes, side by side: out of the scene (see `scene_contents`).
-            FrameType::Imu | FrameType::BodyImu => Horizontal::new([
-                Spatial3DView::new(format!("{name}: sensors"))
-                    .with_origin(format!("/{name}"))
-                    .with_contents(["+ $origin/**"])
-                    .into(),
-                series.into(),
-            ])
-            .with_column_shares([1.0, 2.0])
-            .with_name(name.as_str())
-            .into(),
-            _ => Vertical::new([series.into()])
-                .with_name(name.as_str())
-                .into(),
-        };
-        tabs.push(tab);
-    }
+    let tabs: Vec<ContainerLike> = single_run_tabs(inputs, truth_seen)
+        .into_iter()
+        .map(|tab| match tab {
+            Tab::Errors => errors_tab(),
+            Tab::Input(name, frame) => input_tab(&name, frame),
+        })
+        .collect();
     let top: ContainerLike = Horizontal::new(top).with_column_shares(shares).into();
     let root: ContainerLike = if tabs.is_empty() {
         top
