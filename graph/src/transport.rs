@@ -59,9 +59,11 @@ pub fn iceoryx_config() -> Config {
 /// Reader buffer per edge in offline graphs: deep enough that stages with uneven per-frame cost
 /// keep each other busy.
 const OFFLINE_BUFFER: usize = 16;
-/// Reader buffer per edge in live graphs: a stage that is more than this many frames behind
-/// drops the oldest rather than adding latency.
-const LIVE_BUFFER: usize = 2;
+/// Reader buffer per edge in live graphs: deep enough for a sensor's backlog after a stall (a
+/// tracker that stalls 100 ms and then sends its ten ticks at once, published as they come, up to
+/// 160 frames a second), so a burst is queued, not overwritten; a stage more than this many frames
+/// behind drops the oldest rather than adding more latency.
+const LIVE_BUFFER: usize = 16;
 /// How long a writer sleeps before trying a full reader's buffer again (offline).
 const BACKPRESSURE_SLEEP: Duration = Duration::from_micros(200);
 /// Samples a reader may hold at once: the current frame of each input plus the latest feedback.

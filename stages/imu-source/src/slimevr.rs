@@ -9,9 +9,10 @@
 //! sends them back to back): it sets its site's bit in `orientation_mask` and `valid_mask`. A
 //! rotation whose acceleration does not follow within [`receiver::PAIR_WAIT`] is a sample alone
 //! (orientation bit only); an acceleration on its own (older firmware sends one when the rotation
-//! did not change) is one with the valid bit only. Samples of different sites that arrive within
-//! [`MERGE_WINDOW`] of each other share a frame ([`Assembler`]); a frame never holds two samples
-//! of one site.
+//! did not change) is one with the valid bit only. The stage reads every datagram the socket holds
+//! and publishes their samples at once, nothing waiting for more: samples read together share a
+//! frame ([`Assembler`]; a tick of six trackers usually does); a frame never holds two samples of
+//! one site.
 //!
 //! Sources: SlimeVR/SlimeVR-Tracker-ESP `src/sensors/sensor.cpp` (`setFusedRotation`,
 //! `setAcceleration`, `sendData`), `src/sensors/SensorFusion.cpp` (`calcGravityVec`,
@@ -38,14 +39,17 @@
 //! - `gyroscope_radps`: zero, with the site's bit in `no_gyroscope_mask`: the protocol carries no
 //!   angular rate (only the firmware's inspection packets, which release builds do not send), so
 //!   the fusion stage derives it from consecutive orientations.
-//! - `sample_time_ns`: when the sample's first packet arrived (host clock, Unix epoch ns); tracker
-//!   packets carry no sample time. `header.capture_ns`: the earliest arrival among the frame's
+//! - `sample_time_ns`: when the tracker sent the sample's first packet, on the host clock (Unix
+//!   epoch ns), from its packet number and the pace of the numbers ([`clock::PacketClock`]):
+//!   tracker packets carry no sample time, and a backlog delivered at once after a stall must not
+//!   look simultaneous. `header.capture_ns`: the earliest arrival among the frame's
 //!   samples.
 //! - `seq`: frame counter from 0.
 //!
 //! A rotation that is not finite or whose norm is not within 0.9–1.1, or a specific force that is
 //! not finite, leaves its bit clear and flags the frame INVALID.
 
+pub mod clock;
 pub mod mapping;
 pub mod packets;
 pub mod receiver;
@@ -81,11 +85,6 @@ pub struct Options {
 /// How long one wait for a datagram lasts at most (the stop flag is checked in between).
 const POLL: Duration = Duration::from_millis(20);
 
-/// How long a frame collects samples of other sites after its first one. Trackers send in bursts
-/// (six boards on one tick, Wi-Fi aggregation); one frame per sample would publish them back to
-/// back, faster than a live reader's two-frame buffer takes them.
-pub const MERGE_WINDOW: Duration = Duration::from_millis(2);
-
 /// Receives from the trackers and publishes their samples until timeout, `frames` or stop.
 pub fn run(ctx: StageContext, options: &Options) -> anyhow::Result<()> {
     let mapping = Mapping::load(&options.trackers)?;
@@ -110,11 +109,10 @@ pub fn run(ctx: StageContext, options: &Options) -> anyhow::Result<()> {
     let mut samples = Vec::new();
     let mut last_heard = Instant::now();
     while !out.out.ctx.should_stop() && !out.full() {
-        let wait = out.assembler.deadline().map_or(POLL, |d| {
-            d.saturating_duration_since(Instant::now()).min(POLL)
-        });
+        // Everything that arrived is published at once: the datagrams the socket holds are read
+        // together, so a tick of six trackers usually shares a frame, and nothing waits for more.
         if receiver
-            .poll(wait, &mut samples)
+            .poll(POLL, &mut samples)
             .context("receiving from the trackers")?
         {
             last_heard = Instant::now();
@@ -122,10 +120,11 @@ pub fn run(ctx: StageContext, options: &Options) -> anyhow::Result<()> {
             tracing::info!("no tracker packet for {:?}: end of stream", options.timeout);
             break;
         }
-        out.add(&mut samples, Instant::now())?;
+        out.add(&mut samples)?;
+        out.flush()?;
     }
     receiver.flush_all(&mut samples);
-    out.add(&mut samples, Instant::now())?;
+    out.add(&mut samples)?;
     out.flush()?;
     let summary = report(&receiver);
     out.out.ctx.set_summary_detail(summary);
@@ -146,15 +145,12 @@ impl Frames {
         self.limit > 0 && self.seq >= self.limit
     }
 
-    /// Adds the samples (drained) and publishes every frame they complete or whose window ended.
-    fn add(&mut self, samples: &mut Vec<Sample>, now: Instant) -> anyhow::Result<()> {
+    /// Adds the samples (drained) and publishes every frame they complete.
+    fn add(&mut self, samples: &mut Vec<Sample>) -> anyhow::Result<()> {
         for sample in samples.drain(..) {
-            if let Some(done) = self.assembler.push(&sample, now) {
+            if let Some(done) = self.assembler.push(&sample) {
                 self.publish(done)?;
             }
-        }
-        if let Some(done) = self.assembler.take_due(now) {
-            self.publish(done)?;
         }
         Ok(())
     }
@@ -179,28 +175,27 @@ impl Frames {
     }
 }
 
-/// Collects samples into frames: samples of different sites that arrive within
-/// [`MERGE_WINDOW`] of a frame's first one share it; a second sample of a site already in it
-/// closes it. The frame's `capture_ns` is the earliest arrival among its samples (a rotation that
-/// waited for its acceleration may join after a later sample started the frame); `seq` is left to
-/// the publisher.
+/// Collects the samples read together into frames: samples of different sites share one; a
+/// second sample of a site already in it closes it. The frame's `capture_ns` is the earliest
+/// arrival among its samples (a rotation that waited for its acceleration may join after a later
+/// sample started the frame); `seq` is left to the publisher.
 #[derive(Debug, Default)]
 pub struct Assembler {
-    current: Option<(RawImuFrame, Instant)>,
+    current: Option<RawImuFrame>,
 }
 
 impl Assembler {
-    /// Adds a sample that arrived at `now`; the frame it closed, if any.
-    pub fn push(&mut self, sample: &Sample, now: Instant) -> Option<RawImuFrame> {
-        // Every sample sets its site's sample time (an arrival time, never 0).
+    /// Adds a sample; the frame it closed, if any.
+    pub fn push(&mut self, sample: &Sample) -> Option<RawImuFrame> {
+        // Every sample sets its site's sample time (never 0).
         let closed = match &self.current {
-            Some((f, _)) if f.sample_time_ns[sample.site] != 0 => self.take(),
+            Some(f) if f.sample_time_ns[sample.site] != 0 => self.take(),
             _ => None,
         };
-        let (frame, _) = self.current.get_or_insert_with(|| {
+        let frame = self.current.get_or_insert_with(|| {
             let mut f = RawImuFrame::default();
             f.header.capture_ns = sample.received_ns;
-            (f, now)
+            f
         });
         frame.header.capture_ns = frame.header.capture_ns.min(sample.received_ns);
         if !fill(frame, sample) {
@@ -209,23 +204,9 @@ impl Assembler {
         closed
     }
 
-    /// When the frame collecting now must go out.
-    pub fn deadline(&self) -> Option<Instant> {
-        self.current.as_ref().map(|(_, t)| *t + MERGE_WINDOW)
-    }
-
-    /// The frame collecting now, if its window ended by `now`.
-    pub fn take_due(&mut self, now: Instant) -> Option<RawImuFrame> {
-        if self.deadline().is_some_and(|d| d <= now) {
-            self.take()
-        } else {
-            None
-        }
-    }
-
     /// The frame collecting now.
     pub fn take(&mut self) -> Option<RawImuFrame> {
-        self.current.take().map(|(f, _)| f)
+        self.current.take()
     }
 }
 
@@ -234,7 +215,7 @@ impl Assembler {
 pub fn fill(f: &mut RawImuFrame, sample: &Sample) -> bool {
     let (i, bit) = (sample.site, 1u32 << sample.site);
     let mut usable = true;
-    f.sample_time_ns[i] = sample.received_ns;
+    f.sample_time_ns[i] = sample.sent_ns;
     if let Some([x, y, z, w]) = sample.rotation_xyzw {
         let norm = (w * w + x * x + y * y + z * z).sqrt();
         if norm.is_finite() && (0.9..=1.1).contains(&norm) {

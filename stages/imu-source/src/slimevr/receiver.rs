@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 
 use imuflow_graph::transport::now_ns;
 
+use super::clock::PacketClock;
 use super::mapping::Mapping;
 use super::packets::{
     self, Acceleration, DATA_TYPE_NORMAL, Datagram, Mac, Packet, RECEIVER_FEATURES, Rotation, reply,
@@ -29,6 +30,9 @@ pub const PAIR_WAIT: Duration = Duration::from_millis(5);
 /// (firmware built with `SEND_ACCELERATION false`): its rotations are then published at once.
 const ROTATIONS_WITHOUT_ACCEL: u32 = 3;
 
+/// Most datagrams handled in one poll: a flood cannot keep the stage from publishing.
+pub const MAX_DRAIN: usize = 256;
+
 /// Packet numbers remembered per tracker to tell duplicates from late packets.
 const NUMBER_WINDOW: u64 = 4096;
 
@@ -42,6 +46,8 @@ pub struct Sample {
     pub site: usize,
     /// When the sample's first packet arrived, ns since the Unix epoch.
     pub received_ns: u64,
+    /// When the tracker sent it, from its packet number ([`PacketClock`]), on the same clock.
+    pub sent_ns: u64,
     /// The rotation of this sample (x, y, z, w as received), when it brought one.
     pub rotation_xyzw: Option<[f32; 4]>,
     /// The linear acceleration as received (m/s², tracker frame, gravity removed) and the
@@ -81,11 +87,19 @@ pub struct OtherStats {
     pub ignored: u64,
 }
 
+/// When a datagram arrived, and when its tracker sent it.
+#[derive(Debug, Clone, Copy)]
+struct Stamp {
+    received_ns: u64,
+    sent_ns: u64,
+}
+
 /// A rotation waiting for its acceleration.
 #[derive(Debug, Clone, Copy)]
 struct Pending {
     rotation: [f32; 4],
     received_ns: u64,
+    sent_ns: u64,
     deadline: Instant,
 }
 
@@ -103,6 +117,7 @@ struct SensorState {
 struct Tracker {
     addr: SocketAddr,
     numbers: Numbering,
+    clock: PacketClock,
     stats: TrackerStats,
     sensors: BTreeMap<u8, SensorState>,
     /// Sensor ids not in the mapping, logged once.
@@ -148,28 +163,55 @@ impl Receiver {
         self.socket.local_addr()
     }
 
-    /// Waits up to `wait` for one datagram and handles it; appends finished samples to `out`.
-    /// Returns whether a mapped tracker was heard (the stream's silence timeout counts from it).
+    /// Waits up to `wait` for a datagram, then handles it and every other datagram the socket
+    /// already holds (at most [`MAX_DRAIN`]); appends finished samples to `out`. Returns whether
+    /// a mapped tracker was heard (the stream's silence timeout counts from it).
     pub fn poll(&mut self, wait: Duration, out: &mut Vec<Sample>) -> std::io::Result<bool> {
         self.keep_alive();
         let wait = self.until_next_deadline().map_or(wait, |d| d.min(wait));
         // A zero read timeout is an error on some platforms: wait at least 1 ms.
         self.socket
             .set_read_timeout(Some(wait.max(Duration::from_millis(1))))?;
-        let heard = match self.socket.recv_from(&mut self.buf) {
+        let mut heard = match self.receive_one(out)? {
+            Some(heard) => heard,
+            None => {
+                self.flush_expired(Instant::now(), out);
+                return Ok(false);
+            }
+        };
+        self.socket.set_nonblocking(true)?;
+        let mut drained = Ok(());
+        for _ in 1..MAX_DRAIN {
+            match self.receive_one(out) {
+                Ok(Some(h)) => heard |= h,
+                Ok(None) => break,
+                Err(e) => {
+                    drained = Err(e);
+                    break;
+                }
+            }
+        }
+        self.socket.set_nonblocking(false)?;
+        drained?;
+        self.flush_expired(Instant::now(), out);
+        Ok(heard)
+    }
+
+    /// Receives and handles one datagram: `None` when none came (timeout, or none queued);
+    /// otherwise whether it came from a mapped tracker.
+    fn receive_one(&mut self, out: &mut Vec<Sample>) -> std::io::Result<Option<bool>> {
+        match self.socket.recv_from(&mut self.buf) {
             Ok((len, from)) => {
                 let buf = std::mem::take(&mut self.buf);
                 let heard = self.handle(&buf[..len], from, out);
                 self.buf = buf;
-                heard
+                Ok(Some(heard))
             }
-            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => false,
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => Ok(None),
             // A previous send to a tracker that is gone can surface here (ICMP unreachable).
-            Err(e) if e.kind() == ErrorKind::ConnectionRefused => false,
-            Err(e) => return Err(e),
-        };
-        self.flush_expired(Instant::now(), out);
-        Ok(heard)
+            Err(e) if e.kind() == ErrorKind::ConnectionRefused => Ok(Some(false)),
+            Err(e) => Err(e),
+        }
     }
 
     /// Publishes every rotation still waiting for its acceleration (at the end of the stream).
@@ -254,6 +296,7 @@ impl Receiver {
         let tracker = self.trackers.entry(mac).or_insert_with(|| Tracker {
             addr: from,
             numbers: Numbering::default(),
+            clock: PacketClock::default(),
             stats: TrackerStats::default(),
             sensors: BTreeMap::new(),
             unmapped: BTreeSet::new(),
@@ -274,6 +317,7 @@ impl Receiver {
         tracker.stats.handshakes += 1;
         // The tracker's packet numbers go on across reconnections; the server starts anew too.
         tracker.numbers.restart();
+        tracker.clock = PacketClock::default();
         self.send(from, &reply::handshake());
         true
     }
@@ -301,11 +345,20 @@ impl Receiver {
                 return;
             }
         }
+        // Number 0 (a ping echo, a handshake) is not on the tracker's count.
+        let sent_ns = match datagram.number {
+            0 => received_ns,
+            n => tracker.clock.date(n, received_ns),
+        };
+        let at = Stamp {
+            received_ns,
+            sent_ns,
+        };
         let mut replies = Vec::new();
         for packet in &datagram.packets {
             match packet {
                 Ok(p) => {
-                    if let Some(r) = self.packet(mac, p, received_ns, out) {
+                    if let Some(r) = self.packet(mac, p, at, out) {
                         replies.push(r);
                     }
                 }
@@ -328,14 +381,14 @@ impl Receiver {
         &mut self,
         mac: Mac,
         packet: &Packet,
-        received_ns: u64,
+        at: Stamp,
         out: &mut Vec<Sample>,
     ) -> Option<Vec<u8>> {
         match packet {
             Packet::Rotation(r) if r.data_type == DATA_TYPE_NORMAL => {
-                self.rotation(mac, r, received_ns, out);
+                self.rotation(mac, r, at, out);
             }
-            Packet::Acceleration(a) => self.acceleration(mac, a, received_ns, out),
+            Packet::Acceleration(a) => self.acceleration(mac, a, at, out),
             Packet::RotationAndAcceleration(r, a) => {
                 if let Some(site) = self.site(mac, r.sensor_id) {
                     let state = self.sensor(mac, r.sensor_id);
@@ -345,7 +398,8 @@ impl Receiver {
                         out,
                         Sample {
                             site,
-                            received_ns,
+                            received_ns: at.received_ns,
+                            sent_ns: at.sent_ns,
                             rotation_xyzw: Some(r.xyzw),
                             acceleration: Some((a.xyz, r.xyzw)),
                         },
@@ -387,7 +441,7 @@ impl Receiver {
 
     /// A rotation: published once its acceleration arrives (or at once when the sensor sends
     /// none); a rotation still waiting is published alone.
-    fn rotation(&mut self, mac: Mac, r: &Rotation, received_ns: u64, out: &mut Vec<Sample>) {
+    fn rotation(&mut self, mac: Mac, r: &Rotation, at: Stamp, out: &mut Vec<Sample>) {
         let Some(site) = self.site(mac, r.sensor_id) else {
             return;
         };
@@ -401,7 +455,8 @@ impl Receiver {
         if waits {
             state.pending = Some(Pending {
                 rotation: r.xyzw,
-                received_ns,
+                received_ns: at.received_ns,
+                sent_ns: at.sent_ns,
                 deadline: Instant::now() + PAIR_WAIT,
             });
         }
@@ -414,7 +469,8 @@ impl Receiver {
                 out,
                 Sample {
                     site,
-                    received_ns,
+                    received_ns: at.received_ns,
+                    sent_ns: at.sent_ns,
                     rotation_xyzw: Some(r.xyzw),
                     acceleration: None,
                 },
@@ -429,7 +485,7 @@ impl Receiver {
         &mut self,
         mac: Mac,
         a: &Acceleration,
-        received_ns: u64,
+        at: Stamp,
         out: &mut Vec<Sample>,
     ) {
         let Some(site) = self.site(mac, a.sensor_id) else {
@@ -441,12 +497,14 @@ impl Receiver {
             (Some(p), _) => Sample {
                 site,
                 received_ns: p.received_ns,
+                sent_ns: p.sent_ns,
                 rotation_xyzw: Some(p.rotation),
                 acceleration: Some((a.xyz, p.rotation)),
             },
             (None, Some(last)) => Sample {
                 site,
-                received_ns,
+                received_ns: at.received_ns,
+                sent_ns: at.sent_ns,
                 rotation_xyzw: None,
                 acceleration: Some((a.xyz, last)),
             },
@@ -553,6 +611,7 @@ fn alone(site: usize, p: Pending) -> Sample {
     Sample {
         site,
         received_ns: p.received_ns,
+        sent_ns: p.sent_ns,
         rotation_xyzw: Some(p.rotation),
         acceleration: None,
     }

@@ -333,33 +333,33 @@ impl Lcg {
 /// The frame of one sample alone.
 fn frame(sample: &Sample) -> RawImuFrame {
     let mut assembler = Assembler::default();
-    assert_eq!(assembler.push(sample, Instant::now()), None);
+    assert_eq!(assembler.push(sample), None);
     assembler.take().expect("a frame")
 }
 
 #[test]
-fn samples_of_different_sites_share_a_frame_within_the_window() {
+fn samples_read_together_share_a_frame_until_a_site_repeats() {
+    // Arrived at `received_ns`, sent 3 ns before.
     let sample = |site: usize, received_ns: u64| Sample {
         site,
         received_ns,
+        sent_ns: received_ns - 3,
         rotation_xyzw: Some([0.0, 0.0, 0.0, 1.0]),
         acceleration: None,
     };
-    let t0 = Instant::now();
     let mut a = Assembler::default();
-    assert_eq!(a.deadline(), None);
-    assert_eq!(a.push(&sample(0, 10), t0), None);
-    assert_eq!(a.push(&sample(3, 11), t0), None);
-    assert_eq!(a.deadline(), Some(t0 + MERGE_WINDOW));
-    assert_eq!(a.take_due(t0 + MERGE_WINDOW / 2), None);
+    assert_eq!(a.take(), None);
+    assert_eq!(a.push(&sample(0, 10)), None);
+    assert_eq!(a.push(&sample(3, 11)), None);
     // Site 0 again: the frame with sites 0 and 3 goes out, the new sample starts the next.
-    let first = a.push(&sample(0, 12), t0).expect("closed");
+    let first = a.push(&sample(0, 12)).expect("closed");
     assert_eq!(
         (first.orientation_mask, first.header.capture_ns),
         (0b1001, 10)
     );
-    assert_eq!(first.sample_time_ns[..4], [10, 0, 0, 11]);
-    let second = a.take_due(t0 + MERGE_WINDOW).expect("due");
+    // Sample times are the send times, the capture time the earliest arrival.
+    assert_eq!(first.sample_time_ns[..4], [7, 0, 0, 8]);
+    let second = a.take().expect("the frame collecting");
     assert_eq!((second.orientation_mask, second.header.capture_ns), (1, 12));
     assert_eq!(a.take(), None);
 }
@@ -370,6 +370,7 @@ fn a_sample_becomes_a_frame_of_its_site() {
     let sample = Sample {
         site: 4,
         received_ns: 123_456,
+        sent_ns: 123_000,
         rotation_xyzw: Some([h, 0.0, 0.0, h]),
         acceleration: Some(([0.5, 0.0, 0.0], [h, 0.0, 0.0, h])),
     };
@@ -380,7 +381,7 @@ fn a_sample_becomes_a_frame_of_its_site() {
         (16, 16, 0)
     );
     assert_eq!(f.orientation_wxyz[4], [h, h, 0.0, 0.0]);
-    assert_eq!(f.sample_time_ns[4], 123_456);
+    assert_eq!(f.sample_time_ns[4], 123_000);
     // 90° about x: the tracker's y axis is up, so the reaction to gravity is +g along y.
     let g = FIRMWARE_GRAVITY_MPS2 as f32;
     let a = f.accelerometer_mps2[4];
