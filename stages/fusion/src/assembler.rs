@@ -10,7 +10,9 @@
 use imuflow_graph::frames::{ImuFrame, RawImuFrame, flags};
 
 use crate::quat::IDENTITY;
-use crate::sensor::{RawSample, SensorCounters, SensorSettings, SensorTrack};
+use crate::sensor::{
+    Latency, RawSample, STALE_INTERVALS, SensorCounters, SensorSettings, SensorTrack,
+};
 use crate::{FusionError, NUM_IMUS, sensor_name};
 
 /// Offline, a first capture time later than this is not "near 0": the grid starts there instead
@@ -57,9 +59,18 @@ pub struct FrameCounters {
     pub invalid: u64,
     /// Per sensor: output frames where it could not be resampled.
     pub sensor_invalid: [u64; NUM_IMUS],
-    /// Per sensor: output frames emitted at their latency deadline before the samples describing
-    /// its specific force and angular rate had come (extrapolated from the newest two).
+    /// Output frames flagged DEGRADED (a sensor was stale in them).
+    pub degraded: u64,
+    /// Per sensor ([`Latency::Smooth`]): output frames emitted at their latency deadline before
+    /// the samples describing its specific force and angular rate had come (extrapolated from
+    /// the newest two).
     pub sensor_held: [u64; NUM_IMUS],
+    /// Per sensor ([`Latency::Low`]): output frames in which its newest sample was more than
+    /// [`STALE_INTERVALS`] intervals old (extrapolated one interval, then held; flagged DEGRADED).
+    pub sensor_stale: [u64; NUM_IMUS],
+    /// Per sensor: samples that arrived after a frame more than one sample interval after their
+    /// time had been built (that frame had to do without them).
+    pub sensor_late: [u64; NUM_IMUS],
     /// Raw frames refused for a capture time more than [`MAX_CAPTURE_JUMP_S`] ahead.
     pub refused_raw: u64,
 }
@@ -80,6 +91,8 @@ pub struct Assembler {
     sensors: Vec<SensorTrack>,
     origin_ns: Option<i128>,
     next_k: u64,
+    /// The time of the newest frame emitted.
+    last_emitted: Option<i128>,
     newest_capture: Option<i128>,
     /// The latest source time a raw frame flagged PRELUDE vouches for (see `mark_prelude`).
     prelude_until: Option<i128>,
@@ -102,6 +115,7 @@ impl Assembler {
             settings,
             origin_ns: None,
             next_k: 0,
+            last_emitted: None,
             newest_capture: None,
             prelude_until: None,
             presence: [Presence::default(); NUM_IMUS],
@@ -166,6 +180,13 @@ impl Assembler {
             self.sensors[i].push(sample)?;
             if let Some(t) = self.sensors[i].source_ns_of(sample.sample_ns) {
                 earliest = Some(earliest.map_or(t, |e| e.min(t)));
+                let interval = self.sensors[i].period_s().unwrap_or(0.0);
+                if self
+                    .last_emitted
+                    .is_some_and(|e| e as f64 > t as f64 + interval * 1e9)
+                {
+                    self.counters.sensor_late[i] += 1;
+                }
             }
         }
         if raw.header.has(flags::PRELUDE) {
@@ -229,14 +250,29 @@ impl Assembler {
         self.prelude_until.is_some_and(|u| t <= u)
     }
 
+    /// Emits every frame that is due. [`Latency::Smooth`]: when every sensor's samples describe
+    /// its time, or at its latency deadline. [`Latency::Low`]: as soon as any sensor has a sample
+    /// at or after its time (by the sample times, not the arrivals: a stall's backlog releases
+    /// its frames one by one as its samples come, not all at its first).
     fn emit_ready(&mut self, out: &mut Vec<ImuFrame>) {
         let latency = (self.settings.max_latency_s * 1e9).round() as i128;
         while let (Some(t), Some(newest)) = (self.time_of(self.next_k), self.newest_capture) {
-            let all_there = self
-                .sensors
-                .iter()
-                .all(|s| s.covered_until_ns().is_some_and(|c| c >= t));
-            if !all_there && newest - t <= latency {
+            let due = match self.settings.sensor.latency {
+                Latency::Low => self
+                    .sensors
+                    .iter()
+                    .filter_map(|s| s.newest_ns())
+                    .max()
+                    .is_some_and(|n| n >= t && newest >= t),
+                Latency::Smooth => {
+                    newest - t > latency
+                        || self
+                            .sensors
+                            .iter()
+                            .all(|s| s.covered_until_ns().is_some_and(|c| c >= t))
+                }
+            };
+            if !due {
                 break;
             }
             self.emit(t, out);
@@ -255,8 +291,18 @@ impl Assembler {
             let value = self.sensors[i].at(t);
             match value {
                 Some(v) => {
-                    if self.sensors[i].covered_until_ns().is_none_or(|c| c < t) {
-                        self.counters.sensor_held[i] += 1;
+                    let interval = self.sensors[i].period_s().unwrap_or(0.0);
+                    match self.settings.sensor.latency {
+                        Latency::Low if v.ahead_s > STALE_INTERVALS * interval => {
+                            self.counters.sensor_stale[i] += 1;
+                            frame.header.flags |= flags::DEGRADED;
+                        }
+                        Latency::Low => {}
+                        Latency::Smooth => {
+                            if self.sensors[i].covered_until_ns().is_none_or(|c| c < t) {
+                                self.counters.sensor_held[i] += 1;
+                            }
+                        }
                     }
                     frame.orientation_wxyz[i] = v.orientation.map(|c| c as f32);
                     frame.specific_force_mps2[i] = v.specific_force.map(|c| c as f32);
@@ -275,6 +321,10 @@ impl Assembler {
             frame.header.flags |= flags::INVALID;
             self.counters.invalid += 1;
         }
+        if frame.header.has(flags::DEGRADED) {
+            self.counters.degraded += 1;
+        }
+        self.last_emitted = Some(t);
         self.counters.frames += 1;
         self.next_k += 1;
         out.push(frame);

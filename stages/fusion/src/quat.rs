@@ -71,6 +71,16 @@ pub fn rotation_vector(q: &Quat) -> Vec3 {
     [q[1] / v * angle, q[2] / v * angle, q[3] / v * angle]
 }
 
+/// The unit quaternion of a rotation vector (axis · angle, rad): the inverse of
+/// [`rotation_vector`].
+pub fn from_rotation_vector(v: &Vec3) -> Quat {
+    let angle = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let (s, c) = (0.5 * angle).sin_cos();
+    // sin(θ/2)/θ → 1/2 for small θ.
+    let k = if angle < 1e-12 { 0.5 } else { s / angle };
+    [c, k * v[0], k * v[1], k * v[2]]
+}
+
 /// The rotation angle between two unit quaternions, rad (accurate for small angles too, unlike
 /// `acos` of their dot product).
 pub fn angle_between(a: &Quat, b: &Quat) -> f64 {

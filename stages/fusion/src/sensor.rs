@@ -7,7 +7,9 @@ use std::collections::VecDeque;
 use crate::clock::ClockFit;
 use crate::filter::{OrientationFilter, VqfParams};
 use crate::lowpass::{Butterworth2, VecLowpass};
-use crate::quat::{Quat, Vec3, conj, lerp, mul, normalized, rotation_vector, slerp};
+use crate::quat::{
+    Quat, Vec3, conj, from_rotation_vector, lerp, mul, normalized, rotation_vector, slerp,
+};
 use crate::{FusionError, sensor_name};
 
 /// Sample intervals whose median is the sensor's period when `sensor_rate_hz` is not given (9
@@ -44,6 +46,22 @@ pub enum OrientationSource {
     Onboard,
 }
 
+/// What an output frame waits for (the stage's `latency` parameter).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Latency {
+    /// A frame goes out as soon as a sample at or after its time has arrived; sensors whose
+    /// newest sample is older are extrapolated (at most one sample interval, then held); the
+    /// accelerometer and gyroscope are not band-limited.
+    Low,
+    /// Accelerometer and gyroscope band-limited below the output's Nyquist frequency, and a
+    /// frame waits until every sensor's samples describe its time (at most `max_latency_ms`).
+    Smooth,
+}
+
+/// A sensor whose newest sample is this many intervals older than a frame is stale there (at
+/// least one sample is overdue): it is extrapolated by one interval, then held.
+pub const STALE_INTERVALS: f64 = 2.0;
+
 /// Whether magnetometer readings are fused (the stage's `magnetometer` parameter).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum MagnetometerUse {
@@ -65,6 +83,7 @@ pub struct SensorSettings {
     pub max_gap_s: f64,
     /// The output grid's rate, Hz (decides whether and where the low-pass cuts).
     pub output_rate_hz: f64,
+    pub latency: Latency,
 }
 
 /// One delivered sample of one sensor.
@@ -158,6 +177,9 @@ pub struct Resampled {
     pub specific_force: Vec3,
     /// Angular rate in S less the filter's gyroscope bias estimate, rad/s.
     pub angular_rate: Vec3,
+    /// How far the time lies after the sensor's newest sample, s (0 when samples lie on both
+    /// sides of it; only [`Latency::Low`] resamples there).
+    pub ahead_s: f64,
 }
 
 /// One sensor's stream.
@@ -347,7 +369,7 @@ impl SensorTrack {
         let out = self.settings.output_rate_hz;
         // Band-limit only what the output grid would alias: a sensor at or below the output rate
         // carries nothing above the output's Nyquist frequency that interpolation could fold.
-        let coeffs = (rate > out)
+        let coeffs = (rate > out && self.settings.latency == Latency::Smooth)
             .then(|| Butterworth2::lowpass(CUTOFF_SHARE * out, rate))
             .flatten();
         self.lowpass = coeffs.map(|c| (VecLowpass::new(c), VecLowpass::new(c)));
@@ -546,6 +568,10 @@ impl SensorTrack {
     /// deadline), those are extrapolated from the newest two samples.
     pub fn at(&self, t_ns: i128) -> Option<Resampled> {
         let x = self.clock.as_ref()?.sensor_at(t_ns);
+        let newest = self.buffer.back()?;
+        if self.settings.latency == Latency::Low && x > newest.x + SAME_TIME_S {
+            return self.ahead_of_newest(x, newest);
+        }
         let (a, b, u) = self.bracket(x)?;
         let orientation = slerp(&a.q, &b.q, u);
         let (a, b, u) = self.bracket_or_newest(x + self.delay_s)?;
@@ -555,7 +581,32 @@ impl SensorTrack {
             orientation,
             specific_force,
             angular_rate: lerp(&a.gyr, &b.gyr, u),
+            ahead_s: 0.0,
         })
+    }
+
+    /// [`Latency::Low`] at sensor time `x` after the newest sample: its orientation turned on at
+    /// its angular rate for at most one sample interval, then held (a sensor a little behind the
+    /// others is where its motion has taken it by now), its specific force and angular rate held.
+    /// `None` when the newest sample is further back than the longest gap (the sensor is missing).
+    fn ahead_of_newest(&self, x: f64, newest: &Fused) -> Option<Resampled> {
+        let ahead = x - newest.x;
+        if ahead > self.max_gap_s() {
+            return None;
+        }
+        let turn = ahead.min(self.period_s.unwrap_or(0.0));
+        let step = from_rotation_vector(&newest.gyr.map(|w| w * turn));
+        Some(Resampled {
+            orientation: mul(&newest.q, &step),
+            specific_force: newest.acc,
+            angular_rate: newest.gyr,
+            ahead_s: ahead,
+        })
+    }
+
+    /// The sample interval in use, s (`None` while the rate is being measured).
+    pub fn period_s(&self) -> Option<f64> {
+        self.period_s
     }
 
     /// [`Self::bracket`], or past the newest sample the line through the newest two (at most one

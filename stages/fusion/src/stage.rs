@@ -9,7 +9,7 @@ use imuflow_graph::{FrameType, Mode, StageContext};
 
 use crate::assembler::{Assembler, Notice, Origin, Settings};
 use crate::filter::VqfParams;
-use crate::sensor::{MagnetometerUse, OrientationSource, SensorSettings};
+use crate::sensor::{Latency, MagnetometerUse, OrientationSource, SensorSettings};
 use crate::{NUM_IMUS, sensor_name};
 
 imuflow_graph::stage_params! {
@@ -44,8 +44,14 @@ imuflow_graph::stage_params! {
         /// a sensor without a sample for longer than this is missing (its frames INVALID);
         /// shorter gaps are interpolated, ms
         max_gap_ms: f64 = 50, float(0.1, 600000.0);
-        /// an output frame waits at most this long (source time) for a late sensor, ms
+        /// an output frame waits at most this long (source time) for a late sensor, ms (latency
+        /// smooth)
         max_latency_ms: f64 = 30, float(0.0, 600000.0);
+        /// low: a frame goes out as soon as a sample at or after its time arrived, sensors behind
+        /// extrapolated (at most one sample interval), no band limit; smooth: accelerometer and
+        /// gyroscope band-limited, a frame waits for every sensor (10-30 ms more); auto: low in
+        /// live graphs, smooth offline
+        latency: String = "auto", choice(&["auto", "low", "smooth"]);
     }
 }
 
@@ -66,6 +72,11 @@ impl FusionParams {
             "ignore" => MagnetometerUse::Ignore,
             other => bail!("params.magnetometer: unknown '{other}' (auto, ignore)"),
         };
+        let latency = match (self.latency.as_str(), mode) {
+            ("low", _) | ("auto", Mode::Live) => Latency::Low,
+            ("smooth", _) | ("auto", Mode::Offline) => Latency::Smooth,
+            (other, _) => bail!("params.latency: unknown '{other}' (auto, low, smooth)"),
+        };
         Ok(Settings {
             sensor: SensorSettings {
                 vqf: VqfParams {
@@ -81,6 +92,7 @@ impl FusionParams {
                 sensor_rate_hz: (self.sensor_rate_hz > 0.0).then_some(self.sensor_rate_hz),
                 max_gap_s: self.max_gap_ms * 1e-3,
                 output_rate_hz: rate_hz,
+                latency,
             },
             max_latency_s: self.max_latency_ms * 1e-3,
             origin: match mode {
@@ -206,6 +218,7 @@ pub fn sensor_lines(assembler: &Assembler) -> Vec<String> {
         .map(|i| {
             let track = assembler.sensor(i);
             let c = track.counters();
+            let frames = assembler.counters();
             let rate = track
                 .rate_hz()
                 .map_or("rate unknown".to_owned(), |r| format!("{r:.1} Hz"));
@@ -225,41 +238,49 @@ pub fn sensor_lines(assembler: &Assembler) -> Vec<String> {
                 None => "no clock".to_owned(),
             };
             format!(
-                "{}: {rate} {}, {} samples ({} fused), {} lost, {} duplicate, {} out of order, \
-                 {} non-finite, {} without orientation, {} gaps over max_gap_ms, {} clock \
-                 restarts, {} INVALID frames, {} late frames; {clock}",
+                "{}: {rate} {}, {} samples ({} fused), {} lost, {} late, {} discarded as \
+                 duplicate, {} as out of order, {} non-finite, {} without orientation, {} gaps \
+                 over max_gap_ms, {} clock restarts; {} INVALID frames, {} stale, {} built at \
+                 the latency deadline; {clock}",
                 sensor_name(i),
                 track.source_name(),
                 c.samples,
                 c.fused,
                 c.lost,
+                frames.sensor_late[i],
                 c.duplicates,
                 c.out_of_order,
                 c.nonfinite + c.nonfinite_mag,
                 c.no_orientation,
                 c.long_gaps,
                 c.clock_resets,
-                assembler.counters().sensor_invalid[i],
-                assembler.counters().sensor_held[i],
+                frames.sensor_invalid[i],
+                frames.sensor_stale[i],
+                frames.sensor_held[i],
             )
         })
         .collect()
 }
 
-/// The stage's result in one line (the run summary's detail).
+/// The stage's result in one line (the run summary's detail). The words mean the same in every
+/// stage: lost, a sample that never came (a gap in the sensor's sample times); late, a sample
+/// that came after a frame that needed it was built; discarded, a repeated or out-of-order one.
 pub fn summary_line(assembler: &Assembler) -> String {
     let per = |f: &dyn Fn(usize) -> String| (0..NUM_IMUS).map(f).collect::<Vec<_>>().join("/");
     let counts = |i| *assembler.sensor_counters(i);
     let frames = assembler.counters();
     let mut line = format!(
-        "fusion: {} frames, {} INVALID; per sensor: samples {}, lost {}, dropped {}, INVALID {}, \
-         drift ppm {}",
+        "fusion: {} frames, {} INVALID, {} DEGRADED; per sensor: samples {}, lost {}, late {}, \
+         discarded {}, INVALID {}, stale {}, drift ppm {}",
         frames.frames,
         frames.invalid,
+        frames.degraded,
         per(&|i| counts(i).samples.to_string()),
         per(&|i| counts(i).lost.to_string()),
+        per(&|i| frames.sensor_late[i].to_string()),
         per(&|i| (counts(i).duplicates + counts(i).out_of_order).to_string()),
         per(&|i| frames.sensor_invalid[i].to_string()),
+        per(&|i| frames.sensor_stale[i].to_string()),
         per(&|i| match assembler.sensor(i).clock() {
             Some((_, Some(ppm))) => format!("{ppm:+.0}"),
             _ => "-".to_owned(),
@@ -293,6 +314,10 @@ mod tests {
         );
         assert_eq!(defaults.sensor.sensor_rate_hz, None);
         assert_eq!(defaults.origin, Origin::Zero);
+        // Offline frames wait for every sensor, band-limited; live ones go out at once.
+        assert_eq!(defaults.sensor.latency, Latency::Smooth);
+        let live = FusionParams::default().settings(60.0, Mode::Live).unwrap();
+        assert_eq!(live.sensor.latency, Latency::Low);
         assert!(FusionParams::default().settings(0.0, Mode::Live).is_err());
     }
 }

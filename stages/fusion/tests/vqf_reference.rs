@@ -165,6 +165,7 @@ fn the_stage_path_reproduces_the_reference_at_the_sensor_rate() {
     let settings = Settings {
         sensor: SensorSettings {
             output_rate_hz: 100.0,
+            latency: imuflow_fusion::sensor::Latency::Smooth,
             ..base.sensor
         },
         // Long enough for the first frames to wait for the rate measurement (9 samples).

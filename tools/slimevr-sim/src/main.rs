@@ -12,7 +12,7 @@ use std::time::Duration;
 
 use clap::Parser;
 use imuflow_imu_source::slimevr::packets::Mac;
-use imuflow_imu_source::slimevr::sim::{self, SimFaults, SimOptions, SimTracker};
+use imuflow_imu_source::slimevr::sim::{self, SimFaults, SimOptions, SimTracker, Stall};
 
 /// Simulated SlimeVR trackers streaming a known motion over UDP.
 #[derive(Parser)]
@@ -52,6 +52,13 @@ struct Args {
     /// Hold every N-th data datagram back behind the next one (0 = never).
     #[arg(long, default_value_t = 0)]
     swap_every: u64,
+    /// Stall every N ticks (0 = never): nothing is sent for --stall-ticks ticks, then their
+    /// datagrams go out back to back, as after a Wi-Fi stall.
+    #[arg(long, default_value_t = 0)]
+    stall_every: u64,
+    /// Ticks each stall holds back (10 at 100 Hz: a 100 ms stall).
+    #[arg(long, default_value_t = 10)]
+    stall_ticks: u64,
     /// Write a trackers file mapping the simulated sensors to the six sites here and exit.
     #[arg(long)]
     write_trackers: Option<std::path::PathBuf>,
@@ -97,6 +104,10 @@ fn run(args: &Args) -> Result<(), String> {
             drop_every: args.drop_every,
             duplicate_every: args.duplicate_every,
             swap_every: args.swap_every,
+            stall: (args.stall_every > 0).then_some(Stall {
+                every_ticks: args.stall_every,
+                ticks: args.stall_ticks,
+            }),
         },
     };
     let reports =
@@ -105,7 +116,7 @@ fn run(args: &Args) -> Result<(), String> {
         let mac = r.mac.map_or("?".to_owned(), |m| m.to_string());
         eprintln!(
             "tracker {mac}: {} ticks, {} datagrams ({} bundles), {} connection(s), {} heartbeats; \
-             dropped {}, duplicated {}, swapped {}",
+             dropped {}, duplicated {}, swapped {}, {} ticks held back by stalls",
             r.ticks_sent,
             r.datagrams,
             r.bundles,
@@ -113,7 +124,8 @@ fn run(args: &Args) -> Result<(), String> {
             r.heartbeats,
             r.dropped,
             r.duplicated,
-            r.swapped
+            r.swapped,
+            r.stalled
         );
     }
     Ok(())

@@ -15,6 +15,7 @@ pub fn settings(origin: Origin) -> Settings {
             sensor_rate_hz: None,
             max_gap_s: 0.05,
             output_rate_hz: 60.0,
+            latency: imuflow_fusion::sensor::Latency::Smooth,
         },
         max_latency_s: 0.03,
         origin,

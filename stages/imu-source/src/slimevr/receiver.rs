@@ -118,6 +118,9 @@ struct Tracker {
     addr: SocketAddr,
     numbers: Numbering,
     clock: PacketClock,
+    /// Datagrams without sample data received since the handshake (their numbers are not on
+    /// the clock).
+    other_numbers: u64,
     stats: TrackerStats,
     sensors: BTreeMap<u8, SensorState>,
     /// Sensor ids not in the mapping, logged once.
@@ -297,6 +300,7 @@ impl Receiver {
             addr: from,
             numbers: Numbering::default(),
             clock: PacketClock::default(),
+            other_numbers: 0,
             stats: TrackerStats::default(),
             sensors: BTreeMap::new(),
             unmapped: BTreeSet::new(),
@@ -318,6 +322,7 @@ impl Receiver {
         // The tracker's packet numbers go on across reconnections; the server starts anew too.
         tracker.numbers.restart();
         tracker.clock = PacketClock::default();
+        tracker.other_numbers = 0;
         self.send(from, &reply::handshake());
         true
     }
@@ -345,10 +350,26 @@ impl Receiver {
                 return;
             }
         }
-        // Number 0 (a ping echo, a handshake) is not on the tracker's count.
+        // The clock runs on the data datagrams' numbers: the others (heartbeat answers, battery,
+        // sensor info) are sent between the samples, whenever the firmware has them, so they are
+        // taken out of the count. Number 0 (a ping echo, a handshake) is not on the count.
+        let carries_data = datagram.packets.iter().any(|p| {
+            matches!(
+                p,
+                Ok(Packet::Rotation(_)
+                    | Packet::Acceleration(_)
+                    | Packet::RotationAndAcceleration(..))
+            )
+        });
         let sent_ns = match datagram.number {
             0 => received_ns,
-            n => tracker.clock.date(n, received_ns),
+            _ if !carries_data => {
+                tracker.other_numbers += 1;
+                received_ns
+            }
+            n => tracker
+                .clock
+                .date(n.saturating_sub(tracker.other_numbers), received_ns),
         };
         let at = Stamp {
             received_ns,
@@ -481,13 +502,7 @@ impl Receiver {
     /// An acceleration: completes its sensor's waiting rotation, or stands alone with the last
     /// rotation's gravity direction (firmware that sends accelerations on their own, e.g. while
     /// the rotation did not change).
-    fn acceleration(
-        &mut self,
-        mac: Mac,
-        a: &Acceleration,
-        at: Stamp,
-        out: &mut Vec<Sample>,
-    ) {
+    fn acceleration(&mut self, mac: Mac, a: &Acceleration, at: Stamp, out: &mut Vec<Sample>) {
         let Some(site) = self.site(mac, a.sensor_id) else {
             return;
         };

@@ -35,6 +35,25 @@ pub struct SimFaults {
     pub duplicate_every: u64,
     /// Every N-th data datagram is held back and sent after the next one.
     pub swap_every: u64,
+    /// Stalls, as a Wi-Fi link stalls: nothing is sent for a while, then the backlog goes out
+    /// back to back.
+    pub stall: Option<Stall>,
+}
+
+/// Every `every_ticks` ticks, the last `ticks` of them are held back and sent, each with its own
+/// packet number and data, back to back just before the next tick's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Stall {
+    pub every_ticks: u64,
+    pub ticks: u64,
+}
+
+impl Stall {
+    /// Whether tick `tick` is held back.
+    pub fn holds(&self, tick: u64) -> bool {
+        self.every_ticks > 0
+            && tick % self.every_ticks >= self.every_ticks.saturating_sub(self.ticks)
+    }
 }
 
 /// What to simulate.
@@ -73,6 +92,8 @@ pub struct SimReport {
     pub dropped: u64,
     pub duplicated: u64,
     pub swapped: u64,
+    /// Ticks held back by stalls (all sent with the backlog).
+    pub stalled: u64,
 }
 
 /// Board, MCU and firmware the simulated trackers announce (`BoardType.SLIMEVR`,
@@ -250,6 +271,9 @@ struct SimulatedTracker {
     last_heard: Instant,
     data_datagrams: u64,
     held: Option<Vec<u8>>,
+    /// Data datagrams held back by a stall.
+    backlog: Vec<Vec<u8>>,
+    stalling: bool,
     report: SimReport,
 }
 
@@ -291,6 +315,8 @@ impl SimulatedTracker {
             last_heard: Instant::now(),
             data_datagrams: 0,
             held: None,
+            backlog: Vec::new(),
+            stalling: false,
         })
     }
 
@@ -311,6 +337,9 @@ impl SimulatedTracker {
             }
             self.upkeep();
             self.send_tick(tick);
+        }
+        for bytes in std::mem::take(&mut self.backlog) {
+            self.send_raw(&bytes);
         }
         if let Some(held) = self.held.take() {
             self.send_raw(&held);
@@ -440,6 +469,10 @@ impl SimulatedTracker {
     /// Every sensor's rotation, then its acceleration (`Sensor::sendData`), bundled when the
     /// server supports it.
     fn send_tick(&mut self, tick: u64) {
+        self.stalling = self.faults.stall.is_some_and(|s| s.holds(tick));
+        if self.stalling {
+            self.report.stalled += 1;
+        }
         let packets: Vec<Packet> = (0..self.tracker.sensors)
             .flat_map(|sensor_id| {
                 let index = self.first_sensor + usize::from(sensor_id);
@@ -473,6 +506,17 @@ impl SimulatedTracker {
 
     /// A data datagram through the fault injector.
     fn send_data(&mut self, bytes: Vec<u8>) {
+        if self.stalling {
+            self.backlog.push(bytes);
+            return;
+        }
+        for held in std::mem::take(&mut self.backlog) {
+            self.send_faulty(held);
+        }
+        self.send_faulty(bytes);
+    }
+
+    fn send_faulty(&mut self, bytes: Vec<u8>) {
         self.data_datagrams += 1;
         let n = self.data_datagrams;
         let every = |k: u64| k > 0 && n.is_multiple_of(k);

@@ -739,6 +739,7 @@ fn the_simulator_counts_what_the_receiver_counts() {
         drop_every: 7,
         duplicate_every: 11,
         swap_every: 13,
+        stall: None,
     };
     let (reports, samples) = simulate(options, &mut receiver);
     let sent = &reports[0];
