@@ -45,8 +45,9 @@ pub mod flags {
     pub const PRELUDE: u32 = 1 << 5;
     /// A usable estimate of lower quality: a stage that could not do its full computation for
     /// this frame published its best simpler one instead (the optimizer: the networks' pose with
-    /// the root integrated, where its physics could not be solved). Unlike INVALID, the payload is
-    /// the stage's output for this frame, and scores keep it.
+    /// the root integrated, where its physics could not be solved; the fusion stage, live: a
+    /// sensor whose newest sample was overdue, held). Unlike INVALID, the payload is the stage's
+    /// output for this frame, and scores keep it.
     pub const DEGRADED: u32 = 1 << 6;
 
     /// Every flag with its name, for logs and recorders.

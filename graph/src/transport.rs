@@ -59,11 +59,14 @@ pub fn iceoryx_config() -> Config {
 /// Reader buffer per edge in offline graphs: deep enough that stages with uneven per-frame cost
 /// keep each other busy.
 const OFFLINE_BUFFER: usize = 16;
-/// Reader buffer per edge in live graphs: deep enough for a sensor's backlog after a stall (a
-/// tracker that stalls 100 ms and then sends its ten ticks at once, published as they come, up to
-/// 160 frames a second), so a burst is queued, not overwritten; a stage more than this many frames
-/// behind drops the oldest rather than adding more latency.
+/// Reader buffer per edge in live graphs: deep enough for the frames of a 100 ms stall's backlog
+/// published at once (up to 160 frames a second), so a burst is queued, not overwritten; a stage
+/// more than this many frames behind drops the oldest rather than adding more latency.
 const LIVE_BUFFER: usize = 16;
+/// Reader buffer of raw-sample edges in live graphs: a source publishes samples as they arrive,
+/// up to one frame per sample (six trackers at 100 Hz whose ticks do not coincide: 600 frames a
+/// second), so a 100 ms backlog is up to 60 frames.
+const LIVE_RAW_BUFFER: usize = 64;
 /// How long a writer sleeps before trying a full reader's buffer again (offline).
 const BACKPRESSURE_SLEEP: Duration = Duration::from_micros(200);
 /// Samples a reader may hold at once: the current frame of each input plus the latest feedback.
@@ -84,6 +87,7 @@ const MAX_PUBLISHERS: usize = 2;
 pub struct TransportSettings {
     pub offline_buffer: usize,
     pub live_buffer: usize,
+    pub live_raw_buffer: usize,
     pub max_borrowed: usize,
     pub spare_subscribers: usize,
     pub max_publishers: usize,
@@ -96,6 +100,7 @@ pub fn settings() -> TransportSettings {
     TransportSettings {
         offline_buffer: OFFLINE_BUFFER,
         live_buffer: LIVE_BUFFER,
+        live_raw_buffer: LIVE_RAW_BUFFER,
         max_borrowed: MAX_BORROWED,
         spare_subscribers: SPARE_SUBSCRIBERS,
         max_publishers: MAX_PUBLISHERS,
@@ -191,6 +196,7 @@ fn open_pubsub<T: Frame>(
 ) -> Result<PubSub<T>, TransportError> {
     let (buffer, overflow) = match mode {
         Mode::Offline => (OFFLINE_BUFFER, false),
+        Mode::Live if T::TYPE == FrameType::RawImu => (LIVE_RAW_BUFFER, true),
         Mode::Live => (LIVE_BUFFER, true),
     };
     node.service_builder(&service_name(name)?)

@@ -653,8 +653,12 @@ class Stage:
 
     def _open_pubsub(self, name, frame, readers):
         iox2, t = self._iox2, self._transport
-        buffer, overflow = ((t["offline_buffer"], False) if self.mode == "offline"
-                            else (t["live_buffer"], True))
+        if self.mode == "offline":
+            buffer, overflow = t["offline_buffer"], False
+        elif _struct_name(frame) == "RawImuFrame":
+            buffer, overflow = t["live_raw_buffer"], True
+        else:
+            buffer, overflow = t["live_buffer"], True
         try:
             return (self._node.service_builder(iox2.ServiceName.new(name))
                     .publish_subscribe(self._payload_types[frame])

@@ -12,6 +12,7 @@ use imuflow_graph::frames::{ImuFrame, RawImuFrame, flags};
 use crate::quat::IDENTITY;
 use crate::sensor::{
     Latency, RawSample, STALE_INTERVALS, SensorCounters, SensorSettings, SensorTrack,
+    WAIT_INTERVALS,
 };
 use crate::{FusionError, NUM_IMUS, sensor_name};
 
@@ -21,6 +22,8 @@ pub const MAX_ZERO_ORIGIN_S: f64 = 60.0;
 /// A raw frame captured this much after the newest one so far is refused (a corrupt timestamp
 /// would otherwise make the stage emit empty frames for years), s.
 pub const MAX_CAPTURE_JUMP_S: f64 = 3600.0;
+/// ([`Latency::Low`]) How long, in arrivals, a frame waits for a sensor that is behind it, s.
+pub const STALE_GRACE_S: f64 = 0.005;
 /// A sensor that has never been usable this long after another one was is reported missing, s.
 const NEVER_SEEN_S: f64 = 1.0;
 
@@ -93,6 +96,9 @@ pub struct Assembler {
     next_k: u64,
     /// The time of the newest frame emitted.
     last_emitted: Option<i128>,
+    /// ([`Latency::Low`]) The frame waiting for a stale sensor, and the capture time it began
+    /// waiting at.
+    waiting_since: Option<(u64, i128)>,
     newest_capture: Option<i128>,
     /// The latest source time a raw frame flagged PRELUDE vouches for (see `mark_prelude`).
     prelude_until: Option<i128>,
@@ -116,6 +122,7 @@ impl Assembler {
             origin_ns: None,
             next_k: 0,
             last_emitted: None,
+            waiting_since: None,
             newest_capture: None,
             prelude_until: None,
             presence: [Presence::default(); NUM_IMUS],
@@ -258,12 +265,7 @@ impl Assembler {
         let latency = (self.settings.max_latency_s * 1e9).round() as i128;
         while let (Some(t), Some(newest)) = (self.time_of(self.next_k), self.newest_capture) {
             let due = match self.settings.sensor.latency {
-                Latency::Low => self
-                    .sensors
-                    .iter()
-                    .filter_map(|s| s.newest_ns())
-                    .max()
-                    .is_some_and(|n| n >= t && newest >= t),
+                Latency::Low => self.low_latency_due(t, newest),
                 Latency::Smooth => {
                     newest - t > latency
                         || self
@@ -277,6 +279,34 @@ impl Assembler {
             }
             self.emit(t, out);
         }
+    }
+
+    /// [`Latency::Low`]: frame `t` is due once a sample at or after it has come; but while a
+    /// sensor that was usable in the last frame lies more than [`WAIT_INTERVALS`] behind it (its
+    /// next sample is late), it waits for that sensor up to [`STALE_GRACE_S`] of arrivals (the
+    /// trackers' backlogs after a common stall come one after the other, within a millisecond).
+    fn low_latency_due(&mut self, t: i128, newest_capture: i128) -> bool {
+        let sampled = self
+            .sensors
+            .iter()
+            .filter_map(|s| s.newest_ns())
+            .max()
+            .is_some_and(|n| n >= t && newest_capture >= t);
+        if !sampled {
+            return false;
+        }
+        let waiting = (0..NUM_IMUS)
+            .any(|i| self.presence[i].now && self.sensors[i].behind_at(t, WAIT_INTERVALS));
+        if !waiting {
+            self.waiting_since = None;
+            return true;
+        }
+        let k = self.next_k;
+        let since = match self.waiting_since {
+            Some((frame, since)) if frame == k => since,
+            _ => self.waiting_since.insert((k, newest_capture)).1,
+        };
+        (newest_capture - since) as f64 * 1e-9 >= STALE_GRACE_S
     }
 
     fn emit(&mut self, t: i128, out: &mut Vec<ImuFrame>) {

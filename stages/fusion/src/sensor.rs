@@ -18,6 +18,9 @@ pub const RATE_INTERVALS: usize = 8;
 /// The cutoff of the accelerometer and gyroscope low-pass as a share of the output rate: below the
 /// output's Nyquist frequency (0.5), with room for the filter's roll-off.
 pub const CUTOFF_SHARE: f64 = 0.4;
+/// How fast the mean sample interval (what lost samples are counted in) follows the stamps:
+/// about the last 50 intervals.
+const MEAN_INTERVAL_GAIN: f64 = 0.02;
 /// A sensor timestamp that jumps back by more, or ahead by more than the source clock advanced
 /// plus this, is a restarted sensor clock (reboot, reconnect), not a late or lost sample, s.
 pub const CLOCK_JUMP_S: f64 = 1.0;
@@ -61,6 +64,9 @@ pub enum Latency {
 /// A sensor whose newest sample is this many intervals older than a frame is stale there (at
 /// least one sample is overdue): it is extrapolated by one interval, then held.
 pub const STALE_INTERVALS: f64 = 2.0;
+/// ([`Latency::Low`]) A frame waits a little for a sensor whose newest sample is this many
+/// intervals older (its next sample is late; extrapolation covers one interval).
+pub const WAIT_INTERVALS: f64 = 1.5;
 
 /// Whether magnetometer readings are fused (the stage's `magnetometer` parameter).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -197,6 +203,8 @@ pub struct SensorTrack {
     /// The low-pass's group delay, s (0 without the low-pass).
     delay_s: f64,
     last_seen_x: Option<f64>,
+    /// The mean interval between consecutive stamps, s (lost samples are counted in it).
+    mean_interval_s: Option<f64>,
     last_good: Option<(f64, Input)>,
     buffer: VecDeque<Fused>,
     counters: SensorCounters,
@@ -216,6 +224,7 @@ impl SensorTrack {
             lowpass: None,
             delay_s: 0.0,
             last_seen_x: None,
+            mean_interval_s: None,
             last_good: None,
             buffer: VecDeque::new(),
             counters: SensorCounters::default(),
@@ -386,9 +395,15 @@ impl SensorTrack {
     fn process(&mut self, x: f64, sample: &RawSample) -> Result<(), FusionError> {
         let period = self.period_s.unwrap_or(1.0);
         if let Some(prev) = self.last_seen_x {
-            let intervals = ((x - prev) / period).round();
+            // Counted in the mean interval, which follows the stamps (a rate measured from a few
+            // jittery stamps at the start would count jitter as losses, or losses as jitter).
+            let interval = self.mean_interval_s.unwrap_or(period);
+            let intervals = ((x - prev) / interval).round();
             if intervals > 1.0 {
                 self.counters.lost += intervals as u64 - 1;
+            } else if intervals == 1.0 {
+                let mean = self.mean_interval_s.get_or_insert(period);
+                *mean += MEAN_INTERVAL_GAIN * ((x - prev) - *mean);
             }
         }
         self.last_seen_x = Some(x);
@@ -602,6 +617,15 @@ impl SensorTrack {
             angular_rate: newest.gyr,
             ahead_s: ahead,
         })
+    }
+
+    /// Whether the newest sample lies more than `intervals` sample intervals before source time
+    /// `t_ns` (false before the rate is known or without samples).
+    pub fn behind_at(&self, t_ns: i128, intervals: f64) -> bool {
+        match (self.newest_ns(), self.period_s) {
+            (Some(newest), Some(period)) => (t_ns - newest) as f64 * 1e-9 > intervals * period,
+            _ => false,
+        }
     }
 
     /// The sample interval in use, s (`None` while the rate is being measured).

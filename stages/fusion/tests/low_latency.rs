@@ -155,13 +155,15 @@ fn each_frame_goes_out_with_the_first_sample_after_its_time_and_sensors_behind_a
 
 #[test]
 fn a_stall_of_every_tracker_is_dated_back_and_nothing_is_lost_late_or_bunched() {
-    // From 2.0 s every sample is held back until 2.1 s, then the backlog of 60 samples arrives
-    // within 50 µs, before the samples sent after it.
+    // From 2.0 s every sample is held back until 2.1 s; then the trackers' backlogs arrive one
+    // tracker after the other (as each one's link recovers), 60 samples within 90 µs, before
+    // the samples sent after them. The first backlog must not release the stalled frames before
+    // the others have come.
     let stall = (2.0, 2.1);
-    let d = deliveries(4.0, |_, _, sent| {
+    let d = deliveries(4.0, |i, k, sent| {
         let t = (sent - T0_NS) as f64 * 1e-9;
         if (stall.0..stall.1).contains(&t) {
-            T0_NS + (stall.1 * 1e9) as u64 + ((t - stall.0) * 1e9) as u64 / 2000
+            T0_NS + (stall.1 * 1e9) as u64 + (i as u64 * 15 + k % 10) * 1000
         } else {
             sent + DELIVERY_NS
         }

@@ -246,7 +246,8 @@ fn report(receiver: &Receiver) -> String {
         trackers += 1;
         let line = format!(
             "tracker {mac}: {} packets, {} samples, {} lost, {} duplicated, {} out of order, \
-             {} of unknown type, {} malformed, {} connection(s)",
+             {} of unknown type, {} malformed, {} connection(s) (lost: packet numbers never \
+             received; duplicated and out-of-order datagrams discarded)",
             s.packets,
             s.samples,
             s.lost,

@@ -4,47 +4,48 @@
 //! stalled 100 ms delivers its backlog within a millisecond, so ten samples taken 10 ms apart
 //! would look simultaneous, and an angular rate derived from them would spike (171 rad/s against
 //! a true peak of 6 were measured so). The firmware numbers every datagram it sends (one counter
-//! per tracker, `Connection::sendPacketNumber`), at a steady pace while it streams. So a
-//! datagram's send time is modelled as a line in its packet number,
-//! `t(n) = a₀ + (n − n₀)·P + o`, fitted under the arrivals (a datagram never arrives before it
-//! is sent):
+//! per tracker, `Connection::sendPacketNumber`), at a steady pace while it streams; the receiver
+//! takes the datagrams without sample data (heartbeat answers, battery) out of the count and hands
+//! this clock the data datagrams' numbers. A datagram's send time lies on a line in its number
+//! fitted under the arrivals (a datagram never arrives before it is sent):
 //!
-//! - `(n₀, a₀)`, the anchor: the least delayed of the first [`ANCHOR_SPAN_NS`] of datagrams.
-//! - `P`, the time per packet number: the smallest slope from the anchor to one of the last
-//!   [`WINDOW_NS`] of arrivals (the least delayed of them), at least [`MIN_SPAN_NS`] after it.
-//! - `o`, the offset: the smallest `a − (a₀ + (n − n₀)·P)` over the last [`WINDOW_NS`] of
-//!   arrivals, i.e. the line touches the earliest-delivered recent datagram. A backlog's
-//!   datagrams lie above it, and are dated back onto it, `P` apart per number.
-//! - Each date is kept within `[a − MAX_BACKDATE_NS, a]` and after the previous one.
+//! - `P`, the time per packet number: the mean of the intervals per number between consecutive
+//!   datagrams of the last [`PACE_WINDOW_NS`], leaving out those under half their upper quartile
+//!   (a backlog's datagrams, delivered back to back, would make the pace look faster) and those
+//!   over twice the median of the rest (the stall before a backlog).
+//! - the line `t(n) = n·P + o` touches the earliest-delivered datagram of the last [`WINDOW_NS`]
+//!   (`o` is the smallest `a − n·P` there). A backlog's datagrams lie above it and are dated back
+//!   onto it, `P` apart per number; a lost datagram leaves its gap.
+//! - Each date is at or before the arrival, after the previous date, and so at most
+//!   [`WINDOW_NS`] before the arrival.
 //!
-//! Until the slope is measured (about 0.4 s) a datagram is dated at its arrival. A tracker that pauses (the
-//! firmware skips rotations that did not change) resumes with numbers that advanced less than
-//! the time: its datagrams are dated up to the pause (at most `MAX_BACKDATE`) early until the
-//! datagrams before the pause leave the window, while the tracker was still, so the orientation
+//! Until [`MIN_INTERVALS`] intervals are seen a datagram is dated at its arrival. A tracker that
+//! pauses (the firmware skips rotations that did not change) resumes with numbers that advanced
+//! less than the time: its datagrams are dated up to the pause early until the datagrams before
+//! the pause leave the window (at most [`WINDOW_NS`]); it was still then, so its orientation
 //! hardly moved.
 
 use std::collections::VecDeque;
 
-/// How far back the fit looks: longer than the stalls it dates back (100 ms), short enough to
-/// follow a tracker that paused.
-pub const WINDOW_NS: u64 = 500_000_000;
-/// The first arrivals, over this long, give the line's anchor: the least delayed of them, ns.
-pub const ANCHOR_SPAN_NS: u64 = 150_000_000;
-/// The slope is measured over at least this long after the anchor; before, datagrams are dated
-/// at their arrival, ns.
-pub const MIN_SPAN_NS: u64 = 250_000_000;
-/// A datagram is dated at most this long before its arrival, ns.
-pub const MAX_BACKDATE_NS: u64 = 200_000_000;
+/// The line touches the earliest-delivered datagram of this long: longer than the stalls it
+/// dates back (100 ms), short enough to follow a tracker that paused or slowed down (its dates
+/// lag its sends by what it lost against the line in this long), ns.
+pub const WINDOW_NS: u64 = 150_000_000;
+/// The pace is measured over this long of arrivals, ns.
+pub const PACE_WINDOW_NS: u64 = 1_000_000_000;
+/// Intervals needed before the pace is measured; until then datagrams are dated at arrival.
+pub const MIN_INTERVALS: usize = 16;
+/// The pace is measured again every this many datagrams.
+const REPACE_EVERY: u32 = 16;
 
 /// One tracker's packet-number clock.
 #[derive(Debug, Default, Clone)]
 pub struct PacketClock {
-    /// The first [`ANCHOR_SPAN_NS`] of arrivals: (packet number, arrival ns).
-    first: Vec<(u64, u64)>,
-    /// The least delayed of `first`: where the line is anchored.
-    anchor: Option<(u64, u64)>,
-    /// The last [`WINDOW_NS`] of arrivals: (packet number, arrival ns).
+    /// The last [`PACE_WINDOW_NS`] of arrivals: (packet number, arrival ns).
     recent: VecDeque<(u64, u64)>,
+    /// The time per packet number, ns, and how many datagrams ago it was measured.
+    pace: Option<f64>,
+    since_pace: u32,
     last_dated: u64,
 }
 
@@ -56,67 +57,62 @@ impl PacketClock {
         while self
             .recent
             .front()
-            .is_some_and(|&(_, a)| a + WINDOW_NS < arrival_ns)
+            .is_some_and(|&(_, a)| a + PACE_WINDOW_NS < arrival_ns)
         {
             self.recent.pop_front();
         }
-        let dated = match self.line(number, arrival_ns) {
-            Some((anchor, period)) => {
-                let line = |n: u64| anchor.1 as f64 + (n as f64 - anchor.0 as f64) * period;
-                let offset = self
-                    .recent
-                    .iter()
-                    .map(|&(n, a)| a as f64 - line(n))
-                    .fold(f64::INFINITY, f64::min);
-                (line(number) + offset).round() as u64
-            }
+        self.since_pace += 1;
+        if self.pace.is_none() || self.since_pace >= REPACE_EVERY {
+            self.pace = pace_ns(&self.recent).or(self.pace);
+            self.since_pace = 0;
+        }
+        let dated = match self.pace {
+            // The line through the earliest-delivered recent datagram, at this number.
+            Some(pace) => self
+                .recent
+                .iter()
+                .rev()
+                .take_while(|&&(_, a)| a + WINDOW_NS >= arrival_ns)
+                .map(|&(n, a)| a as f64 + (number as f64 - n as f64) * pace)
+                .fold(f64::INFINITY, f64::min)
+                .round() as u64,
             None => arrival_ns,
         };
+        // Never after the arrival, always after the previous date (numbers increase, so the line
+        // through a datagram of the window dates nothing more than the window before arrival).
         let dated = dated
-            .clamp(arrival_ns.saturating_sub(MAX_BACKDATE_NS), arrival_ns)
+            .min(arrival_ns)
             .max(self.last_dated + 1)
             .min(arrival_ns);
         self.last_dated = dated;
         dated
     }
-
-    /// The anchor and the time per packet number (ns) once the arrivals span [`MIN_SPAN_NS`]:
-    /// the smallest slope from the anchor to a recent datagram (the least delayed of them).
-    fn line(&mut self, number: u64, arrival_ns: u64) -> Option<((u64, u64), f64)> {
-        let anchor = match self.anchor {
-            Some(anchor) => anchor,
-            None => {
-                let start = self.first.first().map_or(arrival_ns, |f| f.1);
-                if arrival_ns < start + ANCHOR_SPAN_NS {
-                    self.first.push((number, arrival_ns));
-                    return None;
-                }
-                *self.anchor.insert(least_delayed(&self.first)?)
-            }
-        };
-        self.recent
-            .iter()
-            .filter(|&&(n, a)| n > anchor.0 && a >= anchor.1 + MIN_SPAN_NS)
-            .map(|&(n, a)| (a - anchor.1) as f64 / (n - anchor.0) as f64)
-            .reduce(f64::min)
-            .map(|period| (anchor, period))
-    }
 }
 
-/// Of datagrams spanning a short time, the one delivered with the least delay: the smallest
-/// `a − n·p` with `p` the median time per number between consecutive ones.
-fn least_delayed(datagrams: &[(u64, u64)]) -> Option<(u64, u64)> {
+/// The time per packet number, ns: the mean of the intervals per number between consecutive
+/// datagrams, leaving out those under half the upper quartile (a backlog's, delivered at once) and
+/// those over twice the median of the rest (a stall's), once there are [`MIN_INTERVALS`].
+fn pace_ns(datagrams: &VecDeque<(u64, u64)>) -> Option<f64> {
     let mut per_number: Vec<f64> = datagrams
-        .windows(2)
-        .map(|w| (w[1].1 as f64 - w[0].1 as f64) / (w[1].0 - w[0].0) as f64)
+        .iter()
+        .zip(datagrams.iter().skip(1))
+        .map(|(p, q)| (q.1 as f64 - p.1 as f64) / (q.0 - p.0) as f64)
         .collect();
+    if per_number.len() < MIN_INTERVALS {
+        return None;
+    }
     per_number.sort_by(f64::total_cmp);
-    let p = *per_number.get(per_number.len() / 2)?;
-    let (n0, a0) = *datagrams.first()?;
-    datagrams.iter().copied().min_by(|x, y| {
-        let below = |&(n, a): &(u64, u64)| (a - a0) as f64 - (n - n0) as f64 * p;
-        below(x).total_cmp(&below(y))
-    })
+    let upper_quartile = per_number[per_number.len() * 3 / 4];
+    let steady: Vec<f64> = per_number
+        .into_iter()
+        .filter(|&d| d >= 0.5 * upper_quartile)
+        .collect();
+    // The mean of the steady intervals (a median leans with skewed jitter), a stall's long one
+    // left out as its backlog's short ones were.
+    let median = *steady.get(steady.len() / 2)?;
+    let kept: Vec<f64> = steady.into_iter().filter(|&d| d <= 2.0 * median).collect();
+    let mean = kept.iter().sum::<f64>() / kept.len() as f64;
+    (mean > 0.0).then_some(mean)
 }
 
 #[cfg(test)]
@@ -145,10 +141,10 @@ mod tests {
         }
         for &(n, sent, arrival, dated) in &dates[100..] {
             assert!(dated <= arrival, "{n}: dated after arrival");
-            // The line touches the least delayed datagram (0.2 ms): within a millisecond of the
-            // send, also for the backlog.
+            // The line touches the least delayed datagram (0.2 ms late), its pace measured over
+            // jitter that comes in a sawtooth: within 1.5 ms of the send, the backlog too.
             let error = dated as i64 - sent as i64;
-            assert!((0..1_000_000).contains(&error), "{n}: {error} ns off");
+            assert!(error.abs() < 1_500_000, "{n}: {error} ns off");
         }
         // Dates increase, by about the numbers' pace.
         for w in dates[100..].windows(2) {
@@ -167,16 +163,38 @@ mod tests {
         // Numbers 101..=104 lost: 105 is dated 50 ms after 100.
         let d100 = t0 + 1000 * MS;
         assert_eq!(clock.date(105, t0 + 1050 * MS), d100 + 50 * MS);
-        // A 300 ms pause (numbers did not advance): the next number is dated at most
-        // MAX_BACKDATE before its arrival while the datagrams before the pause are in the window.
-        let arrival = t0 + 1350 * MS;
-        assert_eq!(clock.date(106, arrival), arrival - MAX_BACKDATE_NS);
-        // Once they left it, at the pace after the pause.
-        let arrival = t0 + 1900 * MS;
+        // A 100 ms pause (numbers did not advance): the next number is dated by the pace, the
+        // pause early, while the datagrams before the pause are in the window...
+        assert_eq!(clock.date(106, t0 + 1150 * MS), t0 + 1060 * MS);
+        // ... and at its arrival once they left it.
+        let arrival = t0 + 1400 * MS;
         assert_eq!(clock.date(107, arrival), arrival);
-        // Before MIN_SPAN: at arrival.
+
+        // Before MIN_INTERVALS: at arrival.
         let mut fresh = PacketClock::default();
         assert_eq!(fresh.date(7, 5 * MS), 5 * MS);
         assert_eq!(fresh.date(9, 30 * MS), 30 * MS);
+    }
+
+    #[test]
+    fn a_backlog_at_the_start_does_not_set_the_pace() {
+        // 50 datagrams at once, then one every 10 ms: the pace is 10 ms once the steady ones are
+        // over a quarter of the intervals, and a later backlog is dated back onto it.
+        let mut clock = PacketClock::default();
+        let t0 = 10_000 * MS;
+        for n in 1..=50u64 {
+            assert_eq!(clock.date(n, t0 + n * 1000), t0 + n * 1000);
+        }
+        for n in 51..=200u64 {
+            clock.date(n, t0 + (n - 50) * 10 * MS);
+        }
+        let pace = clock.pace.expect("measured");
+        assert!((pace / (10.0 * MS as f64) - 1.0).abs() < 1e-3, "{pace}");
+        let stall_end = t0 + 1600 * MS;
+        for n in 201..=210u64 {
+            let error =
+                clock.date(n, stall_end + n * 1000) as i64 - (t0 + (n - 50) * 10 * MS) as i64;
+            assert!(error.abs() < 200_000, "{n}: {error} ns off");
+        }
     }
 }

@@ -323,6 +323,10 @@ impl SimulatedTracker {
     fn run(mut self, start: Instant, stop: &AtomicBool) -> anyhow::Result<SimReport> {
         self.connect(stop)?;
         let period = Duration::from_secs_f64(1.0 / self.rate_hz);
+        // Ticks from the connection on, on the common phase: a board does not send the ticks
+        // it spent searching for a server (that would be a backlog at start).
+        let behind = Instant::now().saturating_duration_since(start);
+        let start = start + period.mul_f64((behind.as_secs_f64() * self.rate_hz).ceil());
         for tick in 0..self.ticks {
             if stop.load(Ordering::Relaxed) {
                 break;
@@ -339,7 +343,7 @@ impl SimulatedTracker {
             self.send_tick(tick);
         }
         for bytes in std::mem::take(&mut self.backlog) {
-            self.send_raw(&bytes);
+            self.transmit(&bytes);
         }
         if let Some(held) = self.held.take() {
             self.send_raw(&held);
@@ -511,7 +515,7 @@ impl SimulatedTracker {
             return;
         }
         for held in std::mem::take(&mut self.backlog) {
-            self.send_faulty(held);
+            self.transmit(&held);
         }
         self.send_faulty(bytes);
     }
@@ -545,7 +549,17 @@ impl SimulatedTracker {
         n
     }
 
+    /// Sends a datagram, or holds it back behind the others while a stall lasts (a stalled link
+    /// holds every datagram, in order).
     fn send_raw(&mut self, bytes: &[u8]) {
+        if self.stalling {
+            self.backlog.push(bytes.to_vec());
+            return;
+        }
+        self.transmit(bytes);
+    }
+
+    fn transmit(&mut self, bytes: &[u8]) {
         self.report.datagrams += 1;
         // A server that is not listening (yet) makes loopback sends fail; keep going, as the
         // firmware does.
