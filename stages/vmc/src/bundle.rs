@@ -10,7 +10,11 @@
 //!   relative to its parent (`localRotation`); all in Unity coordinates (`crate::convert`),
 //!   quaternions normalized;
 //! - `/VMC/Ext/OK (1)`: bone data is being sent;
-//! - `/VMC/Ext/T (time)`: seconds since the first frame the stage received (capture times).
+//! - `/VMC/Ext/T (time)`: seconds since the first frame the stage received (capture times);
+//! - with the stage's `capture_time` only, `/imuflow/CaptureTime (ns)`: the frame's
+//!   `header.capture_ns` as a decimal string (live: ns since the Unix epoch on the host clock, the
+//!   moment the pose describes), so a receiver can measure its latency from capture. VMC receivers
+//!   ignore addresses they do not know.
 //!
 //! The bundle's time tag is 1 ("immediately", OSC 1.0): receivers apply it on arrival.
 
@@ -28,6 +32,8 @@ pub const BONE_ADDRESS: &str = "/VMC/Ext/Bone/Pos";
 pub const OK_ADDRESS: &str = "/VMC/Ext/OK";
 /// OSC address of the sender's relative time.
 pub const TIME_ADDRESS: &str = "/VMC/Ext/T";
+/// OSC address of imuflow's capture time (the stage's `capture_time` parameter).
+pub const CAPTURE_TIME_ADDRESS: &str = "/imuflow/CaptureTime";
 
 /// OSC 1.0's "immediately" time tag.
 const IMMEDIATELY: OscTime = OscTime {
@@ -101,19 +107,31 @@ fn normalized(q: [f32; 4]) -> Option<[f32; 4]> {
     (n.is_finite() && n > 1e-6).then(|| q.map(|v| (f64::from(v) / n) as f32))
 }
 
-/// The frame's VMC bundle: root, bones, OK, time (`time_s`: seconds since the first frame).
-pub fn bundle(bones: &[BoneTransform; NUM_BONES], time_s: f32) -> OscPacket {
+/// The frame's VMC bundle: root, bones, OK, time (`time_s`: seconds since the first frame), and
+/// with `capture_ns` the capture-time message last.
+pub fn bundle(
+    bones: &[BoneTransform; NUM_BONES],
+    time_s: f32,
+    capture_ns: Option<u64>,
+) -> OscPacket {
     let identity = BoneTransform {
         position_m: [0.0; 3],
         rotation_xyzw: [0.0, 0.0, 0.0, 1.0],
     };
-    let mut content = Vec::with_capacity(NUM_BONES + 3);
+    let mut content = Vec::with_capacity(NUM_BONES + 4);
     content.push(transform_message(ROOT_ADDRESS, "root", &identity));
     for ((_, name), bone) in BONES.iter().zip(bones) {
         content.push(transform_message(BONE_ADDRESS, name, bone));
     }
     content.push(message(OK_ADDRESS, vec![OscType::Int(1)]));
     content.push(message(TIME_ADDRESS, vec![OscType::Float(time_s)]));
+    if let Some(ns) = capture_ns {
+        // A string: OSC 1.0 has no unsigned 64-bit type, and `h` (int64) is optional in 1.0.
+        content.push(message(
+            CAPTURE_TIME_ADDRESS,
+            vec![OscType::String(ns.to_string())],
+        ));
+    }
     OscPacket::Bundle(OscBundle {
         timetag: IMMEDIATELY,
         content,
@@ -210,7 +228,7 @@ mod tests {
         let f = frame();
         let bones = bone_transforms(&f, &offsets()).unwrap();
         let mut bytes = Vec::new();
-        encode(&bundle(&bones, 2.5), &mut bytes);
+        encode(&bundle(&bones, 2.5, None), &mut bytes);
         let messages = decode(&bytes);
         assert_eq!(messages.len(), 1 + 22 + 2);
 
@@ -295,7 +313,7 @@ mod tests {
     fn the_bundle_has_the_size_osc_gives_it() {
         let bones = bone_transforms(&frame(), &offsets()).unwrap();
         let mut bytes = Vec::new();
-        encode(&bundle(&bones, 0.0), &mut bytes);
+        encode(&bundle(&bones, 0.0, None), &mut bytes);
         let names: usize = BONES
             .iter()
             .map(|(_, n)| (n.len() + 1).div_ceil(4) * 4)
@@ -303,5 +321,35 @@ mod tests {
         assert_eq!(names, 284);
         assert_eq!(bytes.len(), 16 + 72 + 22 * 64 + names + 24 + 24);
         assert_eq!(bytes.len(), 1828);
+        // With the capture time: 4 + 24 ("/imuflow/CaptureTime") + 4 (",s") + 20 (19 digits).
+        encode(
+            &bundle(&bones, 0.0, Some(1_767_225_600_123_456_789)),
+            &mut bytes,
+        );
+        assert_eq!(bytes.len(), 1828 + 52);
+    }
+
+    #[test]
+    fn the_capture_time_is_the_last_message_a_decimal_string_of_ns() {
+        let bones = bone_transforms(&frame(), &offsets()).unwrap();
+        let mut bytes = Vec::new();
+        let ns = 1_767_225_600_123_456_789u64;
+        encode(&bundle(&bones, 2.5, Some(ns)), &mut bytes);
+        let messages = decode(&bytes);
+        assert_eq!(messages.len(), 1 + 22 + 3);
+        assert_eq!(messages[24].addr, "/VMC/Ext/T");
+        let last = &messages[25];
+        assert_eq!(last.addr, "/imuflow/CaptureTime");
+        let [OscType::String(text)] = &last.args[..] else {
+            panic!("{last:?}")
+        };
+        assert_eq!(text.parse::<u64>().unwrap(), ns);
+        // u64::MAX still fits: 20 digits.
+        encode(&bundle(&bones, 0.0, Some(u64::MAX)), &mut bytes);
+        let messages = decode(&bytes);
+        assert_eq!(
+            messages[25].args,
+            [OscType::String("18446744073709551615".into())]
+        );
     }
 }

@@ -21,6 +21,8 @@ imuflow_graph::stage_params! {
         /// send every n-th frame (by seq): 1 sends each one; 2 halves a 60 Hz stream to 30 Hz
         send_every: u64 = 1, int(1, 1000);
         stature_m: f64 = use STATURE_PARAM;
+        /// append /imuflow/CaptureTime (the frame's capture_ns as a decimal string: live, ns since the Unix epoch) to every bundle, for latency measurements
+        capture_time: bool = false, bool;
     }
 }
 
@@ -49,7 +51,8 @@ pub fn run() -> anyhow::Result<()> {
     let mut sender = Sender::new(&stage, &params.host, params.port)?;
     let motion = ctx.input::<MotionFrame>("motion")?;
     if ctx.ready()? {
-        let mut stream = Stream::new(&stage, unity_offsets_m(&body.skeleton), params.send_every);
+        let mut stream = Stream::new(&stage, unity_offsets_m(&body.skeleton), params.send_every)
+            .with_capture_time(params.capture_time);
         while let Some(step) = ctx.next()? {
             let Some(datagram) = stream.frame(&step, ctx.get(&motion)) else {
                 continue;
@@ -69,6 +72,8 @@ pub struct Stream {
     stage: String,
     offsets_m: [[f32; 3]; NUM_BONES],
     send_every: u64,
+    /// Whether bundles carry `/imuflow/CaptureTime`.
+    capture_time: bool,
     /// Capture time of the first frame: `/VMC/Ext/T` counts from it.
     first_capture_ns: Option<u64>,
     datagram: Vec<u8>,
@@ -88,6 +93,7 @@ impl Stream {
             stage: stage.to_owned(),
             offsets_m,
             send_every: send_every.max(1),
+            capture_time: false,
             first_capture_ns: None,
             datagram: Vec::with_capacity(2048),
             bundled: 0,
@@ -95,6 +101,12 @@ impl Stream {
             unusable: 0,
             thinned: 0,
         }
+    }
+
+    /// Bundles carry `/imuflow/CaptureTime` (the frame's `capture_ns`) when `on`.
+    pub fn with_capture_time(mut self, on: bool) -> Stream {
+        self.capture_time = on;
+        self
     }
 
     /// The datagram to send for `frame`, if it is sent.
@@ -123,7 +135,8 @@ impl Stream {
             }
         };
         let time_s = (step.capture_ns.saturating_sub(first) as f64 * 1e-9) as f32;
-        encode(&bundle(&bones, time_s), &mut self.datagram);
+        let capture_ns = self.capture_time.then_some(step.capture_ns);
+        encode(&bundle(&bones, time_s, capture_ns), &mut self.datagram);
         self.bundled += 1;
         Some(&self.datagram)
     }
@@ -184,10 +197,13 @@ mod tests {
         let (_, OscPacket::Bundle(b)) = rosc::decoder::decode_udp(datagram).unwrap() else {
             panic!("a bundle")
         };
-        let Some(OscPacket::Message(m)) = b.content.last() else {
-            panic!("messages")
+        let Some(OscPacket::Message(m)) = b
+            .content
+            .iter()
+            .find(|p| matches!(p, OscPacket::Message(m) if m.addr == "/VMC/Ext/T"))
+        else {
+            panic!("no /VMC/Ext/T")
         };
-        assert_eq!(m.addr, "/VMC/Ext/T");
         let [OscType::Float(t)] = m.args[..] else {
             panic!("{m:?}")
         };
@@ -210,6 +226,36 @@ mod tests {
         let t = time_of(s.frame(&step(60, flags::RESTARTED), &f).unwrap());
         assert!((t - 1.0).abs() < 1e-6, "{t}");
         assert_eq!((s.bundled, s.flagged, s.unusable, s.thinned), (2, 3, 0, 0));
+    }
+
+    /// `/imuflow/CaptureTime` of a datagram, if it has one.
+    fn capture_of(datagram: &[u8]) -> Option<u64> {
+        let (_, OscPacket::Bundle(b)) = rosc::decoder::decode_udp(datagram).unwrap() else {
+            panic!("a bundle")
+        };
+        b.content.iter().find_map(|p| match p {
+            OscPacket::Message(m) if m.addr == "/imuflow/CaptureTime" => match &m.args[..] {
+                [OscType::String(s)] => Some(s.parse().unwrap()),
+                other => panic!("{other:?}"),
+            },
+            _ => None,
+        })
+    }
+
+    #[test]
+    fn capture_time_sends_each_frames_capture_ns_only_when_asked() {
+        let f = pose();
+        let mut plain = stream(1);
+        assert_eq!(capture_of(plain.frame(&step(7, 0), &f).unwrap()), None);
+        let mut s = stream(1).with_capture_time(true);
+        assert!(s.frame(&step(0, flags::CALIBRATING), &f).is_none());
+        for seq in [1, 2, 60] {
+            let datagram = s.frame(&step(seq, 0), &f).unwrap();
+            assert_eq!(capture_of(datagram), Some(step(seq, 0).capture_ns));
+            // /VMC/Ext/T still counts from the first frame received.
+            let t = time_of(datagram);
+            assert!((t - seq as f32 / 60.0).abs() < 1e-5, "{t}");
+        }
     }
 
     #[test]

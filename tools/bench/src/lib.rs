@@ -5,8 +5,13 @@
 //!   kinds, `bench-source` and `bench-relay`, are built-in kinds of the binary).
 //! - `kinematics`, `physics`, `validation`: one stage's per-frame work in a loop.
 //! - `graph`: a whole graph live at sensor rate, then offline.
+//! - `live`: glass-to-glass latency with third-party clients at both ends: SlimeVR's tracker
+//!   emulator (or raw sensors) in, an independent VMC receiver out ([`live`],
+//!   docs/live-latency.md).
 //!
 //! The binary hands in its registry of stage kinds: this crate links no stage crate's process.
+
+pub mod live;
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -105,6 +110,11 @@ pub enum BenchCommand {
         #[arg(long)]
         candle: bool,
     },
+    /// Glass-to-glass latency with real clients: SlimeVR's tracker emulator drives the slimevr
+    /// source (or raw sensors are synthesized in real time), an independent VMC implementation
+    /// (PyPI vmcp) receives the vmc stage's bundles; per bundle its receive time minus the moment
+    /// its pose describes, both on the host clock (docs/live-latency.md).
+    Live(live::LiveArgs),
 }
 
 imuflow_graph::stage_params! {
@@ -359,6 +369,7 @@ pub fn run(cmd: BenchCommand, registry: &Registry) -> anyhow::Result<()> {
             seconds,
             no_offline,
         } => return bench_graph(&file, &sets, &without, seconds, !no_offline, registry),
+        BenchCommand::Live(args) => return live::run(args, registry),
     };
     if stages < 2 {
         bail!("--stages must be at least 2 (a source and a relay)");
