@@ -18,6 +18,9 @@ pub const RATE_INTERVALS: usize = 8;
 /// The cutoff of the accelerometer and gyroscope low-pass as a share of the output rate: below the
 /// output's Nyquist frequency (0.5), with room for the filter's roll-off.
 pub const CUTOFF_SHARE: f64 = 0.4;
+/// A rate is derived from two on-board orientations only when their stamps lie at least this share
+/// of a sample interval apart (a turn over a few microseconds is mostly the stamps' error).
+const MIN_DERIVE_SHARE: f64 = 0.25;
 /// How fast the mean sample interval (what lost samples are counted in) follows the stamps:
 /// about the last 50 intervals.
 const MEAN_INTERVAL_GAIN: f64 = 0.02;
@@ -466,10 +469,12 @@ impl SensorTrack {
                         onboard: Some(q0), ..
                     },
                 )),
-            ) if x > x0 => {
+            ) if x - x0 >= MIN_DERIVE_SHARE * self.period_s.unwrap_or(0.0) && x > x0 => {
                 self.counters.derived_rates += 1;
                 rotation_vector(&mul(&conj(&q0), &q)).map(|c| c / (x - x0))
             }
+            // Stamps closer than that say nothing about the rate: the last one is kept.
+            (true, Some(_), Some((_, previous))) => previous.gyr,
             _ => sample.gyr,
         };
         Ok(Some(Input {
