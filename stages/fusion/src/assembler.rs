@@ -22,6 +22,12 @@ pub const MAX_ZERO_ORIGIN_S: f64 = 60.0;
 /// A raw frame captured this much after the newest one so far is refused (a corrupt timestamp
 /// would otherwise make the stage emit empty frames for years), s.
 pub const MAX_CAPTURE_JUMP_S: f64 = 3600.0;
+/// ([`Latency::Low`]) A frame is due once a sensor's newest sample lies this share of its interval
+/// before the frame's time or later.
+pub const LEAD_INTERVALS: f64 = 0.5;
+/// ([`Latency::Low`]) ... and never before a raw frame captured this close to its time, ns (a
+/// sensor clock mapped ahead of the arrivals does not release frames early).
+const MAX_LEAD_NS: i128 = 20_000_000;
 /// ([`Latency::Low`]) How long, in arrivals, a frame waits for a sensor that is behind it, s.
 pub const STALE_GRACE_S: f64 = 0.005;
 /// A sensor that has never been usable this long after another one was is reported missing, s.
@@ -281,18 +287,20 @@ impl Assembler {
         }
     }
 
-    /// [`Latency::Low`]: frame `t` is due once a sample at or after it has come; but while a
+    /// [`Latency::Low`]: frame `t` is due once a sample at or after [`LEAD_INTERVALS`] of an
+    /// interval before it has come (it is extrapolated that far at most); but while a
     /// sensor that was usable in the last frame lies more than [`WAIT_INTERVALS`] behind it (its
     /// next sample is late), it waits for that sensor up to [`STALE_GRACE_S`] of arrivals (the
     /// trackers' backlogs after a common stall come one after the other, within a millisecond).
     fn low_latency_due(&mut self, t: i128, newest_capture: i128) -> bool {
-        let sampled = self
-            .sensors
-            .iter()
-            .filter_map(|s| s.newest_ns())
-            .max()
-            .is_some_and(|n| n >= t && newest_capture >= t);
-        if !sampled {
+        // Due from half an interval before its time: the label then lies as often after the
+        // newest sample as before it (trackers that tick together would otherwise leave each
+        // frame waiting up to a whole interval for the tick after it).
+        let sampled = self.sensors.iter().any(|s| {
+            let lead = (LEAD_INTERVALS * s.period_s().unwrap_or(0.0) * 1e9) as i128;
+            s.newest_ns().is_some_and(|n| n + lead >= t)
+        });
+        if !sampled || newest_capture + MAX_LEAD_NS < t {
             return false;
         }
         let waiting = (0..NUM_IMUS)

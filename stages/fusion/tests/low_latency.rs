@@ -1,8 +1,9 @@
 //! `latency = "low"` with trackers that fuse on board (SlimeVR): six sensors at 100 Hz, each on
 //! its own phase, turning at a known, changing rate (peak 6 rad/s, about what a forearm swings
 //! at), no gyroscope (the rate is derived from the orientations), delivered 0.1 ms after their
-//! sample time. Frames must go out as soon as a sample at or after their time has arrived, close
-//! to the true orientation at their time; a stall's backlog must be dated back, not bunched.
+//! sample time. Frames must go out as soon as a sample from half an interval before their time on
+//! has arrived, close to the true orientation at their time; a stall's backlog must be dated
+//! back, not bunched.
 
 mod common;
 
@@ -105,7 +106,7 @@ fn p99(mut v: Vec<f64>) -> f64 {
 }
 
 #[test]
-fn each_frame_goes_out_with_the_first_sample_after_its_time_and_sensors_behind_are_extrapolated() {
+fn each_frame_goes_out_with_the_first_sample_near_its_time_and_sensors_behind_are_extrapolated() {
     let d = deliveries(4.0, |_, _, sent| sent + DELIVERY_NS);
     let (assembler, frames) = run(low(), &d);
     // After the 8 samples that measure each sensor's rate, every frame is complete.
@@ -115,18 +116,19 @@ fn each_frame_goes_out_with_the_first_sample_after_its_time_and_sensors_behind_a
     for (f, released_at) in &settled {
         assert_eq!(f.valid_mask, (1 << NUM_IMUS) - 1, "frame {}", f.header.seq);
         assert!(!f.header.has(flags::DEGRADED) && !f.header.has(flags::INVALID));
-        // Out with the first delivery at or after its time: within one sensor's phase step
-        // (1.6 ms) plus the delivery.
-        let wait = released_at - f.header.capture_ns;
+        // Out with the first delivery from half an interval (5 ms) before its time on: at most
+        // one sensor's phase step (1.6 ms) plus the delivery after that.
+        let wait = *released_at as i64 - f.header.capture_ns as i64;
         assert!(
-            wait <= 1_600_000 + DELIVERY_NS,
+            (-5_000_000..=-5_000_000 + 1_600_000 + DELIVERY_NS as i64).contains(&wait),
             "frame {}: {wait} ns",
             f.header.seq
         );
     }
     let settled: Vec<(ImuFrame, u64)> = settled.into_iter().copied().collect();
-    // Extrapolated at the derived rate, the sensors behind lie within a fraction of a degree of
-    // where they truly are; held, they would lag by up to a sample interval at 6 rad/s (3.4°).
+    // Extrapolated at the derived rate (up to one interval plus the half interval a frame may lie
+    // after every sample), the sensors lie within a degree of where they truly are; held, they
+    // would lag by up to a sample interval at 6 rad/s (3.4°).
     for i in 0..NUM_IMUS {
         let extrapolated = p99(errors_deg(&settled, i));
         // Held instead: the newest sample at or before the frame's time, as it was.
@@ -139,9 +141,9 @@ fn each_frame_goes_out_with_the_first_sample_after_its_time_and_sensors_behind_a
             })
             .collect());
         println!("sensor {i}: p99 {extrapolated:.3}° extrapolated, {held:.3}° held");
-        assert!(extrapolated < 0.5, "sensor {i}: p99 {extrapolated:.3}°");
+        assert!(extrapolated < 1.0, "sensor {i}: p99 {extrapolated:.3}°");
         assert!(
-            extrapolated < held / 4.0,
+            extrapolated < held / 2.0,
             "sensor {i}: {extrapolated:.3}° vs {held:.3}°"
         );
     }
@@ -195,7 +197,7 @@ fn a_stall_of_every_tracker_is_dated_back_and_nothing_is_lost_late_or_bunched() 
     }
     for i in 0..NUM_IMUS {
         let p = p99(errors_deg(&settled, i));
-        assert!(p < 0.5, "sensor {i}: p99 {p:.3}°");
+        assert!(p < 1.0, "sensor {i}: p99 {p:.3}°");
         assert_eq!(assembler.sensor_counters(i).lost, 0);
     }
     assert_eq!(assembler.counters().sensor_late, [0; NUM_IMUS]);
@@ -215,14 +217,15 @@ fn one_stalled_tracker_is_stale_then_missing_and_its_backlog_late() {
     });
     let (assembler, frames) = run(low(), &d);
     let c = assembler.counters();
-    // Its last sample before the stall is at 1.9932 s; the frames at 2.0000, 2.0167, ... 2.0833 s
-    // lie 6.8, 23.5, 40.1, 56.8, 73.5 and 90.1 ms after it: extrapolated, then stale (over two
-    // intervals, DEGRADED) twice, then missing (over max_gap_ms, 50 ms) three times.
+    // Its last sample before the stall is at 1.9932 s; the frames at 2.0000, 2.0167, ... 2.1000 s
+    // lie 6.8, 23.5, 40.1, 56.8, 73.5, 90.1 and 106.8 ms after it: extrapolated, then stale (over
+    // two intervals, DEGRADED) twice, then missing (over max_gap_ms, 50 ms) four times (the frame
+    // at 2.1 s goes out half an interval early, before the backlog comes at 2.1 s).
     let invalid_after_start = frames
         .iter()
         .filter(|(f, _)| f.header.seq >= 12 && f.valid_mask & (1 << 2) == 0)
         .count();
-    assert_eq!((c.sensor_stale[2], invalid_after_start), (2, 3), "{c:?}");
+    assert_eq!((c.sensor_stale[2], invalid_after_start), (2, 4), "{c:?}");
     assert_eq!(c.degraded, 2);
     let others: u64 = (0..NUM_IMUS)
         .filter(|&i| i != 2)

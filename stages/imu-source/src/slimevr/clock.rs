@@ -16,8 +16,9 @@
 //! - the line `t(n) = n·P + o` touches the earliest-delivered datagram of the last [`WINDOW_NS`]
 //!   (`o` is the smallest `a − n·P` there). A backlog's datagrams lie above it and are dated back
 //!   onto it, `P` apart per number; a lost datagram leaves its gap.
-//! - Each date is at or before the arrival, after the previous date, and so at most
-//!   [`WINDOW_NS`] before the arrival.
+//! - Each date is at or before the arrival and after the previous date by at least 3/4 of the
+//!   pace per number (where the line moves back, a less delayed datagram or a new pace, the
+//!   dates rejoin it without bunching), and so at most [`WINDOW_NS`] before the arrival.
 //!
 //! Until [`MIN_INTERVALS`] intervals are seen a datagram is dated at its arrival. A tracker that
 //! pauses (the firmware skips rotations that did not change) resumes with numbers that advanced
@@ -47,6 +48,7 @@ pub struct PacketClock {
     pace: Option<f64>,
     since_pace: u32,
     last_dated: u64,
+    last_number: Option<u64>,
 }
 
 impl PacketClock {
@@ -78,13 +80,17 @@ impl PacketClock {
                 .round() as u64,
             None => arrival_ns,
         };
-        // Never after the arrival, always after the previous date (numbers increase, so the line
-        // through a datagram of the window dates nothing more than the window before arrival).
-        let dated = dated
-            .min(arrival_ns)
-            .max(self.last_dated + 1)
-            .min(arrival_ns);
+        // Never after the arrival; after the previous date by at least 3/4 of the pace per number
+        // (when the line moves back, a less delayed datagram or a new pace, the dates rejoin it
+        // without bunching, rates derived across them at most 4/3 too high); and so (numbers
+        // increase) at most the window before the arrival.
+        let spacing = match (self.pace, self.last_number) {
+            (Some(pace), Some(n)) => (0.75 * pace * number.saturating_sub(n) as f64) as u64,
+            _ => 1,
+        };
+        let dated = dated.max(self.last_dated + spacing.max(1)).min(arrival_ns);
         self.last_dated = dated;
+        self.last_number = Some(number);
         dated
     }
 }
