@@ -1,11 +1,13 @@
 //! The output grid: raw frames in, one `ImuFrame` per output period out, in order, none skipped.
 //!
 //! Output frame k stands for source time `t_k = origin + k / rate_hz` (origin 0 offline, the first
-//! raw frame's capture time live) and carries `seq = k`, `capture_ns = t_k`. It is emitted as soon
-//! as every sensor can be resampled at `t_k` (it has a sample stamped at or after `t_k` plus its
-//! low-pass delay plus half its sample interval), or once a raw frame captured more than
-//! `max_latency` after `t_k` arrived; the sensors that cannot be resampled then are written as
-//! identity / zeros with their bit cleared and the frame is flagged INVALID.
+//! raw frame's capture time live) and carries `seq = k`, `capture_ns = t_k`. With
+//! [`Latency::Smooth`] it is emitted as soon as every sensor can be resampled at `t_k` (it has a
+//! sample stamped at or after `t_k` plus its low-pass delay plus half its sample interval), or once
+//! a raw frame captured more than `max_latency` after `t_k` arrived; with [`Latency::Low`] as soon
+//! as a sample from half an interval before `t_k` on has come (see [`Assembler::push`]'s rules in
+//! `low_latency_due`). The sensors that cannot be resampled then are written as identity / zeros
+//! with their bit cleared and the frame is flagged INVALID.
 
 use imuflow_graph::frames::{ImuFrame, RawImuFrame, flags};
 
