@@ -12,8 +12,8 @@ of the stage's code: a point (x, y, z) -> (-x, y, z), a rotation (w, x, y, z) ->
 sent as (x, y, z, w). Frames are matched by /VMC/Ext/T, the seconds since the first frame's
 capture time, so a missing or repeated frame shows.
 
-A live graph drops a frame where a reader falls two frames behind (docs/architecture.md,
-"Delivery"), as it may on a busy machine; such drops are the graph's, counted in its summary, and
+A live graph drops a frame where a reader falls 16 frames behind (docs/architecture.md,
+"Delivery"), as it may on a very busy machine; such drops are the graph's, counted in its summary, and
 are allowed up to 1 % of the frames. Every bundle the stage reports sent must arrive and match.
 """
 import glob
@@ -35,7 +35,7 @@ sys.path.insert(0, os.path.join(HERE, ".."))
 import imuflow  # noqa: E402
 
 FRAMES = 600  # 10 s at 60 Hz
-# Frames a live graph may drop on a busy machine (readers two frames behind), at most.
+# Frames a live graph may drop on a very busy machine (readers 16 frames behind), at most.
 LIVE_DROPS = FRAMES // 100
 # Unity HumanBodyBones name -> SMPL joint index (stages/vmc/README.md, "Bones").
 BONES = {
