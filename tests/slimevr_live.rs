@@ -24,45 +24,9 @@ const TICKS: u64 = 300;
 
 #[test]
 fn six_simulated_trackers_are_recorded_sample_for_sample() {
-    let sb = Sandbox::new("slimevr-live");
-    let port = free_udp_port();
-    let trackers = sim::default_trackers(NUM_IMUS);
-    std::fs::write(sb.path("trackers.toml"), sim::trackers_toml(&trackers)).expect("trackers");
-    let graph = sb.graph(
-        "slimevr.toml",
-        &format!(
-            r#"
-name = "slimevr-live"
-rate_hz = 60
-mode = "live"
-[stages.source]
-kind = "imu-source"
-params = {{ mode = "slimevr", bind = "127.0.0.1:{port}", trackers = "{{dir}}/trackers.toml", timeout_ms = 1500 }}
-[stages.record]
-kind = "recorder"
-inputs = {{ raw = "source.raw" }}
-params = {{ path = "{{dir}}/slimevr.mcap" }}
-"#
-        ),
-    );
-    let child = sb.spawn(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     // The simulated trackers broadcast their handshake every second until the stage answers.
-    let options = SimOptions {
-        server: format!("127.0.0.1:{port}"),
-        trackers,
-        rate_hz: RATE_HZ,
-        ticks: TICKS,
-        bundle: true,
-        handshake_timeout: Duration::from_secs(60),
-        faults: SimFaults::default(),
-    };
-    let reports = sim::run(&options, Arc::new(AtomicBool::new(false))).expect("simulation");
-    let out = wait_with_timeout(child, Duration::from_secs(60));
-    let log = format!("{}{}", text(&out.stdout), text(&out.stderr));
-    assert!(
-        out.status.success(),
-        "the run ends after the trackers:\n{log}"
-    );
+    let (log, reports, frames, _) =
+        run_trackers("slimevr-live", TICKS, SimFaults::default(), false);
     for r in &reports {
         assert_eq!((r.ticks_sent, r.connections), (TICKS, 1), "{r:?}");
     }
@@ -70,12 +34,6 @@ params = {{ path = "{{dir}}/slimevr.mcap" }}
         log.contains("6 tracker(s)") && log.contains(" 0 lost, 0 duplicated, 0 out of order"),
         "the summary counts six trackers and no loss:\n{log}"
     );
-
-    let frames: Vec<RawImuFrame> = mcap_messages(&sb.path("slimevr.mcap"))
-        .iter()
-        .filter(|m| m.0 == "source.raw")
-        .map(|m| frame_from_bytes(&m.2).expect("a RawImuFrame"))
-        .collect();
     let seqs: Vec<u64> = frames.iter().map(|f| f.header.seq).collect();
     assert_eq!(seqs, (0..frames.len() as u64).collect::<Vec<_>>());
     for site in 0..NUM_IMUS {
@@ -125,7 +83,6 @@ params = {{ path = "{{dir}}/slimevr.mcap" }}
         assert!(times.iter().min() <= Some(&f.header.capture_ns));
         assert_eq!(f.header.flags, 0);
     }
-    assert_clean(&sb);
 }
 
 /// `R_ITᵀ·(a_I + g·e_z)` from rotation matrices: `R_IT = R_z(heading)·R(axis, rate·t)`.
@@ -152,17 +109,27 @@ fn rodrigues(axis: [f64; 3], angle: f64) -> [[f64; 3]; 3] {
     ]
 }
 
-/// Runs six simulated trackers with `faults` into source -> fusion -> recorder; the log, the
-/// trackers' reports, and the recorded raw and fused frames.
-fn through_fusion(
+/// Runs six simulated trackers with `faults` into the slimevr source and a recorder (with
+/// `fusion`, a fusion stage between them whose frames are recorded too); the log, the trackers'
+/// reports, and the recorded raw and fused frames.
+fn run_trackers(
     name: &str,
     ticks: u64,
     faults: SimFaults,
+    fusion: bool,
 ) -> (String, Vec<sim::SimReport>, Vec<RawImuFrame>, Vec<ImuFrame>) {
     let sb = Sandbox::new(name);
     let port = free_udp_port();
     let trackers = sim::default_trackers(NUM_IMUS);
     std::fs::write(sb.path("trackers.toml"), sim::trackers_toml(&trackers)).expect("trackers");
+    let (fusion_stage, fused_input) = if fusion {
+        (
+            "[stages.fusion]\nkind = \"fusion\"\ninputs = { raw = \"source.raw\" }\n",
+            ", imu = \"fusion.imu\"",
+        )
+    } else {
+        ("", "")
+    };
     let graph = sb.graph(
         "slimevr.toml",
         &format!(
@@ -173,12 +140,10 @@ mode = "live"
 [stages.source]
 kind = "imu-source"
 params = {{ mode = "slimevr", bind = "127.0.0.1:{port}", trackers = "{{dir}}/trackers.toml", timeout_ms = 1500 }}
-[stages.fusion]
-kind = "fusion"
-inputs = {{ raw = "source.raw" }}
+{fusion_stage}
 [stages.record]
 kind = "recorder"
-inputs = {{ raw = "source.raw", imu = "fusion.imu" }}
+inputs = {{ raw = "source.raw"{fused_input} }}
 params = {{ path = "{{dir}}/out.mcap" }}
 "#
         ),
@@ -254,7 +219,7 @@ fn a_stall_and_its_backlog_lose_and_drop_nothing_and_keep_the_motions_rate() {
         }),
         ..SimFaults::default()
     };
-    let (log, reports, raw, imu) = through_fusion("slimevr-burst", ticks, faults);
+    let (log, reports, raw, imu) = run_trackers("slimevr-burst", ticks, faults, true);
     for r in &reports {
         assert_eq!((r.ticks_sent, r.stalled), (ticks, 20), "{r:?}");
     }
@@ -304,7 +269,7 @@ fn datagrams_lost_on_the_network_are_counted_as_that_many_samples_lost_and_nothi
         drop_every: 10,
         ..SimFaults::default()
     };
-    let (log, reports, raw, _) = through_fusion("slimevr-loss", ticks, faults);
+    let (log, reports, raw, _) = run_trackers("slimevr-loss", ticks, faults, true);
     let lost = reports[0].dropped;
     assert_eq!(lost, 30, "{:?}", reports[0]);
     assert!(reports.iter().all(|r| r.dropped == lost));
