@@ -180,6 +180,15 @@ params = {{ path = "{{dir}}/out.mcap" }}
     (log, reports, raw, imu)
 }
 
+/// Per site, the recorded samples that brought a specific force (the valid bit).
+fn samples_per_site(raw: &[RawImuFrame]) -> [u64; NUM_IMUS] {
+    std::array::from_fn(|site| {
+        raw.iter()
+            .filter(|f| f.valid_mask & (1 << site) != 0)
+            .count() as u64
+    })
+}
+
 /// The run summary's `dropped` column of stage `id` (its row: stage, kind, frames in, out,
 /// dropped, ...).
 fn dropped(log: &str, id: &str) -> u64 {
@@ -228,13 +237,7 @@ fn a_stall_and_its_backlog_lose_and_drop_nothing_and_keep_the_motions_rate() {
         "{log}"
     );
     // Every sample recorded, every frame taken by every stage.
-    for site in 0..NUM_IMUS {
-        let n = raw
-            .iter()
-            .filter(|f| f.valid_mask & (1 << site) != 0)
-            .count();
-        assert_eq!(n as u64, ticks, "site {site}");
-    }
+    assert_eq!(samples_per_site(&raw), [ticks; NUM_IMUS]);
     for id in ["fusion", "record"] {
         assert_eq!(dropped(&log, id), 0, "{id}:\n{log}");
     }
@@ -280,13 +283,7 @@ fn datagrams_lost_on_the_network_are_counted_as_that_many_samples_lost_and_nothi
         NUM_IMUS,
         "{log}"
     );
-    for site in 0..NUM_IMUS {
-        let n = raw
-            .iter()
-            .filter(|f| f.valid_mask & (1 << site) != 0)
-            .count();
-        assert_eq!(n as u64, ticks - lost, "site {site}");
-    }
+    assert_eq!(samples_per_site(&raw), [ticks - lost; NUM_IMUS]);
     // No stage dropped a frame. The fusion counts the same samples lost from the gaps in their
     // stamps, give or take what a busy machine's scheduling does to a simulated tracker's sends
     // (exactly, without live timing: the next test).
