@@ -102,6 +102,7 @@ fn pace_ns(datagrams: &VecDeque<(u64, u64)>) -> Option<f64> {
     let mut per_number: Vec<f64> = datagrams
         .iter()
         .zip(datagrams.iter().skip(1))
+        .filter(|(p, q)| q.0 > p.0)
         .map(|(p, q)| (q.1 as f64 - p.1 as f64) / (q.0 - p.0) as f64)
         .collect();
     if per_number.len() < MIN_INTERVALS {
