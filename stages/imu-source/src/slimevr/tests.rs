@@ -815,3 +815,50 @@ fn six_simulated_trackers_stream_ten_seconds_without_loss() {
         );
     }
 }
+
+#[test]
+fn a_flood_from_elsewhere_is_counted_and_the_tracker_keeps_streaming() {
+    // A mapped tracker streams 50 samples (bundles of rotation and acceleration) while a stranger
+    // floods the port with 3000 datagrams of garbage and of data without a handshake (60 before
+    // each sample): every sample of the tracker comes through, each with the poll that read it,
+    // and the flood is counted as ignored, datagram for datagram.
+    let (mut receiver, tracker) = connected(&[(MAC1, 0, "head")]);
+    let stranger = FakeTracker::new(receiver.local_addr().unwrap());
+    let sample = |n: u64| {
+        bundle(
+            n,
+            &[
+                Packet::Rotation(Rotation {
+                    sensor_id: 0,
+                    data_type: DATA_TYPE_NORMAL,
+                    xyzw: [0.0, 0.0, 0.0, 1.0],
+                    accuracy: 0,
+                }),
+                Packet::Acceleration(Acceleration {
+                    sensor_id: 0,
+                    xyz: [0.0; 3],
+                }),
+            ],
+        )
+    };
+    let mut out = Vec::new();
+    for n in 1..=50u64 {
+        for k in 0..60u64 {
+            if k % 2 == 0 {
+                stranger.send(&[0xff; 40]);
+            } else {
+                stranger.send(&rotation().standalone(k));
+            }
+        }
+        tracker.send(&sample(n));
+        // One wake-up reads what the socket holds: the flood and the sample behind it.
+        receiver.poll(Duration::from_millis(50), &mut out).unwrap();
+        assert_eq!(out.len() as u64, n, "sample {n} with its poll");
+    }
+    out.extend(drain(&mut receiver));
+    assert_eq!(out.len(), 50);
+    assert!(out.iter().all(|s| s.site == 4));
+    let s = stats(&receiver, MAC1);
+    assert_eq!((s.samples, s.lost, s.malformed), (50, 0, 0), "{s:?}");
+    assert_eq!(receiver.other_stats().ignored, 3000);
+}
