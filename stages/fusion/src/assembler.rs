@@ -30,6 +30,9 @@ pub const LEAD_INTERVALS: f64 = 0.5;
 /// ([`Latency::Low`]) ... and never before a raw frame captured this close to its time, ns (a
 /// sensor clock mapped ahead of the arrivals does not release frames early).
 const MAX_LEAD_NS: i128 = 20_000_000;
+/// ([`Latency::Low`]) A sensor silent longer than this before a frame is not waited for, s (a
+/// stall whose backlog is on its way lasts up to about 100 ms).
+const MAX_WAITED_SILENCE_S: f64 = 0.15;
 /// ([`Latency::Low`]) How long, in arrivals, a frame waits for a sensor that is behind it, s.
 pub const STALE_GRACE_S: f64 = 0.005;
 /// A sensor that has never been usable this long after another one was is reported missing, s.
@@ -305,8 +308,15 @@ impl Assembler {
         if !sampled || newest_capture + MAX_LEAD_NS < t {
             return false;
         }
-        let waiting = (0..NUM_IMUS)
-            .any(|i| self.presence[i].now && self.sensors[i].behind_at(t, WAIT_INTERVALS));
+        // Not for one silent longer than a stall lasts: it rests (a tracker that sends only what
+        // changed) or is gone, and every frame would wait for it.
+        let waiting = (0..NUM_IMUS).any(|i| {
+            let s = &self.sensors[i];
+            self.presence[i].now
+                && s.behind_at(t, WAIT_INTERVALS)
+                && s.newest_ns()
+                    .is_some_and(|n| ((t - n) as f64) * 1e-9 <= MAX_WAITED_SILENCE_S)
+        });
         if !waiting {
             self.waiting_since = None;
             return true;

@@ -70,6 +70,11 @@ pub const STALE_INTERVALS: f64 = 2.0;
 /// ([`Latency::Low`]) A frame waits a little for a sensor whose newest sample is this many
 /// intervals older (its next sample is late; extrapolation covers one interval).
 pub const WAIT_INTERVALS: f64 = 1.5;
+/// ([`Latency::Low`]) A tracker that sends only its orientation (no gyroscope: SlimeVR) and falls
+/// silent is held, not missing, this long, s: its firmware sends a rotation only when it changed
+/// (`OPTIMIZE_UPDATES` in SlimeVR-Tracker-ESP), so silence from a still tracker means "unchanged".
+/// Held beyond two intervals it is stale (the frame DEGRADED); past this, missing.
+pub const ORIENTATION_ONLY_HOLD_S: f64 = 1.0;
 
 /// Whether magnetometer readings are fused (the stage's `magnetometer` parameter).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -208,6 +213,8 @@ pub struct SensorTrack {
     last_seen_x: Option<f64>,
     /// The mean interval between consecutive stamps, s (lost samples are counted in it).
     mean_interval_s: Option<f64>,
+    /// The sensor sends its on-board orientation without a gyroscope reading (SlimeVR).
+    orientation_only: bool,
     last_good: Option<(f64, Input)>,
     buffer: VecDeque<Fused>,
     counters: SensorCounters,
@@ -228,6 +235,7 @@ impl SensorTrack {
             delay_s: 0.0,
             last_seen_x: None,
             mean_interval_s: None,
+            orientation_only: false,
             last_good: None,
             buffer: VecDeque::new(),
             counters: SensorCounters::default(),
@@ -395,6 +403,17 @@ impl SensorTrack {
         self.settings.max_gap_s.max(1.5 * period)
     }
 
+    /// ([`Latency::Low`]) How long after its newest sample the sensor is held rather than
+    /// missing: the longest gap, or [`ORIENTATION_ONLY_HOLD_S`] for a tracker that sends only its
+    /// orientation.
+    fn silence_hold_s(&self) -> f64 {
+        if self.orientation_only {
+            self.max_gap_s().max(ORIENTATION_ONLY_HOLD_S)
+        } else {
+            self.max_gap_s()
+        }
+    }
+
     fn process(&mut self, x: f64, sample: &RawSample) -> Result<(), FusionError> {
         let period = self.period_s.unwrap_or(1.0);
         if let Some(prev) = self.last_seen_x {
@@ -456,6 +475,7 @@ impl SensorTrack {
                 return Ok(None);
             }
         };
+        self.orientation_only = sample.no_gyroscope && onboard.is_some();
         let gyr = match (sample.no_gyroscope, onboard, self.last_good) {
             // No gyroscope: the mean rate over the interval ending at this sample (the convention
             // VQF's integration and the fusion's gyroscope samples follow), from the turn between
@@ -611,7 +631,7 @@ impl SensorTrack {
     /// `None` when the newest sample is further back than the longest gap (the sensor is missing).
     fn ahead_of_newest(&self, x: f64, newest: &Fused) -> Option<Resampled> {
         let ahead = x - newest.x;
-        if ahead > self.max_gap_s() {
+        if ahead > self.silence_hold_s() {
             return None;
         }
         let turn = ahead.min(self.period_s.unwrap_or(0.0));

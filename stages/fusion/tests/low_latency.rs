@@ -204,7 +204,7 @@ fn a_stall_of_every_tracker_is_dated_back_and_nothing_is_lost_late_or_bunched() 
 }
 
 #[test]
-fn one_stalled_tracker_is_stale_then_missing_and_its_backlog_late() {
+fn one_stalled_tracker_is_held_stale_and_its_backlog_late() {
     // Sensor 2 alone stalls 100 ms; the others go on.
     let stall = (2.0, 2.1);
     let d = deliveries(4.0, |i, _, sent| {
@@ -217,16 +217,17 @@ fn one_stalled_tracker_is_stale_then_missing_and_its_backlog_late() {
     });
     let (assembler, frames) = run(low(), &d);
     let c = assembler.counters();
-    // Its last sample before the stall is at 1.9932 s; the frames at 2.0000, 2.0167, ... 2.1000 s
-    // lie 6.8, 23.5, 40.1, 56.8, 73.5, 90.1 and 106.8 ms after it: extrapolated, then stale (over
-    // two intervals, DEGRADED) twice, then missing (over max_gap_ms, 50 ms) four times (the frame
-    // at 2.1 s goes out half an interval early, before the backlog comes at 2.1 s).
+    // Its last sample before the stall is at 1.9932 s; the frames at 2.0000, 2.0167, ... 2.0833 s
+    // lie 6.8, 23.5, 40.1, 56.8, 73.5 and 90.1 ms after it: extrapolated, then stale (over two
+    // intervals: held, the frame DEGRADED) five times, never missing (a tracker that sends only its
+    // orientation is held up to ORIENTATION_ONLY_HOLD_S); the frame at 2.1 s waits for the
+    // backlog, which comes at 2.1 s.
     let invalid_after_start = frames
         .iter()
         .filter(|(f, _)| f.header.seq >= 12 && f.valid_mask & (1 << 2) == 0)
         .count();
-    assert_eq!((c.sensor_stale[2], invalid_after_start), (2, 4), "{c:?}");
-    assert_eq!(c.degraded, 2);
+    assert_eq!((c.sensor_stale[2], invalid_after_start), (5, 0), "{c:?}");
+    assert_eq!(c.degraded, 5);
     let others: u64 = (0..NUM_IMUS)
         .filter(|&i| i != 2)
         .map(|i| c.sensor_stale[i] + c.sensor_late[i])
@@ -240,4 +241,41 @@ fn one_stalled_tracker_is_stale_then_missing_and_its_backlog_late() {
             .iter()
             .all(|(f, _)| f.header.seq < 12 || f.valid_mask & !(1 << 2) == 0b111011)
     );
+}
+
+#[test]
+fn a_tracker_at_rest_that_falls_silent_is_held_then_missing_and_nobody_waits_for_it() {
+    // Sensor 3 sends nothing from 2.0 s to 3.5 s (a SlimeVR tracker at rest sends a rotation only
+    // when it changed), the others go on.
+    let d: Vec<(usize, u64, u64)> = deliveries(4.0, |_, _, sent| sent + DELIVERY_NS)
+        .into_iter()
+        .filter(|&(i, k, _)| !(i == 3 && (200..350).contains(&k)))
+        .collect();
+    let (assembler, frames) = run(low(), &d);
+    let c = assembler.counters();
+    let silent = |f: &ImuFrame| {
+        let t = (f.header.capture_ns - T0_NS) as f64 * 1e-9;
+        (2.0..3.5).contains(&t)
+    };
+    // Held for ORIENTATION_ONLY_HOLD_S after its last sample (1.9948 s), stale (DEGRADED) from two
+    // intervals on; missing (INVALID) after that, until it sends again.
+    let held = frames
+        .iter()
+        .filter(|(f, _)| silent(f) && f.valid_mask & (1 << 3) != 0)
+        .count();
+    let missing = frames
+        .iter()
+        .filter(|(f, _)| silent(f) && f.valid_mask & (1 << 3) == 0)
+        .count();
+    assert_eq!((held, missing), (60, 30), "{c:?}");
+    assert_eq!(c.sensor_stale[3] as usize, held - 1, "{c:?}");
+    // Nobody waits for it past its first 150 ms: every frame after that goes out with the first
+    // sample from half an interval before its time on.
+    for (f, released_at) in frames.iter().filter(|(f, _)| {
+        let t = (f.header.capture_ns - T0_NS) as f64 * 1e-9;
+        (2.2..3.5).contains(&t)
+    }) {
+        let wait = *released_at as i64 - f.header.capture_ns as i64;
+        assert!(wait <= 2_000_000, "frame {}: {wait} ns", f.header.seq);
+    }
 }
