@@ -6,6 +6,9 @@
 //! right lower leg, head, pelvis = root): bone orientations `R_MB` as row-major 3×3, free accelerations
 //! and angular velocities in M. Matrices are flattened row-major (reference §0).
 
+use imuflow_graph::frames::{BodyImuFrame, NUM_IMUS};
+use nalgebra::{Quaternion, UnitQuaternion};
+
 /// Index of the root (pelvis) IMU: always last (reference §1).
 pub const ROOT_IMU: usize = 5;
 /// PIP input size: 6 accelerations + 6 orientations (reference §2.2).
@@ -69,6 +72,44 @@ pub struct ImuInput {
     pub acceleration: [[f32; 3]; 6],
     /// Angular velocity in M, rad/s.
     pub angular_velocity: [[f32; 3]; 6],
+}
+
+/// The last valid sample of each sensor, as the networks take them: a sensor without a valid,
+/// finite sample in a frame keeps its last one.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct HeldSamples {
+    pub input: ImuInput,
+    seen: u32,
+}
+
+impl HeldSamples {
+    /// Takes the frame's valid, finite samples; true once every sensor has had one.
+    pub fn update(&mut self, frame: &BodyImuFrame) -> bool {
+        for i in 0..NUM_IMUS {
+            let q = frame.bone_orientation_wxyz[i];
+            let (a, w) = (
+                frame.free_acceleration_mps2[i],
+                frame.angular_velocity_radps[i],
+            );
+            let finite = q.iter().chain(&a).chain(&w).all(|v| v.is_finite());
+            let norm = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+            if frame.valid_mask & (1 << i) == 0 || !finite || !(0.5..1.5).contains(&norm) {
+                continue;
+            }
+            let r = UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3]))
+                .to_rotation_matrix();
+            let m = r.matrix();
+            for row in 0..3 {
+                for col in 0..3 {
+                    self.input.orientation[i][row * 3 + col] = m[(row, col)];
+                }
+            }
+            self.input.acceleration[i] = a;
+            self.input.angular_velocity[i] = w;
+            self.seen |= 1 << i;
+        }
+        self.seen == (1 << NUM_IMUS) - 1
+    }
 }
 
 /// PIP's 72 inputs (reference §2.2, TransPose §2.1 layout **without** its /30 scaling):

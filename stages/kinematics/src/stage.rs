@@ -22,9 +22,9 @@ use anyhow::{Context, bail};
 use imuflow_graph::frames::{BodyImuFrame, KinematicsFrame, NUM_IMUS, flags};
 use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::{FrameType, StageContext};
-use nalgebra::{Quaternion, Rotation3, UnitQuaternion};
+use nalgebra::{Rotation3, UnitQuaternion};
 
-use crate::features::{ImuInput, ROOT_IMU};
+use crate::features::{HeldSamples, ImuInput, ROOT_IMU};
 use crate::infer::{
     Estimate, LIMB_JOINTS, LimbJoints, SENSOR_BONE_TOLERANCE_PARAM, SensorBones, StartPose,
     Streamer, impose_measured_bones, sensor_rotation,
@@ -199,43 +199,6 @@ pub fn run() -> anyhow::Result<()> {
     }
     ctx.finish(&mut [&mut output])?;
     Ok(())
-}
-
-/// The last valid sample of each sensor.
-#[derive(Default)]
-struct HeldSamples {
-    input: ImuInput,
-    seen: u32,
-}
-
-impl HeldSamples {
-    /// Take the frame's valid, finite samples; true once every sensor has had one.
-    fn update(&mut self, frame: &BodyImuFrame) -> bool {
-        for i in 0..NUM_IMUS {
-            let q = frame.bone_orientation_wxyz[i];
-            let (a, w) = (
-                frame.free_acceleration_mps2[i],
-                frame.angular_velocity_radps[i],
-            );
-            let finite = q.iter().chain(&a).chain(&w).all(|v| v.is_finite());
-            let norm = q.iter().map(|v| v * v).sum::<f32>().sqrt();
-            if frame.valid_mask & (1 << i) == 0 || !finite || !(0.5..1.5).contains(&norm) {
-                continue;
-            }
-            let r = UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3]))
-                .to_rotation_matrix();
-            let m = r.matrix();
-            for row in 0..3 {
-                for col in 0..3 {
-                    self.input.orientation[i][row * 3 + col] = m[(row, col)];
-                }
-            }
-            self.input.acceleration[i] = a;
-            self.input.angular_velocity[i] = w;
-            self.seen |= 1 << i;
-        }
-        self.seen == (1 << NUM_IMUS) - 1
-    }
 }
 
 /// The pose to start the nets from when joining a stream mid-motion (after a restart): the start

@@ -40,21 +40,23 @@ use anyhow::{Context, bail, ensure};
 use imuflow_body::dynamics::{DofVector, DynamicsData, NUM_DOFS, PointJacobian};
 use imuflow_body::kinematics::{FkData, forward_kinematics, local_to_global_rotations};
 use imuflow_body::rotation::axis_angle_from_rotation;
-use imuflow_body::skeleton::{LEAF_JOINTS, SIP_JOINTS};
-use imuflow_body::{BodyModel, BodyParams, Imu, JointId, NUM_JOINTS};
+use imuflow_body::skeleton::LEAF_JOINTS;
+use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS};
 use imuflow_contact::ContactSet;
 use imuflow_contact::pip::FEET;
 use imuflow_contact::subject::{MASS_PARAM, STATURE_PARAM, subject_body};
 use imuflow_graph::frames::{
-    BodyImuFrame, ContactFrame, Frame, KinematicsFrame, NUM_IMUS, flags, frame_from_bytes,
+    BodyImuFrame, ContactFrame, Frame, KinematicsFrame, flags, frame_from_bytes,
 };
-use imuflow_kinematics::features::{ImuInput, PIP_INPUT, pip_input};
+use imuflow_kinematics::features::{HeldSamples, ImuInput, PIP_INPUT, pip_input};
 use imuflow_kinematics::infer::{LimbJoints, SensorBones, StartPose, Streamer};
 use imuflow_kinematics::weights::Weights;
 use imuflow_optimizer::Method as _;
-use imuflow_optimizer::pip::{POSITION_PD_JOINTS, Pip, PipConfig};
+use imuflow_optimizer::pip::{
+    POSITION_PD_JOINTS, Pip, PipConfig, orientation_rows, orientation_target,
+};
 use imuflow_optimizer::{MotionEstimate, PhysicsBody, Reference};
-use nalgebra::{Quaternion, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::{Rotation3, Vector3};
 
 /// Untimed frames before each timed pass.
 const WARMUP_FRAMES: usize = 100;
@@ -110,35 +112,6 @@ fn read_frames<T: Frame>(path: &Path) -> anyhow::Result<Vec<T>> {
         .collect())
 }
 
-/// The kinematics stage's held samples (stages/kinematics/src/stage.rs, `HeldSamples`): a sensor
-/// without a valid sample keeps its last one; true once every sensor has had one.
-fn update_held(input: &mut ImuInput, seen: &mut u32, frame: &BodyImuFrame) -> bool {
-    for i in 0..NUM_IMUS {
-        let q = frame.bone_orientation_wxyz[i];
-        let (a, w) = (
-            frame.free_acceleration_mps2[i],
-            frame.angular_velocity_radps[i],
-        );
-        let finite = q.iter().chain(&a).chain(&w).all(|v| v.is_finite());
-        let norm = q.iter().map(|v| v * v).sum::<f32>().sqrt();
-        if frame.valid_mask & (1 << i) == 0 || !finite || !(0.5..1.5).contains(&norm) {
-            continue;
-        }
-        let r = UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3]))
-            .to_rotation_matrix();
-        let m = r.matrix();
-        for row in 0..3 {
-            for col in 0..3 {
-                input.orientation[i][row * 3 + col] = m[(row, col)];
-            }
-        }
-        input.acceleration[i] = a;
-        input.angular_velocity[i] = w;
-        *seen |= 1 << i;
-    }
-    *seen == (1 << NUM_IMUS) - 1
-}
-
 fn write_f32(path: &Path, values: &[f32]) -> anyhow::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
     for v in values {
@@ -170,11 +143,11 @@ fn networks(
 ) -> anyhow::Result<String> {
     // The frames the kinematics stage feeds to the networks (calibrated, every sensor seen).
     let mut inputs: Vec<(usize, ImuInput)> = Vec::new();
-    let (mut held, mut seen) = (ImuInput::default(), 0u32);
+    let mut held = HeldSamples::default();
     for (i, frame) in frames.iter().enumerate() {
-        let complete = update_held(&mut held, &mut seen, frame);
+        let complete = held.update(frame);
         if frame.header.flags & flags::CALIBRATING == 0 && complete {
-            inputs.push((i, held));
+            inputs.push((i, held.input));
         }
     }
     ensure!(
@@ -317,26 +290,8 @@ fn write_qp_record(
     // as stages/optimizer/src/pip/qp.rs forms it.
     let mut reference_world = [Rotation3::identity(); NUM_JOINTS];
     local_to_global_rotations(&reference.pose.parent_from_joint, &mut reference_world);
-    let bones = Imu::ALL
-        .map(|imu| (imu.joint(), config.coeff_sensor_bone))
-        .into_iter()
-        .chain(SIP_JOINTS.map(|j| (j, config.coeff_limb_bone)));
-    for (j, weight) in bones {
-        let current = data.fk().world_from_joint[j.index()];
-        let wanted = reference_world[j.index()];
-        let e = current * axis_angle_from_rotation(&(current.transpose() * wanted));
-        let omega = data.angular_velocity(j);
-        let mut jdot_v = Vector3::zeros();
-        let mut k = Some(j);
-        while let Some(link) = k {
-            if let Some(parent) = link.parent() {
-                jdot_v += data
-                    .angular_velocity(parent)
-                    .cross(&data.angular_velocity(link));
-            }
-            k = link.parent();
-        }
-        let want = e * config.kp_rotation - omega * config.kd_rotation - jdot_v;
+    for (j, weight) in orientation_rows(config) {
+        let want = orientation_target(data, j, &reference_world[j.index()], config);
         data.angular_jacobian(j, &mut jac);
         push_jac(out, &jac);
         out.extend(want.iter());

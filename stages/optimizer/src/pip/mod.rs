@@ -125,7 +125,7 @@ use crate::{
     DT_S, Method, MotionEstimate, PhysicsBody, Reference, StepReport, Terrain, within_human_speeds,
 };
 
-pub use qp::SolveStats;
+pub use qp::{SolveStats, orientation_rows, orientation_target};
 
 /// PIP's gains and weights. `Default` is the paper's/code's values (reference §5.2,
 /// `physics_parameters.json`).

@@ -253,34 +253,15 @@ impl Qp {
             add_task(&mut self.paa, &mut self.q, &self.cols, &self.jac, &want, w2);
         }
         // World orientation of the instrumented bones (imuflow; `PipConfig::coeff_sensor_bone`):
-        // `J_ω,j·v̇ ≈ kp·e_j − kd·ω_j − J̇_ω,j·v`, with `e_j` the rotation from the current to the
-        // reference world orientation (world axes). `J̇_ω·v` = Σ over the chain of
-        // `ω_parent(k) × ω_k` (the derivative of `ω_k = ω_parent(k) + R_k·ω_rel,k`).
-        // The upper legs and upper arms get the same rows (`PipConfig::coeff_limb_bone`): the
-        // kinematics stage sets them from their lower bones' sensors through the knee and elbow.
+        // `J_ω,j·v̇ ≈` [`orientation_target`]. The upper legs and upper arms get the same rows
+        // (`PipConfig::coeff_limb_bone`): the kinematics stage sets them from their lower bones'
+        // sensors through the knee and elbow.
         let mut reference_world = [Rotation3::identity(); NUM_JOINTS];
         local_to_global_rotations(&reference.pose.parent_from_joint, &mut reference_world);
-        let sensor_bones = Imu::ALL.map(|imu| (imu.joint(), config.coeff_sensor_bone));
-        // The SIP joints' frames are exactly the upper legs and upper arms.
-        let limb_bones = SIP_JOINTS.map(|j| (j, config.coeff_limb_bone));
-        for (j, weight) in sensor_bones.into_iter().chain(limb_bones) {
+        for (j, weight) in orientation_rows(config) {
             let w2 = weight * weight;
             if w2 > 0.0 {
-                let current = data.fk().world_from_joint[j.index()];
-                let wanted = reference_world[j.index()];
-                let e = current * axis_angle_from_rotation(&(current.transpose() * wanted));
-                let omega = data.angular_velocity(j);
-                let mut jdot_v = Vector3::zeros();
-                let mut k = Some(j);
-                while let Some(link) = k {
-                    if let Some(parent) = link.parent() {
-                        jdot_v += data
-                            .angular_velocity(parent)
-                            .cross(&data.angular_velocity(link));
-                    }
-                    k = link.parent();
-                }
-                let want = e * config.kp_rotation - omega * config.kd_rotation - jdot_v;
+                let want = orientation_target(data, j, &reference_world[j.index()], config);
                 data.angular_jacobian(j, &mut self.jac);
                 chain_columns(j, &mut self.cols);
                 add_task(&mut self.paa, &mut self.q, &self.cols, &self.jac, &want, w2);
@@ -847,4 +828,39 @@ mod tests {
         assert!(x.column(0).iter().take(40).all(|&v| v == 0.0));
         assert!(x[(40, 0)] != 0.0 && x[(n - 1, 0)] != 0.0);
     }
+}
+
+/// The bones whose world orientation the QP tracks (imuflow's rows beside PIP's), with their
+/// weights: the sensors' bones (`PipConfig::coeff_sensor_bone`) and the SIP joints' frames, which
+/// are exactly the upper legs and upper arms (`PipConfig::coeff_limb_bone`).
+pub fn orientation_rows(config: &PipConfig) -> impl Iterator<Item = (JointId, f64)> {
+    let sensor_bones = Imu::ALL.map(|imu| (imu.joint(), config.coeff_sensor_bone));
+    let limb_bones = SIP_JOINTS.map(|j| (j, config.coeff_limb_bone));
+    sensor_bones.into_iter().chain(limb_bones)
+}
+
+/// The angular acceleration the QP asks of bone `j` to reach the world orientation `wanted`:
+/// `kp·e − kd·ω − J̇_ω·v`, with `e` the rotation from the current to the wanted orientation
+/// (world axes) and `J̇_ω·v` = Σ over the chain of `ω_parent(k) × ω_k` (the derivative of
+/// `ω_k = ω_parent(k) + R_k·ω_rel,k`).
+pub fn orientation_target(
+    data: &DynamicsData,
+    j: JointId,
+    wanted: &Rotation3<f64>,
+    config: &PipConfig,
+) -> Vector3<f64> {
+    let current = data.fk().world_from_joint[j.index()];
+    let e = current * axis_angle_from_rotation(&(current.transpose() * wanted));
+    let omega = data.angular_velocity(j);
+    let mut jdot_v = Vector3::zeros();
+    let mut k = Some(j);
+    while let Some(link) = k {
+        if let Some(parent) = link.parent() {
+            jdot_v += data
+                .angular_velocity(parent)
+                .cross(&data.angular_velocity(link));
+        }
+        k = link.parent();
+    }
+    e * config.kp_rotation - omega * config.kd_rotation - jdot_v
 }
