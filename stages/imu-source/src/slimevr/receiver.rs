@@ -94,12 +94,29 @@ struct Stamp {
     sent_ns: u64,
 }
 
+impl Stamp {
+    /// The sample of `site` that the datagram stamped so brought.
+    fn sample(
+        self,
+        site: usize,
+        rotation_xyzw: Option<[f32; 4]>,
+        acceleration: Option<([f32; 3], [f32; 4])>,
+    ) -> Sample {
+        Sample {
+            site,
+            received_ns: self.received_ns,
+            sent_ns: self.sent_ns,
+            rotation_xyzw,
+            acceleration,
+        }
+    }
+}
+
 /// A rotation waiting for its acceleration.
 #[derive(Debug, Clone, Copy)]
 struct Pending {
     rotation: [f32; 4],
-    received_ns: u64,
-    sent_ns: u64,
+    at: Stamp,
     deadline: Instant,
 }
 
@@ -175,29 +192,31 @@ impl Receiver {
         // A zero read timeout is an error on some platforms: wait at least 1 ms.
         self.socket
             .set_read_timeout(Some(wait.max(Duration::from_millis(1))))?;
-        let mut heard = match self.receive_one(out)? {
-            Some(heard) => heard,
-            None => {
-                self.flush_expired(Instant::now(), out);
-                return Ok(false);
-            }
+        let heard = match self.receive_one(out)? {
+            Some(first) => self.drain_queued(out)? | first,
+            None => false,
         };
+        self.flush_expired(Instant::now(), out);
+        Ok(heard)
+    }
+
+    /// Handles the datagrams the socket already holds, without waiting (at most
+    /// [`MAX_DRAIN`] − 1); whether one came from a mapped tracker.
+    fn drain_queued(&mut self, out: &mut Vec<Sample>) -> std::io::Result<bool> {
         self.socket.set_nonblocking(true)?;
-        let mut drained = Ok(());
+        let mut heard = Ok(false);
         for _ in 1..MAX_DRAIN {
             match self.receive_one(out) {
-                Ok(Some(h)) => heard |= h,
+                Ok(Some(h)) => heard = heard.map(|a| a | h),
                 Ok(None) => break,
                 Err(e) => {
-                    drained = Err(e);
+                    heard = Err(e);
                     break;
                 }
             }
         }
         self.socket.set_nonblocking(false)?;
-        drained?;
-        self.flush_expired(Instant::now(), out);
-        Ok(heard)
+        heard
     }
 
     /// Receives and handles one datagram: `None` when none came (timeout, or none queued);
@@ -417,13 +436,7 @@ impl Receiver {
                     self.emit(
                         mac,
                         out,
-                        Sample {
-                            site,
-                            received_ns: at.received_ns,
-                            sent_ns: at.sent_ns,
-                            rotation_xyzw: Some(r.xyzw),
-                            acceleration: Some((a.xyz, r.xyzw)),
-                        },
+                        at.sample(site, Some(r.xyzw), Some((a.xyz, r.xyzw))),
                     );
                 }
             }
@@ -476,8 +489,7 @@ impl Receiver {
         if waits {
             state.pending = Some(Pending {
                 rotation: r.xyzw,
-                received_ns: at.received_ns,
-                sent_ns: at.sent_ns,
+                at,
                 deadline: Instant::now() + PAIR_WAIT,
             });
         }
@@ -485,17 +497,7 @@ impl Receiver {
             self.emit(mac, out, alone(site, p));
         }
         if !waits {
-            self.emit(
-                mac,
-                out,
-                Sample {
-                    site,
-                    received_ns: at.received_ns,
-                    sent_ns: at.sent_ns,
-                    rotation_xyzw: Some(r.xyzw),
-                    acceleration: None,
-                },
-            );
+            self.emit(mac, out, at.sample(site, Some(r.xyzw), None));
         }
     }
 
@@ -509,20 +511,10 @@ impl Receiver {
         let state = self.sensor(mac, a.sensor_id);
         state.rotations_without_accel = 0;
         let sample = match (state.pending.take(), state.last_rotation) {
-            (Some(p), _) => Sample {
-                site,
-                received_ns: p.received_ns,
-                sent_ns: p.sent_ns,
-                rotation_xyzw: Some(p.rotation),
-                acceleration: Some((a.xyz, p.rotation)),
-            },
-            (None, Some(last)) => Sample {
-                site,
-                received_ns: at.received_ns,
-                sent_ns: at.sent_ns,
-                rotation_xyzw: None,
-                acceleration: Some((a.xyz, last)),
-            },
+            (Some(p), _) => {
+                p.at.sample(site, Some(p.rotation), Some((a.xyz, p.rotation)))
+            }
+            (None, Some(last)) => at.sample(site, None, Some((a.xyz, last))),
             (None, None) => {
                 if let Some(t) = self.trackers.get_mut(&mac) {
                     t.stats.unpaired += 1;
@@ -623,13 +615,7 @@ impl Receiver {
 
 /// A rotation published without an acceleration.
 fn alone(site: usize, p: Pending) -> Sample {
-    Sample {
-        site,
-        received_ns: p.received_ns,
-        sent_ns: p.sent_ns,
-        rotation_xyzw: Some(p.rotation),
-        acceleration: None,
-    }
+    p.at.sample(site, Some(p.rotation), None)
 }
 
 /// Specific force in the tracker frame from the firmware's linear acceleration:

@@ -475,6 +475,25 @@ fn stats(receiver: &Receiver, mac: Mac) -> TrackerStats {
         .unwrap_or_default()
 }
 
+/// Datagram `n`: a bundle of sensor `sensor_id`'s rotation (the identity) and acceleration (0).
+fn still_bundle(n: u64, sensor_id: u8) -> Vec<u8> {
+    bundle(
+        n,
+        &[
+            Packet::Rotation(Rotation {
+                sensor_id,
+                data_type: DATA_TYPE_NORMAL,
+                xyzw: [0.0, 0.0, 0.0, 1.0],
+                accuracy: 0,
+            }),
+            Packet::Acceleration(Acceleration {
+                sensor_id,
+                xyz: [0.0; 3],
+            }),
+        ],
+    )
+}
+
 fn connected(sites: &[(Mac, u8, &str)]) -> (Receiver, FakeTracker) {
     let mut receiver = Receiver::bind("127.0.0.1:0", mapping(sites)).unwrap();
     let tracker = FakeTracker::new(receiver.local_addr().unwrap());
@@ -558,21 +577,7 @@ fn rotations_pair_with_their_accelerations() {
     // acceleration alone (with the last rotation's gravity), an unmapped sensor.
     tracker.send(&rot(1, 0, 0.1));
     tracker.send(&acc(2, 0));
-    tracker.send(&bundle(
-        3,
-        &[
-            Packet::Rotation(Rotation {
-                sensor_id: 1,
-                data_type: DATA_TYPE_NORMAL,
-                xyzw: [0.0, 0.0, 0.0, 1.0],
-                accuracy: 0,
-            }),
-            Packet::Acceleration(Acceleration {
-                sensor_id: 1,
-                xyz: [0.0; 3],
-            }),
-        ],
-    ));
+    tracker.send(&still_bundle(3, 1));
     tracker.send(&rot(4, 0, 0.2));
     let samples = drain(&mut receiver);
     tracker.send(&acc(5, 0));
@@ -824,23 +829,6 @@ fn a_flood_from_elsewhere_is_counted_and_the_tracker_keeps_streaming() {
     // and the flood is counted as ignored, datagram for datagram.
     let (mut receiver, tracker) = connected(&[(MAC1, 0, "head")]);
     let stranger = FakeTracker::new(receiver.local_addr().unwrap());
-    let sample = |n: u64| {
-        bundle(
-            n,
-            &[
-                Packet::Rotation(Rotation {
-                    sensor_id: 0,
-                    data_type: DATA_TYPE_NORMAL,
-                    xyzw: [0.0, 0.0, 0.0, 1.0],
-                    accuracy: 0,
-                }),
-                Packet::Acceleration(Acceleration {
-                    sensor_id: 0,
-                    xyz: [0.0; 3],
-                }),
-            ],
-        )
-    };
     let mut out = Vec::new();
     for n in 1..=50u64 {
         for k in 0..60u64 {
@@ -850,7 +838,7 @@ fn a_flood_from_elsewhere_is_counted_and_the_tracker_keeps_streaming() {
                 stranger.send(&rotation().standalone(k));
             }
         }
-        tracker.send(&sample(n));
+        tracker.send(&still_bundle(n, 0));
         // One wake-up reads what the socket holds: the flood and the sample behind it.
         receiver.poll(Duration::from_millis(50), &mut out).unwrap();
         assert_eq!(out.len() as u64, n, "sample {n} with its poll");
