@@ -5,9 +5,9 @@
 //! [`Latency::Smooth`] it is emitted as soon as every sensor can be resampled at `t_k` (it has a
 //! sample stamped at or after `t_k` plus its low-pass delay plus half its sample interval), or once
 //! a raw frame captured more than `max_latency` after `t_k` arrived; with [`Latency::Low`] as soon
-//! as a sample from half an interval before `t_k` on has come (see [`Assembler::push`]'s rules in
-//! `low_latency_due`). The sensors that cannot be resampled then are written as identity / zeros
-//! with their bit cleared and the frame is flagged INVALID.
+//! as a sample from half an interval before `t_k` on has come (`Assembler::low_latency_due`).
+//! The sensors that cannot be resampled then are written as identity / zeros with their bit
+//! cleared and the frame is flagged INVALID.
 
 use imuflow_graph::frames::{ImuFrame, RawImuFrame, flags};
 
@@ -270,8 +270,9 @@ impl Assembler {
 
     /// Emits every frame that is due. [`Latency::Smooth`]: when every sensor's samples describe
     /// its time, or at its latency deadline. [`Latency::Low`]: as soon as any sensor has a sample
-    /// at or after its time (by the sample times, not the arrivals: a stall's backlog releases
-    /// its frames one by one as its samples come, not all at its first).
+    /// from half an interval before its time on ([`Self::low_latency_due`]; by the sample times,
+    /// not the arrivals: a stall's backlog releases its frames one by one as its samples come,
+    /// not all at its first).
     fn emit_ready(&mut self, out: &mut Vec<ImuFrame>) {
         let latency = (self.settings.max_latency_s * 1e9).round() as i128;
         while let (Some(t), Some(newest)) = (self.time_of(self.next_k), self.newest_capture) {
@@ -312,10 +313,14 @@ impl Assembler {
         // changed) or is gone, and every frame would wait for it.
         let waiting = (0..NUM_IMUS).any(|i| {
             let s = &self.sensors[i];
-            self.presence[i].now
-                && s.behind_at(t, WAIT_INTERVALS)
-                && s.newest_ns()
-                    .is_some_and(|n| ((t - n) as f64) * 1e-9 <= MAX_WAITED_SILENCE_S)
+            match (s.behind_s(t), s.period_s()) {
+                (Some(behind), Some(period)) => {
+                    self.presence[i].now
+                        && behind > WAIT_INTERVALS * period
+                        && behind <= MAX_WAITED_SILENCE_S
+                }
+                _ => false,
+            }
         });
         if !waiting {
             self.waiting_since = None;

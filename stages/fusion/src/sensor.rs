@@ -55,9 +55,9 @@ pub enum OrientationSource {
 /// What an output frame waits for (the stage's `latency` parameter).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Latency {
-    /// A frame goes out as soon as a sample at or after its time has arrived; sensors whose
-    /// newest sample is older are extrapolated (at most one sample interval, then held); the
-    /// accelerometer and gyroscope are not band-limited.
+    /// A frame goes out as soon as a sample from half an interval before its time on has
+    /// arrived; sensors whose newest sample is older are extrapolated (at most one sample
+    /// interval, then held); the accelerometer and gyroscope are not band-limited.
     Low,
     /// Accelerometer and gyroscope band-limited below the output's Nyquist frequency, and a
     /// frame waits until every sensor's samples describe its time (at most `max_latency_ms`).
@@ -628,7 +628,8 @@ impl SensorTrack {
     /// [`Latency::Low`] at sensor time `x` after the newest sample: its orientation turned on at
     /// its angular rate for at most one sample interval, then held (a sensor a little behind the
     /// others is where its motion has taken it by now), its specific force and angular rate held.
-    /// `None` when the newest sample is further back than the longest gap (the sensor is missing).
+    /// `None` when the newest sample is further back than the sensor is held
+    /// ([`Self::silence_hold_s`]: it is missing).
     fn ahead_of_newest(&self, x: f64, newest: &Fused) -> Option<Resampled> {
         let ahead = x - newest.x;
         if ahead > self.silence_hold_s() {
@@ -644,13 +645,9 @@ impl SensorTrack {
         })
     }
 
-    /// Whether the newest sample lies more than `intervals` sample intervals before source time
-    /// `t_ns` (false before the rate is known or without samples).
-    pub fn behind_at(&self, t_ns: i128, intervals: f64) -> bool {
-        match (self.newest_ns(), self.period_s) {
-            (Some(newest), Some(period)) => (t_ns - newest) as f64 * 1e-9 > intervals * period,
-            _ => false,
-        }
+    /// How long before source time `t_ns` the newest sample lies, s (`None` without samples).
+    pub fn behind_s(&self, t_ns: i128) -> Option<f64> {
+        Some((t_ns - self.newest_ns()?) as f64 * 1e-9)
     }
 
     /// The sample interval in use, s (`None` while the rate is being measured).

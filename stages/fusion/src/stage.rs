@@ -47,8 +47,8 @@ imuflow_graph::stage_params! {
         /// an output frame waits at most this long (source time) for a late sensor, ms (latency
         /// smooth)
         max_latency_ms: f64 = 30, float(0.0, 600000.0);
-        /// low: a frame goes out as soon as a sample at or after its time arrived, sensors behind
-        /// extrapolated (at most one sample interval), no band limit; smooth: accelerometer and
+        /// low: a frame goes out as soon as a sample from half an interval before its time on
+        /// arrived, sensors behind extrapolated (at most one sample interval), no band limit; smooth: accelerometer and
         /// gyroscope band-limited, a frame waits for every sensor (10-30 ms more); auto: low in
         /// live graphs, smooth offline
         latency: String = "auto", choice(&["auto", "low", "smooth"]);
