@@ -773,6 +773,41 @@ fn chain_columns(j: JointId, out: &mut Vec<usize>) {
     out[start..].sort_unstable();
 }
 
+/// The bones whose world orientation the QP tracks (imuflow's rows beside PIP's), with their
+/// weights: the sensors' bones (`PipConfig::coeff_sensor_bone`) and the SIP joints' frames, which
+/// are exactly the upper legs and upper arms (`PipConfig::coeff_limb_bone`).
+pub fn orientation_rows(config: &PipConfig) -> impl Iterator<Item = (JointId, f64)> {
+    let sensor_bones = Imu::ALL.map(|imu| (imu.joint(), config.coeff_sensor_bone));
+    let limb_bones = SIP_JOINTS.map(|j| (j, config.coeff_limb_bone));
+    sensor_bones.into_iter().chain(limb_bones)
+}
+
+/// The angular acceleration the QP asks of bone `j` to reach the world orientation `wanted`:
+/// `kp·e − kd·ω − J̇_ω·v`, with `e` the rotation from the current to the wanted orientation
+/// (world axes) and `J̇_ω·v` = Σ over the chain of `ω_parent(k) × ω_k` (the derivative of
+/// `ω_k = ω_parent(k) + R_k·ω_rel,k`).
+pub fn orientation_target(
+    data: &DynamicsData,
+    j: JointId,
+    wanted: &Rotation3<f64>,
+    config: &PipConfig,
+) -> Vector3<f64> {
+    let current = data.fk().world_from_joint[j.index()];
+    let e = current * axis_angle_from_rotation(&(current.transpose() * wanted));
+    let omega = data.angular_velocity(j);
+    let mut jdot_v = Vector3::zeros();
+    let mut k = Some(j);
+    while let Some(link) = k {
+        if let Some(parent) = link.parent() {
+            jdot_v += data
+                .angular_velocity(parent)
+                .cross(&data.angular_velocity(link));
+        }
+        k = link.parent();
+    }
+    e * config.kp_rotation - omega * config.kd_rotation - jdot_v
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -828,39 +863,4 @@ mod tests {
         assert!(x.column(0).iter().take(40).all(|&v| v == 0.0));
         assert!(x[(40, 0)] != 0.0 && x[(n - 1, 0)] != 0.0);
     }
-}
-
-/// The bones whose world orientation the QP tracks (imuflow's rows beside PIP's), with their
-/// weights: the sensors' bones (`PipConfig::coeff_sensor_bone`) and the SIP joints' frames, which
-/// are exactly the upper legs and upper arms (`PipConfig::coeff_limb_bone`).
-pub fn orientation_rows(config: &PipConfig) -> impl Iterator<Item = (JointId, f64)> {
-    let sensor_bones = Imu::ALL.map(|imu| (imu.joint(), config.coeff_sensor_bone));
-    let limb_bones = SIP_JOINTS.map(|j| (j, config.coeff_limb_bone));
-    sensor_bones.into_iter().chain(limb_bones)
-}
-
-/// The angular acceleration the QP asks of bone `j` to reach the world orientation `wanted`:
-/// `kp·e − kd·ω − J̇_ω·v`, with `e` the rotation from the current to the wanted orientation
-/// (world axes) and `J̇_ω·v` = Σ over the chain of `ω_parent(k) × ω_k` (the derivative of
-/// `ω_k = ω_parent(k) + R_k·ω_rel,k`).
-pub fn orientation_target(
-    data: &DynamicsData,
-    j: JointId,
-    wanted: &Rotation3<f64>,
-    config: &PipConfig,
-) -> Vector3<f64> {
-    let current = data.fk().world_from_joint[j.index()];
-    let e = current * axis_angle_from_rotation(&(current.transpose() * wanted));
-    let omega = data.angular_velocity(j);
-    let mut jdot_v = Vector3::zeros();
-    let mut k = Some(j);
-    while let Some(link) = k {
-        if let Some(parent) = link.parent() {
-            jdot_v += data
-                .angular_velocity(parent)
-                .cross(&data.angular_velocity(link));
-        }
-        k = link.parent();
-    }
-    e * config.kp_rotation - omega * config.kd_rotation - jdot_v
 }
