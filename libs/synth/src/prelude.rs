@@ -103,6 +103,19 @@ impl Default for PreludeOptions {
     }
 }
 
+impl PreludeOptions {
+    /// How a synthetic subject bends the elbows standing in a prelude of `kind` (deg): told to
+    /// take the T- or N-pose (`tpose`, `walk`), straight; at a natural start (`stand`), nobody said
+    /// anything and people stand with the elbows bent 15–35°: the middle, 25° (the calibration's
+    /// relaxed pose).
+    pub fn default_elbow_deg(kind: PreludeKind) -> f64 {
+        match kind {
+            PreludeKind::Stand => 25.0,
+            _ => 0.0,
+        }
+    }
+}
+
 /// The T-pose facing +z with the root at `root_m`.
 pub fn t_pose(root_m: Vector3<f64>) -> Pose {
     Pose::t_pose(root_m)

@@ -53,8 +53,10 @@ pub struct CalibratorConfig {
     pub frame: InertialFrame,
     /// `tpose`: the subject's heading in I (rad, see [`InertialFrame::model_from_inertial`]).
     pub heading_rad: f64,
-    /// The pose held (`tpose`) or stood in (`walking`).
+    /// The pose held (`tpose`) or stood in (`walking`'s stand–step–stand: the subject was told).
     pub pose: ReferencePose,
+    /// The pose stood in before a natural start's walk (nobody said how to stand).
+    pub walk_start_pose: ReferencePose,
     pub accel_offset: bool,
     /// `walking`: re-estimate heading corrections at later stand–step–stands.
     pub drift_update: bool,
@@ -121,7 +123,10 @@ impl CalibratorConfig {
 
     fn walk_start_config(&self) -> WalkStartConfig {
         WalkStartConfig {
-            walking: self.walking(),
+            walking: WalkingConfig {
+                pose: self.walk_start_pose,
+                ..self.walking()
+            },
             walk_direction_rad: self.walk_direction_rad,
             walk_s: self.walk_s,
             min_walk_m: self.min_walk_m,

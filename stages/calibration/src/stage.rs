@@ -41,7 +41,7 @@ imuflow_graph::stage_params! {
         heading_deg: f64 = 0, float(-360.0, 360.0);
         /// the pose held (tpose) or stood in (walking): t = arms out, n = arms down and straight,
         /// relaxed = arms down with the elbows bent 25°
-        pose: Option<ReferencePose> = computed("t for tpose, n for walking"), choice(&["t", "n", "relaxed"]);
+        pose: Option<ReferencePose> = computed("t for tpose, n for a stand-step-stand, relaxed for a natural start"), choice(&["t", "n", "relaxed"]);
         /// estimate the accelerometer offset while still and subtract it
         accel_offset: bool = true, bool;
         /// walking: re-estimate the heading corrections at every later stand-step-stand
@@ -121,6 +121,9 @@ impl CalibrationParams {
             method: self.method,
             frame: self.frame,
             pose,
+            // Told nothing, people stand with their elbows bent; the forearms' mountings cannot
+            // tell the bend (journal 2026-11-29-the-standing-elbow), so it is assumed.
+            walk_start_pose: self.pose.unwrap_or(ReferencePose::Relaxed),
             heading_rad: self.heading_deg.to_radians(),
             accel_offset: self.accel_offset,
             drift_update: self.drift_update,
@@ -504,26 +507,28 @@ mod tests {
     }
 
     #[test]
-    fn the_pose_is_t_for_tpose_and_n_for_walking_unless_set() {
+    fn the_pose_is_t_for_tpose_n_for_a_step_and_relaxed_for_a_natural_start_unless_set() {
         let at = |method, pose| {
-            CalibrationParams {
+            let config = CalibrationParams {
                 method,
                 pose,
                 ..CalibrationParams::default()
             }
-            .config_at(60.0)
-            .pose
+            .config_at(60.0);
+            (config.pose, config.walk_start_pose)
         };
-        assert_eq!(at(Method::Tpose, None), ReferencePose::T);
-        assert_eq!(at(Method::None, None), ReferencePose::T);
-        assert_eq!(at(Method::Walking, None), ReferencePose::N);
-        assert_eq!(at(Method::Tpose, Some(ReferencePose::N)), ReferencePose::N);
+        use ReferencePose::{N, Relaxed, T};
+        assert_eq!(at(Method::Tpose, None), (T, Relaxed));
+        assert_eq!(at(Method::None, None), (T, Relaxed));
+        assert_eq!(at(Method::Walking, None), (N, Relaxed));
+        assert_eq!(at(Method::Walking, Some(N)), (N, N));
+        assert_eq!(at(Method::Tpose, Some(N)), (N, N));
         assert_eq!(
             SPEC.params
                 .iter()
                 .find(|p| p.name == "pose")
                 .map(|p| p.default),
-            Some("t for tpose, n for walking"),
+            Some("t for tpose, n for a stand-step-stand, relaxed for a natural start"),
             "the text names what config_at computes"
         );
     }

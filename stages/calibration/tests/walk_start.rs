@@ -315,10 +315,36 @@ fn forearm_error_deg(elbow_deg: f64, pose: imuflow_calibration::ReferencePose) -
         false,
         6,
     );
-    let session = run(CalibratorConfig { pose, ..config() }, &motion);
+    let session = run(
+        CalibratorConfig {
+            walk_start_pose: pose,
+            ..config()
+        },
+        &motion,
+    );
     let at = session.calibrated_at().expect("calibrated");
     let errors = bone_errors_from(&session, &motion, at, 0..2);
     median_max(&errors).0
+}
+
+#[test]
+fn the_default_natural_start_assumes_relaxed_elbows() {
+    // The stage's default for a natural start is the relaxed pose: a subject who stood with the
+    // elbows bent by about that much gets the forearms right, anyone else carries the difference
+    // (the bend is not measured; journal 2026-11-29-the-standing-elbow).
+    let default = CalibratorConfig::default().walk_start_pose;
+    let relaxed = imuflow_calibration::convention::RELAXED_ELBOW_DEG;
+    for elbow_deg in [0.0, 15.0, 25.0, 40.0] {
+        let error = forearm_error_deg(elbow_deg, default);
+        let expected = (elbow_deg - relaxed).abs();
+        eprintln!(
+            "stood with the elbows bent {elbow_deg}°: forearms {error:.1}° (bend missed by {expected}°)"
+        );
+        assert!(
+            (error - expected).abs() < 3.0,
+            "stood {elbow_deg}°: forearm error {error:.1}°, the bend missed by {expected}°"
+        );
+    }
 }
 
 #[test]

@@ -39,6 +39,8 @@ imuflow_graph::stage_params! {
         /// forward, stand), tpose+walk, stand (N-pose stand, then the clip: a natural start)
         prelude: String = "none", choice(&prelude::PreludeKind::NAMES);
         prelude_stand_s: f64 = use prelude::STAND_PARAM;
+        /// synthesize: elbow flexion while standing in the prelude, deg
+        prelude_elbow_deg: Option<f64> = computed("25 (relaxed, as people stand unprompted) for stand, 0 (told to straighten) otherwise"), float(0.0, 90.0);
         step_m: f64 = use prelude::STEP_PARAM;
         /// synthesize: sensor frame = bone frame, or each sensor mounted in a random orientation
         /// (seeded by `seed`)
@@ -257,6 +259,9 @@ fn prelude_options(
         kind,
         stand_s: params.prelude_stand_s,
         step_m: params.step_m,
+        elbow_deg: params
+            .prelude_elbow_deg
+            .unwrap_or(prelude::PreludeOptions::default_elbow_deg(kind)),
         ..prelude::PreludeOptions::default()
     })
 }

@@ -94,6 +94,8 @@ pub fn walking(frame: InertialFrame) -> CalibratorConfig {
         method: Method::Walking,
         frame,
         pose: imuflow_calibration::ReferencePose::N,
+        // The synthetic subjects stand with straight arms unless a test bends them.
+        walk_start_pose: imuflow_calibration::ReferencePose::N,
         ..CalibratorConfig::default()
     }
 }
