@@ -54,6 +54,19 @@ fn run(sb: &Sandbox, sets: &[&str]) -> Recorded {
         .output()
         .expect("run imuflow");
     assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
+    // The recorder reads the source's raw samples (one frame per sample) and its truth (one per
+    // graph frame, far fewer seqs): each input ends after its own last frame, so none is dropped.
+    let stdout = text(&out.stdout);
+    let record = stdout
+        .lines()
+        .find(|l| l.starts_with("record "))
+        .unwrap_or_else(|| panic!("no recorder row in the summary:\n{stdout}"));
+    let dropped: u64 = record
+        .split_whitespace()
+        .nth(4)
+        .and_then(|v| v.parse().ok())
+        .expect("dropped");
+    assert_eq!(dropped, 0, "{record}");
     let messages = mcap_messages(&rec);
     let frames = |topic: &str| -> Vec<Vec<u8>> {
         messages

@@ -845,8 +845,8 @@ fn spawn_heartbeat(position: Arc<AtomicU64>) {
 }
 
 /// Frames of an input that never arrived before `header`, given the last `seq` received (counting
-/// from frame 0 when none was). END_OF_STREAM carries the `seq` after its producer's last frame,
-/// so frames lost just before the end count too. An input that ends before it delivered anything
+/// from frame 0 when none was). END_OF_STREAM carries the `seq` after the last frame its output
+/// published, so frames lost just before the end count too. An input that ends before it delivered anything
 /// (an output its producer never wrote, such as the truth of a source without one) lost nothing:
 /// its END_OF_STREAM's `seq` is then the producer's frame count.
 fn missed_before(last_seq: Option<u64>, header: &FrameHeader) -> u64 {

@@ -279,6 +279,8 @@ pub struct Output<T: Frame> {
         Vec<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>>,
     ),
     sent: u64,
+    /// The highest `seq` published (END_OF_STREAM aside).
+    last_seq: Option<u64>,
     /// Nanoseconds spent in `send` (offline: waiting for a full reader, back-pressure), shared
     /// with the stage's context so its processing time leaves them out.
     waited_ns: Arc<AtomicU64>,
@@ -364,6 +366,7 @@ impl<T: Frame> Output<T> {
             notifiers,
             _services: (service, wake_services),
             sent: 0,
+            last_seq: None,
             waited_ns,
             restarts,
         })
@@ -413,6 +416,9 @@ impl<T: Frame> Output<T> {
             }
         }
         self.sent += 1;
+        if header.flags & flags::END_OF_STREAM == 0 {
+            self.last_seq = Some(self.last_seq.map_or(header.seq, |s| s.max(header.seq)));
+        }
         for n in &self.notifiers {
             // A reader that already exited has no listener; that is not an error here.
             let _ = n.notify();
@@ -420,11 +426,15 @@ impl<T: Frame> Output<T> {
         Ok(())
     }
 
-    /// Publishes the END_OF_STREAM marker after the last frame (`seq` one past it).
+    /// Publishes the END_OF_STREAM marker after the last frame: its `seq` is one past the last
+    /// frame this output published (a reader counts the frames between its last and that as never
+    /// arrived), or `seq` when it published none. An output a stage writes for only some of its
+    /// steps (a source's truth or ideal sensors beside its raw samples) thus ends after its own
+    /// frames, not after the stage's.
     pub fn publish_end(&mut self, seq: u64, capture_ns: u64) -> Result<(), TransportError> {
         self.publish(
             FrameHeader {
-                seq,
+                seq: self.last_seq.map_or(seq, |last| last + 1),
                 capture_ns,
                 flags: flags::END_OF_STREAM,
                 ..Default::default()
