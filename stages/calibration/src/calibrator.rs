@@ -24,7 +24,7 @@ use crate::error::{NotCalibrated, Rejection};
 use crate::sample::Sample;
 use crate::segments::{Hold, Segmenter};
 use crate::stage::CalibrationParams;
-use crate::stillness::{StillnessConfig, StillnessDetector};
+use crate::stillness::{StillnessConfig, StillnessDetector, motion_onset};
 use crate::tpose::{TposeConfig, calibrate_tpose};
 use crate::walking::{
     StepWindows, WalkDirection, WalkStartConfig, WalkStartWindows, WalkingConfig,
@@ -518,21 +518,24 @@ impl Calibrator {
         }
         self.walk_attempts += 1;
         self.buffer.make_contiguous();
-        // The stand's end is where the stillness test saw motion start; the motion may have
-        // begun slowly up to a window before it. The orientations are averaged skipping that
-        // much of the stand's end where the stand is long enough, else less, down to
-        // STAND_END_SKIP_S, keeping STAND_AVERAGE_MIN_S (a 0.3 s stand kept 3 samples
-        // otherwise); the accelerometer offset, whose noise matters more, up to STAND_END_SKIP_S
-        // before the end (both measured in the calibration README, "How short a stand"). The
-        // walk is integrated from a margin before the stand's end.
+        // The stand's end is where the stillness test saw motion start; a slow start began up to
+        // a window before it, and `motion_onset` finds where, sample by sample. The orientations
+        // are averaged skipping up to a window before that onset where the stand is long enough,
+        // else less, down to STAND_END_SKIP_S, keeping STAND_AVERAGE_MIN_S (a 0.3 s stand kept 3
+        // samples otherwise); the accelerometer offset, whose noise matters more, keeping
+        // OFFSET_AVERAGE_MIN_S (both measured in the calibration README, "How short a stand").
+        // The walk is integrated from a margin before the stand's end.
         let end_skip = config.frames(STAND_END_SKIP_S).min(window_frames);
+        let onset =
+            stand.start + motion_onset(self.slice(stand.clone()), window_frames as usize) as u64;
+        let still = stand.start..onset.max(stand.start + 1);
         let skip_keeping = |keep_s: f64| {
-            (stand.end - stand.start)
+            (still.end - still.start)
                 .saturating_sub(config.frames(keep_s))
                 .clamp(end_skip, window_frames)
         };
-        let stand_window = self.average_window(&stand, skip_keeping(STAND_AVERAGE_MIN_S));
-        let offset_window = self.average_window(&stand, skip_keeping(OFFSET_AVERAGE_MIN_S));
+        let stand_window = self.average_window(&still, skip_keeping(STAND_AVERAGE_MIN_S));
+        let offset_window = self.average_window(&still, skip_keeping(OFFSET_AVERAGE_MIN_S));
         let walk_window = stand
             .end
             .saturating_sub(config.margin_frames())

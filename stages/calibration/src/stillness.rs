@@ -73,6 +73,81 @@ impl StillnessDetector {
     }
 }
 
+/// How far a sample must stray from the stand's first part to count as motion: this many times the
+/// part's own scatter (its noise and sway)...
+const ONSET_SCATTERS: f64 = 5.0;
+/// ...and at least this much: specific force, m/s² (a tenth of the slowest start's first tenth of a
+/// second), and angular rate, rad/s (about 1°/s).
+const ONSET_MIN_ACCEL_MPS2: f64 = 0.03;
+const ONSET_MIN_GYRO_RADPS: f64 = 0.015;
+/// The fewest samples the scatter is measured on.
+const ONSET_MIN_REFERENCE: usize = 6;
+/// Quiet samples in a row that end the search back from the stand's end.
+const ONSET_QUIET_RUN: usize = 3;
+
+/// Where the motion after a stand began, as an index into `stand` (the stand's samples up to where
+/// the stillness test saw it end). The trailing-window test ends a stand only once the motion is
+/// well under way; a slow start (the arms already where they will swing from, the legs starting
+/// to move) stays under its thresholds for a fifth of a second or more, and those samples would
+/// enter the stand's averages as if still. Measured per sample instead, within the last
+/// `window` samples (the stillness test's window: the last still frame's window was quiet by
+/// its thresholds, so a slow start began within it): the reference is the stand's first half
+/// (at least [`ONSET_MIN_REFERENCE`] samples, else the stand's end stands), each sensor's mean
+/// specific force and angular rate there and their scatter; going back from the end, the motion
+/// began after the last [`ONSET_QUIET_RUN`] samples in a row within [`ONSET_SCATTERS`] scatters
+/// (at least the floors) of that mean on every sensor.
+pub fn motion_onset(stand: &[Sample], window: usize) -> usize {
+    let reference = stand.len() / 2;
+    if reference < ONSET_MIN_REFERENCE {
+        return stand.len();
+    }
+    let earliest = stand.len().saturating_sub(window).max(reference);
+    let part = &stand[..reference];
+    let n = reference as f64;
+    let limits: [(Vector3<f64>, f64, Vector3<f64>, f64); NUM_IMUS] = std::array::from_fn(|k| {
+        let force = part
+            .iter()
+            .map(|s| s.sensors[k].specific_force_mps2)
+            .sum::<Vector3<f64>>()
+            / n;
+        let rate = part
+            .iter()
+            .map(|s| s.sensors[k].angular_rate_radps)
+            .sum::<Vector3<f64>>()
+            / n;
+        let scatter = |f: &dyn Fn(&Sample) -> f64| (part.iter().map(f).sum::<f64>() / n).sqrt();
+        let force_scatter = scatter(&|s| (s.sensors[k].specific_force_mps2 - force).norm_squared());
+        let rate_scatter = scatter(&|s| (s.sensors[k].angular_rate_radps - rate).norm_squared());
+        (
+            force,
+            (ONSET_SCATTERS * force_scatter).max(ONSET_MIN_ACCEL_MPS2),
+            rate,
+            (ONSET_SCATTERS * rate_scatter).max(ONSET_MIN_GYRO_RADPS),
+        )
+    });
+    let quiet = |s: &Sample| {
+        limits
+            .iter()
+            .enumerate()
+            .all(|(k, (force, max_force, rate, max_rate))| {
+                (s.sensors[k].specific_force_mps2 - force).norm() <= *max_force
+                    && (s.sensors[k].angular_rate_radps - rate).norm() <= *max_rate
+            })
+    };
+    let mut run = 0;
+    for i in (earliest..stand.len()).rev() {
+        if quiet(&stand[i]) {
+            run += 1;
+            if run == ONSET_QUIET_RUN {
+                return i + ONSET_QUIET_RUN;
+            }
+        } else {
+            run = 0;
+        }
+    }
+    earliest
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -113,6 +188,54 @@ mod tests {
             .map(|i| d.push(&sample(0.0, if i % 2 == 0 { 1.0 } else { -1.0 }, 0b111111)))
             .collect();
         assert!(shaking.iter().all(|s| !s));
+    }
+
+    /// A stand of `n` samples whose sensor 2 starts moving at sample `onset`: its specific force
+    /// departs along x as 0.5·j·t² (a start from rest with jerk j = 40 m/s³), its rate as 2·t;
+    /// every value carries the noise `noise` (a fixed pseudo-random sequence).
+    fn slow_start(n: usize, onset: usize, noise: f32) -> Vec<Sample> {
+        (0..n)
+            .map(|i| {
+                let mut f = ImuFrame {
+                    valid_mask: 0b111111,
+                    ..Default::default()
+                };
+                let wobble = |k: usize| noise * (((i * 7 + k * 13) % 11) as f32 / 5.0 - 1.0);
+                // Sample `onset` is the first that moved.
+                let t = if i >= onset {
+                    (i + 1 - onset) as f32 / 60.0
+                } else {
+                    0.0
+                };
+                for k in 0..NUM_IMUS {
+                    f.orientation_wxyz[k] = [1.0, 0.0, 0.0, 0.0];
+                    let moving = if k == 2 { 1.0 } else { 0.0 };
+                    f.specific_force_mps2[k] = [
+                        moving * 0.5 * 40.0 * t * t + wobble(k),
+                        9.81 + wobble(k + 1),
+                        0.0,
+                    ];
+                    f.angular_rate_radps[k] = [0.0, 0.0, moving * 2.0 * t + wobble(k + 2) * 0.1];
+                }
+                Sample::from_frame(&f, i as f64 / 60.0)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_slow_start_is_found_where_it_began() {
+        // 40 samples, the motion from sample 28 on: the trailing-window test (4 samples here)
+        // would have called most of it still. Without noise the onset is exact; with noise the
+        // floors and the scatter keep it from coming early, and it lands within a few samples.
+        assert_eq!(motion_onset(&slow_start(40, 28, 0.0), 15), 28);
+        let noisy = motion_onset(&slow_start(40, 28, 0.01), 15);
+        assert!((28..=31).contains(&noisy), "{noisy}");
+        // Never further back than the window, never before the reference half.
+        assert_eq!(motion_onset(&slow_start(40, 10, 0.0), 15), 25);
+        // No motion: the stand's end.
+        assert_eq!(motion_onset(&slow_start(40, 40, 0.01), 15), 40);
+        // Too short to measure a scatter on: the stand's end.
+        assert_eq!(motion_onset(&slow_start(10, 6, 0.0), 15), 10);
     }
 
     #[test]
