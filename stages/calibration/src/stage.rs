@@ -445,11 +445,15 @@ fn log_walk_direction(stage: &str, d: &WalkDirection) {
     let deg = |rad: f64| rad.to_degrees().round();
     let legs = match d.from_legs_rad {
         Some(rad) => format!(
-            "the legs say {} ({:+.0}°, {:+.0}° before rounding; mean shank lean {:.1}°)",
+            "the legs say {} ({:+.0}°, {:+.0}° before rounding; mean shank lean {:.1}°; {})",
             WalkDirection::name(rad),
             deg(rad),
             deg(d.legs_rad),
-            d.lean.asin().to_degrees()
+            d.lean.asin().to_degrees(),
+            match d.flexion_rad {
+                Some(f) => format!("their flexion axes: {:+.1}° from facing", f.to_degrees()),
+                None => "their flexion axes cannot tell".to_owned(),
+            }
         ),
         None => format!(
             "the legs cannot tell (mean shank lean {:.1}°)",

@@ -107,9 +107,14 @@ pub struct WalkDirection {
     pub legs_rad: f64,
     /// The shanks' mean lean over the walk (sine of the angle from vertical).
     pub lean: f64,
+    /// The angle from where the shanks' flexion axes say the body faces to the direction of
+    /// travel, not rounded (`None`: the shanks did not turn about one axis, or it disagrees with
+    /// their lean by more than [`WalkDirection::MAX_FLEXION_LEAN_RAD`]).
+    pub flexion_rad: Option<f64>,
     /// What the configuration said (`walk_direction_deg`), if it said anything.
     pub given_rad: Option<f64>,
-    /// What was used: the given direction, else the legs', else forward.
+    /// What was used: the given direction, else the flexion axes', else the legs' (rounded),
+    /// else forward.
     pub used_rad: f64,
 }
 
@@ -118,6 +123,13 @@ impl WalkDirection {
     pub const CONTRADICTION_RAD: f64 = std::f64::consts::FRAC_PI_4;
     /// The shanks' mean lean below which the legs cannot tell (sine: about 1.7°).
     pub const MIN_LEAN: f64 = 0.03;
+    /// The most the facing from the flexion axes may differ from the lean's (rad): the lean
+    /// points within a few degrees of facing (both legs, synthetic walks: 3–9°); a flexion axis
+    /// that is not the knees' (a side step's hips) lies a quarter turn away.
+    pub const MAX_FLEXION_LEAN_RAD: f64 = 0.5;
+    /// How much more a shank must turn about its main axis than about the next one for that axis
+    /// to count as its flexion axis (ratio of the angular rate's second moments).
+    pub const MIN_FLEXION_DOMINANCE: f64 = 3.0;
 
     /// The given direction, when the legs confidently say another.
     pub fn contradiction(&self) -> Option<(f64, f64)> {
@@ -477,8 +489,9 @@ pub fn calibrate_walk_start(
 /// stand; during the walk that axis in I is `R_IS(t)·R̄_ISᵀ·up`, and its horizontal part, turned
 /// into the pelvis's inertial frame by the sensor's heading correction, is the lean toward where
 /// the knee is. The angle from the mean lean of both shanks to the pelvis's direction of travel is
-/// the walk's direction relative to facing, rounded to forward, left, backwards or right (the
-/// travel direction itself is the more precise of the two).
+/// the walk's direction relative to facing, rounded to forward, left, backwards or right. Where
+/// the body faced exactly comes from the shanks' flexion axes ([`facing_from_flexion`]): a walk
+/// strays a few degrees from facing, and a diagonal one more.
 fn walk_direction(
     walk: &[Sample],
     g: &StepGeometry,
@@ -504,6 +517,10 @@ fn walk_direction(
     let travel = g.displacement_m[PELVIS];
     let legs_rad = signed_angle_about(up, &lean_vector, &travel);
     let lean = lean_vector.norm();
+    let flexion_rad = (lean >= WalkDirection::MIN_LEAN)
+        .then(|| facing_from_flexion(walk, g, up, &shanks, &lean_vector))
+        .flatten()
+        .map(|facing| signed_angle_about(up, &facing, &travel));
     let quarter = std::f64::consts::FRAC_PI_2;
     let from_legs_rad = (lean >= WalkDirection::MIN_LEAN).then(|| {
         let snapped = (legs_rad / quarter).round() * quarter;
@@ -518,9 +535,67 @@ fn walk_direction(
         from_legs_rad,
         legs_rad,
         lean,
+        flexion_rad,
         given_rad,
-        used_rad: given_rad.or(from_legs_rad).unwrap_or(0.0),
+        used_rad: given_rad.or(flexion_rad).or(from_legs_rad).unwrap_or(0.0),
     }
+}
+
+/// Where the body faced during the walk (horizontal, in the pelvis's inertial frame), from the
+/// shanks' flexion axes: a knee flexes about the body's left–right axis, so each shank turns
+/// mostly about it. Each shank's toe-out turns its own axis a few degrees, the left one way and
+/// the right the other, and their mean is the body's (on the true motion of the bundled walk,
+/// within 0.6° of the pelvis's facing over any 3 s, where the direction of travel strayed
+/// 2.5–4°). Facing is perpendicular to that axis, on the side the shanks lean to. `None` when a
+/// shank does not turn mostly about one axis ([`WalkDirection::MIN_FLEXION_DOMINANCE`]) or the
+/// result strays from the lean by more than [`WalkDirection::MAX_FLEXION_LEAN_RAD`].
+fn facing_from_flexion(
+    walk: &[Sample],
+    g: &StepGeometry,
+    up: &Unit<Vector3<f64>>,
+    shanks: &[usize; 2],
+    lean: &Vector3<f64>,
+) -> Option<Vector3<f64>> {
+    let mut axes = [Vector3::zeros(); 2];
+    for (axis, &k) in axes.iter_mut().zip(shanks) {
+        let to_pelvis = Rotation3::from_axis_angle(up, g.heading_to_pelvis_rad[k]);
+        let moment = walk
+            .iter()
+            .map(|s| {
+                let w = to_pelvis
+                    * (s.sensors[k].inertial_from_sensor * s.sensors[k].angular_rate_radps);
+                w * w.transpose()
+            })
+            .sum::<nalgebra::Matrix3<f64>>();
+        let eigen = moment.symmetric_eigen();
+        let mut order = [0, 1, 2];
+        order.sort_by(|&a, &b| eigen.eigenvalues[b].total_cmp(&eigen.eigenvalues[a]));
+        if eigen.eigenvalues[order[0]]
+            < WalkDirection::MIN_FLEXION_DOMINANCE * eigen.eigenvalues[order[1]]
+        {
+            return None;
+        }
+        *axis = horizontal(&eigen.eigenvectors.column(order[0]).into_owned(), up);
+        // An axis near vertical (a shank twisting about itself) says nothing about facing.
+        if axis.norm() < 0.5 {
+            return None;
+        }
+    }
+    let [left, right] = axes;
+    let right = if left.dot(&right) < 0.0 {
+        -right
+    } else {
+        right
+    };
+    let across = left.normalize() + right.normalize();
+    let facing = up.cross(&across);
+    let facing = if facing.dot(lean) < 0.0 {
+        -facing
+    } else {
+        facing
+    };
+    (signed_angle_about(up, &facing, lean).abs() <= WalkDirection::MAX_FLEXION_LEAN_RAD)
+        .then_some(facing)
 }
 
 /// Positions of sensor `k` from rest by double integration of its free acceleration (Eq. 17–18),
