@@ -20,7 +20,7 @@ use nalgebra::{Rotation3, Unit, Vector3};
 use crate::calibration::{Calibration, Method, SensorCalibration};
 use crate::convention::{InertialFrame, ReferencePose};
 use crate::error::Rejection;
-use crate::math::{horizontal, mean_rotation, signed_angle_about};
+use crate::math::{horizontal, mean_rotation, signed_angle_about, twist_about};
 use crate::sample::Sample;
 use crate::tpose::check_gravity;
 use crate::{NUM_IMUS, PELVIS, sensor_name};
@@ -546,7 +546,9 @@ fn walk_direction(
 /// mostly about it. Each shank's toe-out turns its own axis a few degrees, the left one way and
 /// the right the other, and their mean is the body's (on the true motion of the bundled walk,
 /// within 0.6° of the pelvis's facing over any 3 s, where the direction of travel strayed
-/// 2.5–4°). Facing is perpendicular to that axis, on the side the shanks lean to. `None` when a
+/// 2.5–4°). Each sample is turned back by the pelvis's turn about up since the stand first, so a
+/// curved walk gives the facing of the stand. Facing is perpendicular to that axis, on the side
+/// the shanks lean to. `None` when a
 /// shank does not turn mostly about one axis ([`WalkDirection::MIN_FLEXION_DOMINANCE`]) or the
 /// result strays from the lean by more than [`WalkDirection::MAX_FLEXION_LEAN_RAD`].
 fn facing_from_flexion(
@@ -556,13 +558,24 @@ fn facing_from_flexion(
     shanks: &[usize; 2],
     lean: &Vector3<f64>,
 ) -> Option<Vector3<f64>> {
+    // Each sample turned back by how far the pelvis has turned about up since the stand, so that
+    // a walk along a curve gives the facing of the stand, which R_SB is taken from.
+    let turned_since_stand: Vec<Rotation3<f64>> = walk
+        .iter()
+        .map(|s| {
+            let since = s.sensors[PELVIS].inertial_from_sensor * g.stand_before[PELVIS].transpose();
+            Rotation3::from_axis_angle(up, -twist_about(&since, up))
+        })
+        .collect();
     let mut axes = [Vector3::zeros(); 2];
     for (axis, &k) in axes.iter_mut().zip(shanks) {
         let to_pelvis = Rotation3::from_axis_angle(up, g.heading_to_pelvis_rad[k]);
         let moment = walk
             .iter()
-            .map(|s| {
-                let w = to_pelvis
+            .zip(&turned_since_stand)
+            .map(|(s, back)| {
+                let w = back
+                    * to_pelvis
                     * (s.sensors[k].inertial_from_sensor * s.sensors[k].angular_rate_radps);
                 w * w.transpose()
             })
