@@ -27,13 +27,15 @@ imuflow_graph::stage_params! {
         tau_mag_s: f64 = 9, float(0.01, 1000.0);
         /// VQF: rest detection and gyroscope bias estimation at rest
         rest_bias: bool = true, bool;
-        // VQF's default is 1.5 s and 2°/s; a natural recording's stand may last 1 s, and consumer
-        // MEMS gyroscopes have biases up to ±3°/s (BMI160 data sheet), which VQF with a 2°/s clip
-        // never detects at rest: with those sensors alone on the raw-sensor graph, SIP error
-        // +7.9° against ideal sensors with VQF's values, none with these (docs/real-sensors.md).
+        // VQF's default is 1.5 s and 2°/s; a natural recording's stand may last 0.3–0.7 s, and
+        // consumer MEMS gyroscopes have biases up to ±3°/s (BMI160 data sheet), which VQF with a
+        // 2°/s clip never detects at rest: with VQF's values the raw-sensor graph is refused
+        // (docs/real-sensors.md). 0.25 s, not 0.5: after a 0.5 s stand, without a magnetometer,
+        // SIP +4.9/+6.2/+2.9/+3.3° against ideal sensors (seeds 3-6) with 0.5, +0.8/+1.1/+2.3/
+        // +1.6° with 0.25; after 1 s within 0.1° (journal 2026-11-29-natural-start-onset-and-facing).
         /// VQF: how long a sensor must be still before rest is detected (and its gyroscope bias
         /// estimated), s
-        rest_min_s: f64 = 0.5, float(0.1, 60.0);
+        rest_min_s: f64 = 0.25, float(0.1, 60.0);
         /// VQF: largest gyroscope bias estimated, per axis, deg/s (a sensor with a larger bias
         /// is never detected at rest)
         bias_clip_dps: f64 = 5, float(0.1, 100.0);
@@ -303,11 +305,11 @@ mod tests {
             .settings(60.0, Mode::Offline)
             .unwrap();
         // The authors' defaults except the two a natural recording needs: rest detected within
-        // its 1 s stand, and consumer MEMS gyroscope biases (up to ±3°/s) estimated.
+        // its short stand, and consumer MEMS gyroscope biases (up to ±3°/s) estimated.
         assert_eq!(
             defaults.sensor.vqf,
             VqfParams {
-                rest_min_s: 0.5,
+                rest_min_s: 0.25,
                 bias_clip_dps: 5.0,
                 ..VqfParams::default()
             }
