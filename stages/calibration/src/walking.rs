@@ -116,6 +116,11 @@ pub struct WalkDirection {
     /// What was used: the given direction, else the flexion axes', else the legs' (rounded),
     /// else forward.
     pub used_rad: f64,
+    /// The pelvis's travel over the walk with each step turned back by the pelvis's turn about up
+    /// since the stand (m, horizontal, the pelvis's inertial frame): where the walk went
+    /// relative to the body as it stood, which a turn while walking leaves as it was. The
+    /// angles above are taken to it.
+    pub travel_m: Vector3<f64>,
 }
 
 impl WalkDirection {
@@ -474,8 +479,8 @@ pub fn calibrate_walk_start(
 
     // Forward is the walk's direction turned back by the walk's direction relative to facing:
     // as given, else as the legs say.
-    let direction = walk_direction(walk, &g, &up, config.walk_direction_rad);
-    let walked = Rotation3::from_axis_angle(&up, -direction.used_rad) * g.displacement_m[PELVIS];
+    let direction = walk_direction(walk, &pelvis, &g, &up, config.walk_direction_rad);
+    let walked = Rotation3::from_axis_angle(&up, -direction.used_rad) * direction.travel_m;
     let model_from_inertial = model_from_inertial(&up, &walked);
     // The stand after is the stand before (set above): Eq. 24 on the one stand.
     estimate_from(g, model_from_inertial, walking, Some(direction))
@@ -496,6 +501,7 @@ pub fn calibrate_walk_start(
 /// strays a few degrees from facing, and a diagonal one more.
 fn walk_direction(
     walk: &[Sample],
+    pelvis_path: &[Vector3<f64>],
     g: &StepGeometry,
     up: &Unit<Vector3<f64>>,
     given_rad: Option<f64>,
@@ -504,23 +510,37 @@ fn walk_direction(
         imuflow_body::Imu::LeftLowerLeg.index(),
         imuflow_body::Imu::RightLowerLeg.index(),
     ];
+    // Each sample turned back by how far the pelvis has turned about up since the stand, so that
+    // a walk that turns gives the directions relative to the body as it stood, which R_SB is
+    // taken from.
+    let back: Vec<Rotation3<f64>> = walk
+        .iter()
+        .map(|s| {
+            let since = s.sensors[PELVIS].inertial_from_sensor * g.stand_before[PELVIS].transpose();
+            Rotation3::from_axis_angle(up, -twist_about(&since, up))
+        })
+        .collect();
+    let travel: Vector3<f64> = pelvis_path
+        .windows(2)
+        .zip(&back)
+        .map(|(step, back)| back * horizontal(&(step[1] - step[0]), up))
+        .sum();
     let mut sum = Vector3::zeros();
     let mut n = 0usize;
     for &k in &shanks {
         let axis_in_sensor = g.stand_before[k].transpose() * up.into_inner();
         let to_pelvis = Rotation3::from_axis_angle(up, g.heading_to_pelvis_rad[k]);
-        for s in walk {
+        for (s, back) in walk.iter().zip(&back) {
             let axis = s.sensors[k].inertial_from_sensor * axis_in_sensor;
-            sum += to_pelvis * horizontal(&axis, up);
+            sum += back * to_pelvis * horizontal(&axis, up);
             n += 1;
         }
     }
     let lean_vector = sum / n.max(1) as f64;
-    let travel = g.displacement_m[PELVIS];
     let legs_rad = signed_angle_about(up, &lean_vector, &travel);
     let lean = lean_vector.norm();
     let flexion_rad = (lean >= WalkDirection::MIN_LEAN)
-        .then(|| facing_from_flexion(walk, g, up, &shanks, &lean_vector))
+        .then(|| facing_from_flexion(walk, &back, g, up, &shanks, &lean_vector))
         .flatten()
         .map(|facing| signed_angle_about(up, &facing, &travel));
     let quarter = std::f64::consts::FRAC_PI_2;
@@ -540,6 +560,7 @@ fn walk_direction(
         flexion_rad,
         given_rad,
         used_rad: given_rad.or(flexion_rad).or(from_legs_rad).unwrap_or(0.0),
+        travel_m: travel,
     }
 }
 
@@ -548,33 +569,25 @@ fn walk_direction(
 /// mostly about it. Each shank's toe-out turns its own axis a few degrees, the left one way and
 /// the right the other, and their mean is the body's (on the true motion of the bundled walk,
 /// within 0.6° of the pelvis's facing over any 3 s, where the direction of travel strayed
-/// 2.5–4°). Each sample is turned back by the pelvis's turn about up since the stand first, so a
-/// curved walk gives the facing of the stand. Facing is perpendicular to that axis, on the side
-/// the shanks lean to. `None` when a
+/// 2.5–4°). Each sample is turned back (`back`) by the pelvis's turn about up since the stand
+/// first, so a curved walk gives the facing of the stand. Facing is perpendicular to that axis, on
+/// the side the shanks lean to. `None` when a
 /// shank does not turn mostly about one axis ([`WalkDirection::MIN_FLEXION_DOMINANCE`]) or the
 /// result strays from the lean by more than [`WalkDirection::MAX_FLEXION_LEAN_RAD`].
 fn facing_from_flexion(
     walk: &[Sample],
+    back: &[Rotation3<f64>],
     g: &StepGeometry,
     up: &Unit<Vector3<f64>>,
     shanks: &[usize; 2],
     lean: &Vector3<f64>,
 ) -> Option<Vector3<f64>> {
-    // Each sample turned back by how far the pelvis has turned about up since the stand, so that
-    // a walk along a curve gives the facing of the stand, which R_SB is taken from.
-    let turned_since_stand: Vec<Rotation3<f64>> = walk
-        .iter()
-        .map(|s| {
-            let since = s.sensors[PELVIS].inertial_from_sensor * g.stand_before[PELVIS].transpose();
-            Rotation3::from_axis_angle(up, -twist_about(&since, up))
-        })
-        .collect();
     let mut axes = [Vector3::zeros(); 2];
     for (axis, &k) in axes.iter_mut().zip(shanks) {
         let to_pelvis = Rotation3::from_axis_angle(up, g.heading_to_pelvis_rad[k]);
         let moment = walk
             .iter()
-            .zip(&turned_since_stand)
+            .zip(back)
             .map(|(s, back)| {
                 let w = back
                     * to_pelvis

@@ -305,6 +305,44 @@ fn a_walk_that_strays_from_facing_is_calibrated_to_where_the_body_faced() {
     );
 }
 
+/// The sample's walk turning steadily by `turn_deg` over its first `over_s` seconds (the body and
+/// its path both, about up), then straight on: a walk along a curve from the first step.
+fn curving(turn_deg: f64, over_s: f64) -> imuflow_motion::retarget::MotionClip {
+    let mut clip = sample_walk_clip();
+    let up = imuflow_body::rotation::Axis::Y;
+    let mut position = clip.poses[0].root_in_world_m;
+    let mut previous = position;
+    for (i, pose) in clip.poses.iter_mut().enumerate() {
+        let t = i as f64 * clip.frame_time_s;
+        let turn = up.rotation((turn_deg * (t / over_s).min(1.0)).to_radians());
+        let step = pose.root_in_world_m - previous;
+        previous = pose.root_in_world_m;
+        position += turn * nalgebra::Vector3::new(step.x, 0.0, step.z);
+        pose.parent_from_joint[0] = turn * pose.parent_from_joint[0];
+        pose.root_in_world_m =
+            nalgebra::Vector3::new(position.x, pose.root_in_world_m.y, position.z);
+    }
+    clip
+}
+
+#[test]
+fn a_walk_that_curves_from_its_first_step_is_calibrated_to_where_the_body_stood() {
+    // 40° of turn over the first 3 s: the path's chord over the calibration's window points
+    // about 20° off where the body stood facing. The walk's directions are taken with each
+    // sample turned back by the pelvis's turn since the stand.
+    for turn_deg in [40.0, -40.0] {
+        let (errors, direction) = walk_with(curving(turn_deg, 3.0), config(), 0);
+        let d = direction.expect("direction");
+        assert_eq!(d.from_legs_rad, Some(0.0), "{turn_deg}°: {d:?}");
+        let (median, max) = median_max(&errors);
+        eprintln!("curving {turn_deg}°: bones median {median:.2}°, max {max:.2}°");
+        assert!(
+            median < 3.0 && max < 8.0,
+            "curving {turn_deg}°: bones median {median:.2}°, max {max:.2}°"
+        );
+    }
+}
+
 #[test]
 fn a_direction_that_contradicts_the_legs_is_used_and_flagged() {
     // Told "forward" on a walk to the left: the setting wins (a user who knows better), the event
