@@ -477,8 +477,8 @@ pub fn calibrate_walk_start(
     }
     g.heading_to_pelvis_rad[PELVIS] = 0.0;
 
-    // Forward is the walk's direction turned back by the walk's direction relative to facing:
-    // as given, else as the legs say.
+    // Forward is the walk's direction (relative to the body as it stood) turned back by the
+    // walk's direction relative to facing: as given, else as the legs say.
     let direction = walk_direction(walk, &pelvis, &g, &up, config.walk_direction_rad);
     let walked = Rotation3::from_axis_angle(&up, -direction.used_rad) * direction.travel_m;
     let model_from_inertial = model_from_inertial(&up, &walked);
