@@ -535,6 +535,81 @@ fn stand_length_sweep() {
     }
 }
 
+/// The natural start on Bandai's own walks in every direction and with turns (journal
+/// 2026-11-29-natural-start-onset-and-facing): a 1 s stand, random mountings, ±15° heading
+/// offsets, the reference noise; per set, how many calibrated and the bones over the rest of each
+/// clip. Run with `IMUFLOW_BANDAI_DIR=/path/to/extracted cargo test -p imuflow-calibration --test
+/// walk_start bandai_walks -- --ignored --nocapture` (the directory that
+/// `shared/data/bandai-namco-motion/extract.sh` filled); it prints a table.
+#[test]
+#[ignore = "needs the extracted Bandai Namco data set (IMUFLOW_BANDAI_DIR)"]
+fn bandai_walks_in_every_direction() {
+    use imuflow_motion::bvh::Bvh;
+    use imuflow_motion::retarget::{RetargetOptions, SourceSkeleton, resample, retarget_bvh};
+    let root = std::env::var("IMUFLOW_BANDAI_DIR")
+        .expect("set IMUFLOW_BANDAI_DIR to the extracted Bandai Namco data set");
+    let body = body();
+    let source = SourceSkeleton::bandai_namco().expect("mapping");
+    eprintln!("| clips | calibrated | bones median / p95 / max (deg) |");
+    eprintln!("|---|---|---|");
+    // (data set, content, every n-th clip)
+    for (set, content, every) in [
+        ("dataset-1", "walk", 2),
+        ("dataset-1", "walk-left", 2),
+        ("dataset-1", "walk-right", 2),
+        ("dataset-1", "walk-back", 2),
+        ("dataset-2", "walk", 12),
+        ("dataset-2", "walk-turn-left", 12),
+        ("dataset-2", "walk-turn-right", 12),
+    ] {
+        let dir = std::path::Path::new(&root).join(set).join("data");
+        let prefix = format!("{set}_{content}_");
+        let mut files: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| {
+                let name = p.file_name().unwrap_or_default().to_string_lossy();
+                name.starts_with(&prefix) && name.ends_with(".bvh")
+            })
+            .collect();
+        files.sort();
+        let (mut bones, mut calibrated, mut tried) = (Vec::new(), 0, 0);
+        for (i, path) in files.iter().enumerate().step_by(every) {
+            tried += 1;
+            let bvh = Bvh::read(path).unwrap_or_else(|e| panic!("{e}"));
+            let clip = retarget_bvh(&bvh, &source, &body, &RetargetOptions::default())
+                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            let clip =
+                resample(&clip, RATE_HZ).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            let motion = synthesize(
+                clip,
+                natural_start(),
+                setup(InertialFrame::ZUp, 30.0, 15.0),
+                true,
+                i as u64,
+            );
+            let session = run(config(), &motion);
+            let Some(at) = session.calibrated_at() else {
+                continue;
+            };
+            calibrated += 1;
+            bones.extend(bone_errors_from(&session, &motion, at, 0..NUM_IMUS));
+        }
+        if bones.is_empty() {
+            eprintln!("| {set} {content} | 0 of {tried} | |");
+            continue;
+        }
+        bones.sort_by(f64::total_cmp);
+        let at = |p: f64| bones[((bones.len() - 1) as f64 * p).round() as usize];
+        eprintln!(
+            "| {set} {content} | {calibrated} of {tried} | {:.1} / {:.1} / {:.1} |",
+            at(0.5),
+            at(0.95),
+            at(1.0)
+        );
+    }
+}
+
 #[test]
 fn a_capture_days_mountings_serve_a_recording_with_a_sloppy_stand() {
     use imuflow_calibration::Calibrator;
