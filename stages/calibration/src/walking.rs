@@ -498,7 +498,10 @@ pub fn calibrate_walk_start(
 /// the knee is. The angle from the mean lean of both shanks to the pelvis's direction of travel is
 /// the walk's direction relative to facing, rounded to forward, left, backwards or right. Where
 /// the body faced exactly comes from the shanks' flexion axes ([`facing_from_flexion`]): a walk
-/// strays a few degrees from facing, and a diagonal one more.
+/// strays a few degrees from facing, and a diagonal one more. Lean, travel (`pelvis_path`, one
+/// point per sample) and flexion axes are taken with each sample turned back by the pelvis's turn
+/// about up since the stand, so that a walk that turns gives them relative to the body as it
+/// stood.
 fn walk_direction(
     walk: &[Sample],
     pelvis_path: &[Vector3<f64>],
