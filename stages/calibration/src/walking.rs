@@ -574,9 +574,9 @@ fn walk_direction(
 /// within 0.6° of the pelvis's facing over any 3 s, where the direction of travel strayed
 /// 2.5–4°). Each sample is turned back (`back`) by the pelvis's turn about up since the stand
 /// first, so a curved walk gives the facing of the stand. Facing is perpendicular to that axis, on
-/// the side the shanks lean to. `None` when a
-/// shank does not turn mostly about one axis ([`WalkDirection::MIN_FLEXION_DOMINANCE`]) or the
-/// result strays from the lean by more than [`WalkDirection::MAX_FLEXION_LEAN_RAD`].
+/// the side the shanks lean to. `None` when a shank does not turn mostly about one axis
+/// ([`WalkDirection::MIN_FLEXION_DOMINANCE`]) or the result strays from the lean by more than
+/// [`WalkDirection::MAX_FLEXION_LEAN_RAD`].
 fn facing_from_flexion(
     walk: &[Sample],
     back: &[Rotation3<f64>],
