@@ -52,14 +52,6 @@ pub fn horizontal(v: &Vector3<f64>, axis: &Unit<Vector3<f64>>) -> Vector3<f64> {
     v - axis.into_inner() * v.dot(axis)
 }
 
-/// The angle (rad, in (−π, π]) of `r`'s turn about `axis`: the twist of its swing–twist
-/// decomposition (`r` = swing · twist, the swing about an axis perpendicular to `axis`).
-pub fn twist_about(r: &Rotation3<f64>, axis: &Unit<Vector3<f64>>) -> f64 {
-    let q = nalgebra::UnitQuaternion::from_rotation_matrix(r);
-    let angle = 2.0 * q.imag().dot(axis).atan2(q.w);
-    angle.sin().atan2(angle.cos())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -84,18 +76,6 @@ mod tests {
         let mut m = *r.matrix();
         m[(1, 1)] = f64::NAN;
         assert!(project_to_rotation(&m).is_none());
-    }
-
-    #[test]
-    fn the_twist_is_the_turn_about_the_axis_whatever_the_swing() {
-        let up = Vector3::y_axis();
-        assert!((twist_about(&Axis::Y.rotation(0.7), &up) - 0.7).abs() < 1e-12);
-        assert!((twist_about(&Axis::Y.rotation(-2.9), &up) + 2.9).abs() < 1e-12);
-        // A swing about a horizontal axis after the turn leaves the twist as it was.
-        let swing =
-            Rotation3::from_axis_angle(&Unit::new_normalize(Vector3::new(1.0, 0.0, 2.0)), 0.3);
-        assert!((twist_about(&(swing * Axis::Y.rotation(0.7)), &up) - 0.7).abs() < 1e-12);
-        assert!(twist_about(&swing, &up).abs() < 1e-12);
     }
 
     #[test]

@@ -15,12 +15,13 @@
 //! translation moves all points equally; a different length means the pose changed or the
 //! integration failed).
 
+use imuflow_body::limb_joints::nearest_rotation_about;
 use nalgebra::{Rotation3, Unit, Vector3};
 
 use crate::calibration::{Calibration, Method, SensorCalibration};
 use crate::convention::{InertialFrame, ReferencePose};
 use crate::error::Rejection;
-use crate::math::{horizontal, mean_rotation, signed_angle_about, twist_about};
+use crate::math::{horizontal, mean_rotation, signed_angle_about};
 use crate::sample::Sample;
 use crate::tpose::check_gravity;
 use crate::{NUM_IMUS, PELVIS, sensor_name};
@@ -520,7 +521,7 @@ fn walk_direction(
         .iter()
         .map(|s| {
             let since = s.sensors[PELVIS].inertial_from_sensor * g.stand_before[PELVIS].transpose();
-            Rotation3::from_axis_angle(up, -twist_about(&since, up))
+            nearest_rotation_about(&since, up).inverse()
         })
         .collect();
     let travel: Vector3<f64> = pelvis_path
