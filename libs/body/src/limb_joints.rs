@@ -21,6 +21,11 @@ use crate::NUM_JOINTS;
 use crate::kinematics::local_to_global_rotations;
 use crate::skeleton::{JointId, Skeleton};
 
+/// Elbow flexion of people standing at ease, arms hanging, deg: the middle of the 15–35° measured
+/// on people not told to straighten their arms. The calibration's relaxed pose assumes it; the
+/// synthetic natural start stands with it.
+pub const RELAXED_ELBOW_DEG: f64 = 25.0;
+
 /// The knees, each with its hip (the joint whose local rotation takes the correction).
 const KNEES: [JointId; 2] = [JointId::LEFT_KNEE, JointId::RIGHT_KNEE];
 /// The elbows, each with its shoulder.

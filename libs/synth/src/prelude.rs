@@ -12,6 +12,7 @@
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
+use imuflow_body::limb_joints::RELAXED_ELBOW_DEG;
 use imuflow_body::rotation::{Axis, slerp};
 use imuflow_body::{BodyModel, JointId, Pose};
 use imuflow_graph::params::Param;
@@ -106,11 +107,10 @@ impl Default for PreludeOptions {
 impl PreludeOptions {
     /// How a synthetic subject bends the elbows standing in a prelude of `kind` (deg): told to
     /// take the T- or N-pose (`tpose`, `walk`), straight; at a natural start (`stand`), nobody said
-    /// anything and people stand with the elbows bent 15–35°: the middle, 25° (the calibration's
-    /// relaxed pose).
+    /// anything and people stand at ease ([`RELAXED_ELBOW_DEG`], the calibration's relaxed pose).
     pub fn default_elbow_deg(kind: PreludeKind) -> f64 {
         match kind {
-            PreludeKind::Stand => 25.0,
+            PreludeKind::Stand => RELAXED_ELBOW_DEG,
             _ => 0.0,
         }
     }

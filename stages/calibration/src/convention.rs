@@ -24,9 +24,8 @@ pub enum ReferencePose {
     Relaxed,
 }
 
-/// Elbow flexion of the relaxed pose, deg: the middle of the 15–35° measured on people standing
-/// at ease.
-pub const RELAXED_ELBOW_DEG: f64 = 25.0;
+/// Elbow flexion of the relaxed pose, deg (people standing at ease).
+pub use imuflow_body::limb_joints::RELAXED_ELBOW_DEG;
 
 impl ReferencePose {
     /// Parses `t` or `n`.
