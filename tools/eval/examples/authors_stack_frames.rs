@@ -112,19 +112,14 @@ fn read_frames<T: Frame>(path: &Path) -> anyhow::Result<Vec<T>> {
         .collect())
 }
 
-fn write_f32(path: &Path, values: &[f32]) -> anyhow::Result<()> {
+/// Writes each value's little-endian bytes, one after another (numpy's `fromfile` reads them).
+fn write_le<const N: usize>(
+    path: &Path,
+    values: impl IntoIterator<Item = [u8; N]>,
+) -> anyhow::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
-    for v in values {
-        f.write_all(&v.to_le_bytes())?;
-    }
-    f.flush()?;
-    Ok(())
-}
-
-fn write_f64(path: &Path, values: &[f64]) -> anyhow::Result<()> {
-    let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
-    for v in values {
-        f.write_all(&v.to_le_bytes())?;
+    for bytes in values {
+        f.write_all(&bytes)?;
     }
     f.flush()?;
     Ok(())
@@ -158,13 +153,16 @@ fn networks(
     let start = StartPose::shown_by(&inputs[0].1);
 
     if dump {
-        let mut x = Vec::with_capacity(inputs.len() * PIP_INPUT);
+        let mut x: Vec<f32> = Vec::with_capacity(inputs.len() * PIP_INPUT);
         for (_, input) in &inputs {
             let mut v = [0.0; PIP_INPUT];
             pip_input(input, &mut v);
             x.extend_from_slice(&v);
         }
-        write_f32(&dir.join("net_input.f32"), &x)?;
+        write_le(
+            &dir.join("net_input.f32"),
+            x.iter().map(|v| v.to_le_bytes()),
+        )?;
     }
 
     // rnn1's learned initialization input (the Streamer's): the start pose's leaf joints relative
@@ -190,7 +188,7 @@ fn networks(
         let mut check = Streamer::new(load()?, start.pose())?;
         check.set_sensor_bones(SensorBones::Network);
         check.set_limb_joints(LimbJoints::Free);
-        let mut out = Vec::with_capacity(inputs.len() * (72 + 72 + 2 + 216));
+        let mut out: Vec<f64> = Vec::with_capacity(inputs.len() * (72 + 72 + 2 + 216));
         for (_, input) in &inputs {
             let e = check.step(input)?;
             out.extend(e.joint_position.iter().flat_map(|v| [v.x, v.y, v.z]));
@@ -198,7 +196,10 @@ fn networks(
             out.extend(e.foot_contact);
             out.extend(e.pose.iter().flat_map(row_major));
         }
-        write_f64(&dir.join("net_output.f64"), &out)?;
+        write_le(
+            &dir.join("net_output.f64"),
+            out.iter().map(|v| v.to_le_bytes()),
+        )?;
     }
 
     // The stage's own configuration, timed.
@@ -434,7 +435,7 @@ fn physics(
         solved_frames += 1;
     }
     if dump {
-        write_f64(&dir.join("qp.f64"), &records)?;
+        write_le(&dir.join("qp.f64"), records.iter().map(|v| v.to_le_bytes()))?;
     }
 
     let c = &config;
