@@ -231,13 +231,26 @@ struct GraphArgs {
 }
 
 impl GraphArgs {
+    /// The graph, validated, with its sensor set found (a shipped set or a readable set file),
+    /// so that a wrong `sensors` is refused before any stage starts.
     fn load(&self) -> Result<Graph, GraphLoadError> {
-        imuflow_graph::transform::load_without(
+        let graph = imuflow_graph::transform::load_without(
             &self.file,
             &self.sets,
             &self.without,
             &registry::registry(),
-        )
+        )?;
+        if let Err(e) = imuflow_body::SensorSet::resolve(&graph.sensors) {
+            return Err(GraphLoadError::Invalid {
+                path: self.file.clone(),
+                problems: vec![imuflow_graph::graph::Problem {
+                    stage: None,
+                    key: Some("sensors".to_owned()),
+                    message: e.to_string(),
+                }],
+            });
+        }
+        Ok(graph)
     }
 }
 

@@ -63,7 +63,10 @@ fn smoke_graph_records_every_frame_to_mcap_and_rrd() {
     }
     let first: serde_json::Value = serde_json::from_slice(&json[0].2).expect("json message");
     assert_eq!(first["header"]["seq"], 0);
-    assert_eq!(first["orientation_wxyz"].as_array().map(Vec::len), Some(6));
+    assert_eq!(
+        first["orientation_wxyz"].as_array().map(Vec::len),
+        Some(imuflow_graph::frames::MAX_SITES)
+    );
 
     let rrd = std::fs::metadata(sb.path("out.rrd")).expect("rrd written");
     assert!(rrd.len() > 10_000, "rrd has content ({} bytes)", rrd.len());

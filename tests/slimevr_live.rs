@@ -15,7 +15,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use common::{Sandbox, assert_clean, free_udp_port, mcap_messages, text, wait_with_timeout};
-use imuflow_graph::frames::{ImuFrame, NUM_IMUS, RawImuFrame, frame_from_bytes};
+use imuflow_body::NUM_IMUS;
+use imuflow_graph::frames::{ImuFrame, RawImuFrame, frame_from_bytes};
 use imuflow_imu_source::slimevr::receiver::FIRMWARE_GRAVITY_MPS2;
 use imuflow_imu_source::slimevr::sim::{self, SimFaults, SimOptions, motion};
 
@@ -346,6 +347,7 @@ fn lost_samples_are_counted_exactly_from_the_packet_numbers_to_the_fused_frames(
             output_rate_hz: 60.0,
             latency: Latency::Low,
         },
+        sites: imuflow_body::SiteMask::of(imuflow_body::Imu::SIX),
         max_latency_s: 0.03,
         origin: Origin::FirstCapture,
     });

@@ -8,15 +8,21 @@
 //!
 //! The wire contract and its conventions are described in docs/architecture.md ("The wire contract",
 //! "Conventions"): model frame M as in SMPL (x = left, y = up, z = forward, gravity (0, -9.81, 0));
-//! SI units; quaternions are `[w, x, y, z]`; IMU order
-//! [left forearm, right forearm, left lower leg, right lower leg, head, pelvis]; 24 joints in SMPL
+//! SI units; quaternions are `[w, x, y, z]`; one IMU slot per site of the body model's site
+//! catalogue ([`MAX_SITES`]; the first six [left forearm, right forearm, left lower leg, right lower
+//! leg, head, pelvis], the six-site set), a graph's sensor set filling some; 24 joints in SMPL
 //! order. Each field's doc says its frame of reference and unit.
+//!
+//! Recordings made before a layout changed still read: a frame type names its earlier versions
+//! ([`Frame::EARLIER_TYPE_NAMES`]) and widens their bytes ([`frame_from_recorded`]).
 
 use bytemuck::{Pod, Zeroable};
 use iceoryx2::prelude::ZeroCopySend;
 
-/// Number of IMUs in every IMU frame.
-pub const NUM_IMUS: usize = 6;
+/// IMU slots in every IMU frame: one per site of the body model's site catalogue (enough for a
+/// full suit; `imuflow_body::MAX_SITES`). A graph's sensor set fills the slots of its sites; the
+/// frame's `valid_mask` says which slots hold a sample.
+pub const MAX_SITES: usize = 17;
 /// Number of joints of the body model (SMPL topology).
 pub const NUM_JOINTS: usize = 24;
 /// Generalized velocities of the floating-base body: root translation + 3 rotational DoF per joint.
@@ -271,6 +277,12 @@ pub trait Frame: Pod + ZeroCopySend + std::fmt::Debug + Send + Sync + 'static {
     fn header_mut(&mut self) -> &mut FrameHeader;
     /// Byte layout, for recorders and schema generation.
     fn layout() -> &'static FrameLayout;
+    /// Type names of this frame's earlier wire versions, which recordings may hold.
+    const EARLIER_TYPE_NAMES: &'static [&'static str] = &[];
+    /// A frame of an earlier wire version (told apart by its length), widened to this one.
+    fn from_earlier_version(_bytes: &[u8]) -> Option<Self> {
+        None
+    }
 }
 
 /// Defines a frame struct, its `Frame` impl and its byte layout from one field list, so the
@@ -281,6 +293,7 @@ macro_rules! frame {
         $name:ident, $type_name:literal, $frame_type:expr, {
             $( #[doc = $doc:literal] $field:ident : $ty:ty, )*
         }
+        $( earlier: [$( $earlier_name:literal ),*] from $upgrade:path )?
     ) => {
         $(#[$meta])*
         #[repr(C)]
@@ -294,6 +307,12 @@ macro_rules! frame {
 
         impl Frame for $name {
             const TYPE: FrameType = $frame_type;
+            $(
+                const EARLIER_TYPE_NAMES: &'static [&'static str] = &[$( $earlier_name ),*];
+                fn from_earlier_version(bytes: &[u8]) -> Option<Self> {
+                    $upgrade(bytes)
+                }
+            )?
             fn header(&self) -> &FrameHeader {
                 &self.header
             }
@@ -340,17 +359,17 @@ frame! {
     /// whichever sensors had a new sample (`valid_mask`); the fusion stage aligns them by
     /// timestamp and resamples to the graph's rate. Sensors that fuse on board (trackers, vendor
     /// exports) also deliver their orientation (`orientation_mask`).
-    RawImuFrame, "imuflow.RawImuFrame.v1", FrameType::RawImu, {
+    RawImuFrame, "imuflow.RawImuFrame.v2", FrameType::RawImu, {
         /// Sample time per sensor, ns, on that sensor's own clock (offset, drift and jitter included); valid where `valid_mask` has the bit.
-        sample_time_ns: [u64; NUM_IMUS],
+        sample_time_ns: [u64; MAX_SITES],
         /// Accelerometer: specific force (includes -gravity) in the sensor frame S, m/s².
-        accelerometer_mps2: [[f32; 3]; NUM_IMUS],
+        accelerometer_mps2: [[f32; 3]; MAX_SITES],
         /// Gyroscope: angular rate in the sensor frame S, rad/s.
-        gyroscope_radps: [[f32; 3]; NUM_IMUS],
+        gyroscope_radps: [[f32; 3]; MAX_SITES],
         /// Magnetometer: magnetic field in the sensor frame S, µT; valid where `magnetometer_mask` has the bit.
-        magnetometer_ut: [[f32; 3]; NUM_IMUS],
+        magnetometer_ut: [[f32; 3]; MAX_SITES],
         /// Orientation the sensor fused on board, R_IS as a unit quaternion [w, x, y, z]; valid where `orientation_mask` has the bit.
-        orientation_wxyz: [[f32; 4]; NUM_IMUS],
+        orientation_wxyz: [[f32; 4]; MAX_SITES],
         /// Bit i set when sensor i has a new sample in this frame (accelerometer and gyroscope).
         valid_mask: u32,
         /// Bit i set when sensor i's sample has a magnetometer reading.
@@ -359,41 +378,46 @@ frame! {
         orientation_mask: u32,
         /// Bit i set when sensor i's sample carries no gyroscope reading (its gyroscope field is zero): the fusion stage derives the angular rate from consecutive on-board orientations.
         no_gyroscope_mask: u32,
+        /// Reserved, zero.
+        reserved: u32,
     }
+    earlier: ["imuflow.RawImuFrame.v1"] from v1::RawImuFrame::widen
 }
 
 frame! {
-    /// What six real IMUs deliver: orientation, specific force and angular rate, per sensor.
-    ImuFrame, "imuflow.ImuFrame.v1", FrameType::Imu, {
+    /// What real IMUs deliver: orientation, specific force and angular rate, per sensor site.
+    ImuFrame, "imuflow.ImuFrame.v2", FrameType::Imu, {
         /// R_IS per sensor as a unit quaternion [w, x, y, z]: sensor frame S to the sensor's own inertial frame I.
-        orientation_wxyz: [[f32; 4]; NUM_IMUS],
+        orientation_wxyz: [[f32; 4]; MAX_SITES],
         /// Specific force (what an accelerometer measures, includes -gravity) in the sensor frame S, m/s².
-        specific_force_mps2: [[f32; 3]; NUM_IMUS],
+        specific_force_mps2: [[f32; 3]; MAX_SITES],
         /// Angular rate in the sensor frame S, rad/s.
-        angular_rate_radps: [[f32; 3]; NUM_IMUS],
+        angular_rate_radps: [[f32; 3]; MAX_SITES],
         /// Bit i set when sensor i delivered a finite sample this frame.
         valid_mask: u32,
         /// Reserved, zero.
         reserved: u32,
     }
+    earlier: ["imuflow.ImuFrame.v1"] from v1::ImuFrame::widen
 }
 
 frame! {
     /// Calibrated IMU data on the body: bone orientation, free acceleration and angular velocity in M.
-    BodyImuFrame, "imuflow.BodyImuFrame.v1", FrameType::BodyImu, {
+    BodyImuFrame, "imuflow.BodyImuFrame.v2", FrameType::BodyImu, {
         /// R_MB per sensor's bone as a unit quaternion [w, x, y, z]: bone frame B to model frame M.
-        bone_orientation_wxyz: [[f32; 4]; NUM_IMUS],
+        bone_orientation_wxyz: [[f32; 4]; MAX_SITES],
         /// Free acceleration (gravity removed) of the sensor in model frame M, m/s².
-        free_acceleration_mps2: [[f32; 3]; NUM_IMUS],
+        free_acceleration_mps2: [[f32; 3]; MAX_SITES],
         /// Angular velocity of the bone in model frame M, rad/s.
-        angular_velocity_radps: [[f32; 3]; NUM_IMUS],
+        angular_velocity_radps: [[f32; 3]; MAX_SITES],
         /// Heading (yaw about M's y axis) correction the calibration currently applies per sensor, rad.
-        heading_correction_rad: [f32; NUM_IMUS],
+        heading_correction_rad: [f32; MAX_SITES],
         /// Bit i set when sensor i is valid this frame.
         valid_mask: u32,
         /// Reserved, zero.
-        reserved: u32,
+        reserved: [u32; 2],
     }
+    earlier: ["imuflow.BodyImuFrame.v1"] from v1::BodyImuFrame::widen
 }
 
 frame! {
@@ -506,11 +530,132 @@ pub fn frame_from_bytes<T: Frame>(bytes: &[u8]) -> Option<T> {
     (bytes.len() == std::mem::size_of::<T>()).then(|| bytemuck::pod_read_unaligned(bytes))
 }
 
+/// A recorded frame of type `T`: the current version's bytes, or an earlier version's
+/// ([`Frame::EARLIER_TYPE_NAMES`]) widened, told apart by their length.
+pub fn frame_from_recorded<T: Frame>(bytes: &[u8]) -> Option<T> {
+    frame_from_bytes(bytes).or_else(|| T::from_earlier_version(bytes))
+}
+
+/// The IMU frames as they were before the site catalogue (`*.v1`): six slots, the six-site set's
+/// order, which are the catalogue's first six. Widened with the other slots empty.
+mod v1 {
+    use bytemuck::{Pod, Zeroable};
+
+    use super::FrameHeader;
+
+    const SIX: usize = 6;
+
+    /// Copies the six slots of `from` into the first six of `to`.
+    fn six<T: Copy, const N: usize>(from: &[T; SIX], to: &mut [T; N]) {
+        to[..SIX].copy_from_slice(from);
+    }
+
+    /// `bytes` as a `T`, if the length matches.
+    fn read<T: Pod>(bytes: &[u8]) -> Option<T> {
+        (bytes.len() == std::mem::size_of::<T>()).then(|| bytemuck::pod_read_unaligned(bytes))
+    }
+
+    #[repr(C)]
+    #[derive(Clone, Copy, Pod, Zeroable)]
+    pub struct RawImuFrame {
+        header: FrameHeader,
+        sample_time_ns: [u64; SIX],
+        accelerometer_mps2: [[f32; 3]; SIX],
+        gyroscope_radps: [[f32; 3]; SIX],
+        magnetometer_ut: [[f32; 3]; SIX],
+        orientation_wxyz: [[f32; 4]; SIX],
+        valid_mask: u32,
+        magnetometer_mask: u32,
+        orientation_mask: u32,
+        no_gyroscope_mask: u32,
+    }
+
+    impl RawImuFrame {
+        pub fn widen(bytes: &[u8]) -> Option<super::RawImuFrame> {
+            let old: RawImuFrame = read(bytes)?;
+            let mut f = super::RawImuFrame {
+                header: old.header,
+                valid_mask: old.valid_mask,
+                magnetometer_mask: old.magnetometer_mask,
+                orientation_mask: old.orientation_mask,
+                no_gyroscope_mask: old.no_gyroscope_mask,
+                ..Default::default()
+            };
+            six(&old.sample_time_ns, &mut f.sample_time_ns);
+            six(&old.accelerometer_mps2, &mut f.accelerometer_mps2);
+            six(&old.gyroscope_radps, &mut f.gyroscope_radps);
+            six(&old.magnetometer_ut, &mut f.magnetometer_ut);
+            six(&old.orientation_wxyz, &mut f.orientation_wxyz);
+            Some(f)
+        }
+    }
+
+    #[repr(C)]
+    #[derive(Clone, Copy, Pod, Zeroable)]
+    pub struct ImuFrame {
+        header: FrameHeader,
+        orientation_wxyz: [[f32; 4]; SIX],
+        specific_force_mps2: [[f32; 3]; SIX],
+        angular_rate_radps: [[f32; 3]; SIX],
+        valid_mask: u32,
+        reserved: u32,
+    }
+
+    impl ImuFrame {
+        pub fn widen(bytes: &[u8]) -> Option<super::ImuFrame> {
+            let old: ImuFrame = read(bytes)?;
+            let mut f = super::ImuFrame {
+                header: old.header,
+                valid_mask: old.valid_mask,
+                ..Default::default()
+            };
+            six(&old.orientation_wxyz, &mut f.orientation_wxyz);
+            six(&old.specific_force_mps2, &mut f.specific_force_mps2);
+            six(&old.angular_rate_radps, &mut f.angular_rate_radps);
+            Some(f)
+        }
+    }
+
+    #[repr(C)]
+    #[derive(Clone, Copy, Pod, Zeroable)]
+    pub struct BodyImuFrame {
+        header: FrameHeader,
+        bone_orientation_wxyz: [[f32; 4]; SIX],
+        free_acceleration_mps2: [[f32; 3]; SIX],
+        angular_velocity_radps: [[f32; 3]; SIX],
+        heading_correction_rad: [f32; SIX],
+        valid_mask: u32,
+        reserved: u32,
+    }
+
+    impl BodyImuFrame {
+        pub fn widen(bytes: &[u8]) -> Option<super::BodyImuFrame> {
+            let old: BodyImuFrame = read(bytes)?;
+            let mut f = super::BodyImuFrame {
+                header: old.header,
+                valid_mask: old.valid_mask,
+                ..Default::default()
+            };
+            six(&old.bone_orientation_wxyz, &mut f.bone_orientation_wxyz);
+            six(&old.free_acceleration_mps2, &mut f.free_acceleration_mps2);
+            six(&old.angular_velocity_radps, &mut f.angular_velocity_radps);
+            six(&old.heading_correction_rad, &mut f.heading_correction_rad);
+            Some(f)
+        }
+    }
+
+    // The v1 sizes, as they were asserted before the site catalogue.
+    const _: () = assert!(std::mem::size_of::<RawImuFrame>() == 32 + 48 + 72 * 3 + 96 + 16);
+    const _: () = assert!(std::mem::size_of::<ImuFrame>() == 32 + 96 + 72 + 72 + 8);
+    const _: () = assert!(std::mem::size_of::<BodyImuFrame>() == 32 + 96 + 72 + 72 + 24 + 8);
+}
+
 // Sizes are part of the contract: a change here is a wire change and needs a version bump.
 const _: () = assert!(std::mem::size_of::<FrameHeader>() == 32);
-const _: () = assert!(std::mem::size_of::<RawImuFrame>() == 32 + 48 + 72 * 3 + 96 + 16);
-const _: () = assert!(std::mem::size_of::<ImuFrame>() == 32 + 96 + 72 + 72 + 8);
-const _: () = assert!(std::mem::size_of::<BodyImuFrame>() == 32 + 96 + 72 + 72 + 24 + 8);
+const _: () = assert!(MAX_SITES <= 32); // the masks are u32
+const _: () = assert!(std::mem::size_of::<RawImuFrame>() == 32 + 136 + 204 * 3 + 272 + 16 + 4);
+const _: () = assert!(std::mem::size_of::<ImuFrame>() == 32 + 272 + 204 + 204 + 8);
+const _: () = assert!(std::mem::size_of::<BodyImuFrame>() == 32 + 272 + 204 + 204 + 68 + 12);
 const _: () =
     assert!(std::mem::size_of::<KinematicsFrame>() == 32 + 384 + 288 + 288 + 8 + 20 + 24 + 4);
 const _: () = assert!(std::mem::align_of::<MotionFrame>() == 8);
@@ -549,7 +694,7 @@ mod tests {
             .iter()
             .find(|f| f.name == "angular_rate_radps")
             .expect("field exists");
-        assert_eq!(field.shape, vec![6, 3]);
+        assert_eq!(field.shape, vec![MAX_SITES, 3]);
         let at = field.offset + (2 * 3 + 1) * 4;
         assert_eq!(
             f32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes")),
@@ -574,6 +719,49 @@ mod tests {
         let back: MotionFrame = frame_from_bytes(bytemuck::bytes_of(&m)).expect("same length");
         assert_eq!(back, m);
         assert!(frame_from_bytes::<MotionFrame>(&[0u8; 10]).is_none());
+    }
+
+    #[test]
+    fn a_v1_imu_frame_reads_as_the_first_six_slots() {
+        // A v1 ImuFrame's bytes written by hand: header, then 6 quaternions, 6 forces, 6 rates,
+        // valid_mask, reserved (its layout before the site catalogue).
+        let mut bytes = Vec::new();
+        bytes.extend_from_slice(&7u64.to_le_bytes()); // seq
+        bytes.extend_from_slice(&[0u8; 24]);
+        for i in 0..6 {
+            for k in 0..4 {
+                bytes.extend_from_slice(&((10 * i + k) as f32).to_le_bytes());
+            }
+        }
+        for i in 0..6 {
+            for k in 0..3 {
+                bytes.extend_from_slice(&((100 + 10 * i + k) as f32).to_le_bytes());
+            }
+        }
+        for i in 0..6 {
+            for k in 0..3 {
+                bytes.extend_from_slice(&((200 + 10 * i + k) as f32).to_le_bytes());
+            }
+        }
+        bytes.extend_from_slice(&0b10_1101u32.to_le_bytes());
+        bytes.extend_from_slice(&0u32.to_le_bytes());
+        assert_eq!(bytes.len(), 280);
+        assert!(frame_from_bytes::<ImuFrame>(&bytes).is_none());
+        let f: ImuFrame = frame_from_recorded(&bytes).expect("a v1 frame widens");
+        assert_eq!(f.header.seq, 7);
+        assert_eq!(f.valid_mask, 0b10_1101);
+        assert_eq!(f.orientation_wxyz[5], [50.0, 51.0, 52.0, 53.0]);
+        assert_eq!(f.specific_force_mps2[2], [120.0, 121.0, 122.0]);
+        assert_eq!(f.angular_rate_radps[4], [240.0, 241.0, 242.0]);
+        assert!(f.orientation_wxyz[6..].iter().all(|q| *q == [0.0; 4]));
+        assert_eq!(ImuFrame::EARLIER_TYPE_NAMES, ["imuflow.ImuFrame.v1"]);
+        // The current version reads as itself; a length of neither is no frame.
+        assert_eq!(
+            frame_from_recorded::<ImuFrame>(bytemuck::bytes_of(&f)),
+            Some(f)
+        );
+        assert!(frame_from_recorded::<ImuFrame>(&bytes[..279]).is_none());
+        assert!(frame_from_recorded::<MotionFrame>(&bytes).is_none());
     }
 
     #[test]

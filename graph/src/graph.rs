@@ -190,6 +190,13 @@ impl StageNode {
     }
 }
 
+/// The sensor set of a graph that names none: PIP's and GlobalPose's six.
+pub const DEFAULT_SENSORS: &str = "six";
+
+fn default_sensors() -> String {
+    DEFAULT_SENSORS.to_owned()
+}
+
 /// A graph that passed validation.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct Graph {
@@ -198,6 +205,10 @@ pub struct Graph {
     pub file: PathBuf,
     pub rate_hz: f64,
     pub mode: Mode,
+    /// The sensor set, as the graph file names it ([`DEFAULT_SENSORS`] when it names none): a
+    /// shipped set's name or a set file's path, resolved by the stages (`imuflow_body`).
+    #[serde(default = "default_sensors")]
+    pub sensors: String,
     pub ready_timeout_s: f64,
     /// The launcher's stall watchdog: seconds a stage may hold unconsumed input without taking
     /// any of it (per stage: [`StageNode::stall_timeout_s`]).
@@ -378,11 +389,12 @@ impl Graph {
         };
         let _ = writeln!(
             out,
-            "graph '{}' ({}), {} stages, {} Hz, {mode}",
+            "graph '{}' ({}), {} stages, {} Hz, {mode}, sensors {}",
             self.name,
             self.file.display(),
             self.stages.len(),
-            self.rate_hz
+            self.rate_hz,
+            self.sensors
         );
         for node in self.topological_order() {
             let _ = writeln!(
@@ -530,6 +542,7 @@ mod tests {
             name: "ab".into(),
             file: PathBuf::from("ab.toml"),
             rate_hz: 60.0,
+            sensors: DEFAULT_SENSORS.to_owned(),
             mode: Mode::Offline,
             ready_timeout_s: 30.0,
             stall_timeout_s: DEFAULT_OFFLINE_STALL_TIMEOUT_S,

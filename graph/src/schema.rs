@@ -16,6 +16,11 @@ pub struct GraphFile {
     /// `live`: sources run at sensor rate; a late stage drops frames and counts them.
     #[serde(default)]
     pub mode: Option<String>,
+    /// The sensor set the graph's sensors are: a shipped set's name (`six`, the default;
+    /// `lower-body`, `full-suit`) or the path of a user's set file (`models/sensor-sets.toml`
+    /// shows the form). Every stage follows it; the graph crate keeps it as written.
+    #[serde(default)]
+    pub sensors: Option<String>,
     /// Seconds to wait for every stage to report ready. Default 30.
     #[serde(default)]
     pub ready_timeout_s: Option<toml::Value>,

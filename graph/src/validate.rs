@@ -171,6 +171,17 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
         &file.stall_timeout_s,
     )
     .unwrap_or(default_stall);
+    let sensors = match file.sensors.as_deref().map(str::trim) {
+        None => crate::graph::DEFAULT_SENSORS.to_owned(),
+        Some("") => {
+            problems.file(
+                "sensors",
+                "must name a sensor set (six, lower-body, full-suit) or a set file",
+            );
+            crate::graph::DEFAULT_SENSORS.to_owned()
+        }
+        Some(name) => name.to_owned(),
+    };
     if file.name.trim().is_empty() {
         problems.file("name", "must not be empty");
     }
@@ -337,6 +348,7 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
             file: path.to_owned(),
             rate_hz,
             mode,
+            sensors,
             ready_timeout_s,
             stall_timeout_s,
             stages,

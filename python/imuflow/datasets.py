@@ -214,9 +214,11 @@ def imu_frames(layout, ori, acc, rate_hz=RATE_HZ):
     force[~usable] = 0.0
     frames = empty_frames(layout, n)
     _header(frames)
-    frames["orientation_wxyz"] = q
-    frames["specific_force_mps2"] = force
-    frames["angular_rate_radps"] = angular_rate(q, usable, rate_hz)
+    # The six fill the frame's first six slots (the six-site set's); the other sites' stay empty.
+    six = q.shape[1]
+    frames["orientation_wxyz"][:, :six] = q
+    frames["specific_force_mps2"][:, :six] = force
+    frames["angular_rate_radps"][:, :six] = angular_rate(q, usable, rate_hz)
     mask = (usable.astype(np.uint32) << np.arange(usable.shape[1], dtype=np.uint32)).sum(axis=1)
     frames["valid_mask"] = mask
     frames["header.flags"] = np.where(mask == ALL_VALID, 0, INVALID)

@@ -6,7 +6,7 @@ What the Rust readers (`Recording::load`: the imu-source stage's `replay` mode, 
 - header profile `imuflow`;
 - per stream one channel, topic `stage.port` (`source.imu`), message encoding `imuflow-raw` (the
   frame's little-endian bytes), channel metadata `input`, `frame` (struct name) and `frame_size`;
-- its schema named after the versioned frame type (`imuflow.ImuFrame.v1`), schema encoding
+- its schema named after the versioned frame type (`imuflow.ImuFrame.v2`), schema encoding
   `imuflow-layout`, data the layout as pretty-printed JSON;
 - one metadata record `imuflow` whose `rate_hz` the readers take as the recording's rate;
 - messages with sequence = `header.seq`, log time = `header.capture_ns`, publish time =

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix3, Vector3};
 use serde::Deserialize;
 
-use crate::skeleton::{Imu, JointId, NUM_IMUS, NUM_JOINTS, Skeleton};
+use crate::skeleton::{Imu, JointId, MAX_SITES, NUM_JOINTS, Skeleton};
 
 /// The body model shipped in the repository (`models/body.toml`), embedded at compile time.
 pub const BUILTIN_BODY_TOML: &str = include_str!("../../../models/body.toml");
@@ -88,6 +88,17 @@ struct ImuTable {
     right_lower_leg: ImuParams,
     head: ImuParams,
     pelvis: ImuParams,
+    left_upper_leg: ImuParams,
+    right_upper_leg: ImuParams,
+    left_foot: ImuParams,
+    right_foot: ImuParams,
+    sternum: ImuParams,
+    left_shoulder: ImuParams,
+    right_shoulder: ImuParams,
+    left_upper_arm: ImuParams,
+    right_upper_arm: ImuParams,
+    left_hand: ImuParams,
+    right_hand: ImuParams,
 }
 
 /// Parsed and validated `body.toml`: the reference subject's tables, not yet scaled to a subject.
@@ -254,7 +265,7 @@ fn validate(f: &BodyFile, file: &str) -> Result<(), BodyLoadError> {
         ));
     }
     let i = &f.imus;
-    for imu in Imu::ALL {
+    for imu in Imu::CATALOGUE {
         let o = imu_params(i, imu).offset_m;
         for (k, v) in o.iter().enumerate() {
             if !v.is_finite() {
@@ -277,6 +288,17 @@ fn imu_params(t: &ImuTable, imu: Imu) -> ImuParams {
         Imu::RightLowerLeg => t.right_lower_leg,
         Imu::Head => t.head,
         Imu::Pelvis => t.pelvis,
+        Imu::LeftUpperLeg => t.left_upper_leg,
+        Imu::RightUpperLeg => t.right_upper_leg,
+        Imu::LeftFoot => t.left_foot,
+        Imu::RightFoot => t.right_foot,
+        Imu::Sternum => t.sternum,
+        Imu::LeftShoulder => t.left_shoulder,
+        Imu::RightShoulder => t.right_shoulder,
+        Imu::LeftUpperArm => t.left_upper_arm,
+        Imu::RightUpperArm => t.right_upper_arm,
+        Imu::LeftHand => t.left_hand,
+        Imu::RightHand => t.right_hand,
     }
 }
 
@@ -306,8 +328,9 @@ pub struct BodyModel {
     pub skeleton: Skeleton,
     /// Massive segments (massless joints such as spine2, neck and collars carry none).
     pub segments: Vec<Segment>,
-    /// IMU position (m) in its carrying joint's frame ([`Imu::joint`]), in IMU order.
-    pub imu_offsets_in_joint_m: [Vector3<f64>; NUM_IMUS],
+    /// IMU position (m) in its carrying joint's frame ([`Imu::joint`]), per site of the
+    /// catalogue in wire slot order.
+    pub imu_offsets_in_joint_m: [Vector3<f64>; MAX_SITES],
     /// Height of the root joint above the floor in the T-pose (m); the floor is y = 0 when the root is
     /// placed at (0, this, 0).
     pub rest_root_height_m: f64,
@@ -520,7 +543,7 @@ impl BodyModel {
             );
         }
 
-        let imu_offsets_in_joint_m = Imu::ALL
+        let imu_offsets_in_joint_m = Imu::CATALOGUE
             .map(|imu| Vector3::from(imu_params(&f.imus, imu).offset_m) * (stature_m / h_ref));
 
         Ok(BodyModel {

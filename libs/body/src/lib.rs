@@ -3,7 +3,8 @@
 //! Frame M everywhere: x = left, y = up, z = forward (the subject faces +z in the T-pose), gravity
 //! (0, −9.81, 0); SI units; rotations act on column vectors.
 //!
-//! - [`skeleton`]: the 24-joint SMPL topology, joint handles and joint sets, IMU joints.
+//! - [`skeleton`]: the 24-joint SMPL topology, joint handles and joint sets, the sensor sites.
+//! - [`sensor_set`]: which sites a capture setup wears (`models/sensor-sets.toml`).
 //! - [`body_model`]: dimensions, segment masses/inertias and IMU placement from `models/body.toml`.
 //! - [`rotation`]: 6D, Euler, axis-angle, from-to, slerp, geodesic angle.
 //! - [`kinematics`]: forward and inverse kinematics with preallocated buffers.
@@ -23,6 +24,7 @@ pub mod inertial;
 pub mod kinematics;
 pub mod limb_joints;
 pub mod rotation;
+pub mod sensor_set;
 pub mod skeleton;
 pub mod urdf;
 
@@ -30,7 +32,8 @@ pub use body_model::{BodyModel, BodyParams, GRAVITY_IN_MODEL_MPS2};
 pub use kinematics::{
     FkData, Pose, WirePoseError, forward_kinematics, mirror_rotation, mirror_vector,
 };
-pub use skeleton::{Imu, JointId, NUM_IMUS, NUM_JOINTS, Skeleton};
+pub use sensor_set::{SensorSet, SiteMask};
+pub use skeleton::{Imu, JointId, MAX_SITES, NUM_IMUS, NUM_JOINTS, Skeleton};
 
 #[cfg(test)]
 mod test_util;

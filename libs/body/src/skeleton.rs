@@ -10,8 +10,12 @@ use nalgebra::Vector3;
 /// Number of joints in the skeleton (SMPL's 24).
 pub const NUM_JOINTS: usize = 24;
 
-/// Number of body-worn IMUs.
+/// Sites of the six-site set (PIP's and GlobalPose's sensors): the first six slots of the wire.
 pub const NUM_IMUS: usize = 6;
+
+/// Sites of the site catalogue ([`Imu::CATALOGUE`]): the slots of every IMU frame, enough for a
+/// full suit.
+pub const MAX_SITES: usize = 17;
 
 /// Handle to one of the 24 joints. Only valid handles can be constructed (the constants below or
 /// [`JointId::from_index`] / [`JointId::from_name`]), so indexing a `[T; NUM_JOINTS]` with
@@ -187,8 +191,11 @@ pub const SIP_JOINTS: [JointId; 4] = ids([1, 2, 16, 17]);
 /// GlobalPose contact ("stationary") joints: pelvis, L/R foot, L/R hand (reference §1).
 pub const CONTACT_JOINTS: [JointId; 5] = ids([0, 10, 11, 22, 23]);
 
-/// One of the six body-worn IMUs, in the order used everywhere in imuflow.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+/// One sensor site of the site catalogue: a place on the body model where an IMU can be worn, named
+/// by the bone it rides. The catalogue's order is the wire's slot order: every IMU frame has one
+/// slot per site ([`MAX_SITES`]), and a sensor set ([`crate::sensor_set`]) fills some of them. The
+/// first six are the six-site set of PIP and GlobalPose, in the order they have always had.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Imu {
     LeftForearm = 0,
     RightForearm = 1,
@@ -196,11 +203,23 @@ pub enum Imu {
     RightLowerLeg = 3,
     Head = 4,
     Pelvis = 5,
+    LeftUpperLeg = 6,
+    RightUpperLeg = 7,
+    LeftFoot = 8,
+    RightFoot = 9,
+    Sternum = 10,
+    LeftShoulder = 11,
+    RightShoulder = 12,
+    LeftUpperArm = 13,
+    RightUpperArm = 14,
+    LeftHand = 15,
+    RightHand = 16,
 }
 
 impl Imu {
-    /// The six IMUs in wire order: [left forearm, right forearm, left lower leg, right lower leg, head, pelvis].
-    pub const ALL: [Imu; NUM_IMUS] = [
+    /// The six-site set's IMUs in wire order: [left forearm, right forearm, left lower leg, right
+    /// lower leg, head, pelvis] (PIP's and GlobalPose's sensors; wire slots 0..6).
+    pub const SIX: [Imu; NUM_IMUS] = [
         Imu::LeftForearm,
         Imu::RightForearm,
         Imu::LeftLowerLeg,
@@ -209,9 +228,40 @@ impl Imu {
         Imu::Pelvis,
     ];
 
-    /// Index in wire order (0..6).
+    /// Every site of the catalogue, in wire slot order.
+    pub const CATALOGUE: [Imu; MAX_SITES] = [
+        Imu::LeftForearm,
+        Imu::RightForearm,
+        Imu::LeftLowerLeg,
+        Imu::RightLowerLeg,
+        Imu::Head,
+        Imu::Pelvis,
+        Imu::LeftUpperLeg,
+        Imu::RightUpperLeg,
+        Imu::LeftFoot,
+        Imu::RightFoot,
+        Imu::Sternum,
+        Imu::LeftShoulder,
+        Imu::RightShoulder,
+        Imu::LeftUpperArm,
+        Imu::RightUpperArm,
+        Imu::LeftHand,
+        Imu::RightHand,
+    ];
+
+    /// Wire slot (0..[`MAX_SITES`]).
     pub const fn index(self) -> usize {
         self as usize
+    }
+
+    /// The site in wire slot `index`, if there is one.
+    pub fn from_index(index: usize) -> Option<Imu> {
+        Imu::CATALOGUE.get(index).copied()
+    }
+
+    /// The site named `name` ([`Imu::name`]), if there is one.
+    pub fn from_name(name: &str) -> Option<Imu> {
+        Imu::CATALOGUE.into_iter().find(|imu| imu.name() == name)
     }
 
     /// The IMU on the other side of the body (itself on the midline; see [`JointId::mirror`]).
@@ -223,24 +273,37 @@ impl Imu {
             Imu::RightLowerLeg => Imu::LeftLowerLeg,
             Imu::Head => Imu::Head,
             Imu::Pelvis => Imu::Pelvis,
+            Imu::LeftUpperLeg => Imu::RightUpperLeg,
+            Imu::RightUpperLeg => Imu::LeftUpperLeg,
+            Imu::LeftFoot => Imu::RightFoot,
+            Imu::RightFoot => Imu::LeftFoot,
+            Imu::Sternum => Imu::Sternum,
+            Imu::LeftShoulder => Imu::RightShoulder,
+            Imu::RightShoulder => Imu::LeftShoulder,
+            Imu::LeftUpperArm => Imu::RightUpperArm,
+            Imu::RightUpperArm => Imu::LeftUpperArm,
+            Imu::LeftHand => Imu::RightHand,
+            Imu::RightHand => Imu::LeftHand,
         }
     }
 
-    /// The joint whose global rotation is this IMU's bone orientation (reference §1: joints 18, 19, 4, 5, 15, 0).
+    /// The joint whose global rotation is this IMU's bone orientation (the six: reference §1,
+    /// joints 18, 19, 4, 5, 15, 0; the others the same way: the joint at the bone's proximal end).
     pub const fn joint(self) -> JointId {
-        IMU_JOINTS[self as usize]
+        SITE_JOINTS[self as usize]
     }
 
-    /// Every IMU's [`Imu::name`], in IMU order: the site names of sensor files, tracker maps,
-    /// calibration files and logs.
-    pub const NAMES: [&'static str; NUM_IMUS] = [
-        Imu::LeftForearm.name(),
-        Imu::RightForearm.name(),
-        Imu::LeftLowerLeg.name(),
-        Imu::RightLowerLeg.name(),
-        Imu::Head.name(),
-        Imu::Pelvis.name(),
-    ];
+    /// Every site's [`Imu::name`], in wire slot order: the site names of sensor files, tracker
+    /// maps, calibration files, sensor sets and logs.
+    pub const NAMES: [&'static str; MAX_SITES] = {
+        let mut names = [""; MAX_SITES];
+        let mut i = 0;
+        while i < MAX_SITES {
+            names[i] = Imu::CATALOGUE[i].name();
+            i += 1;
+        }
+        names
+    };
 
     /// Lower-case snake_case name, also the key in models/body.toml.
     pub const fn name(self) -> &'static str {
@@ -251,11 +314,36 @@ impl Imu {
             Imu::RightLowerLeg => "right_lower_leg",
             Imu::Head => "head",
             Imu::Pelvis => "pelvis",
+            Imu::LeftUpperLeg => "left_upper_leg",
+            Imu::RightUpperLeg => "right_upper_leg",
+            Imu::LeftFoot => "left_foot",
+            Imu::RightFoot => "right_foot",
+            Imu::Sternum => "sternum",
+            Imu::LeftShoulder => "left_shoulder",
+            Imu::RightShoulder => "right_shoulder",
+            Imu::LeftUpperArm => "left_upper_arm",
+            Imu::RightUpperArm => "right_upper_arm",
+            Imu::LeftHand => "left_hand",
+            Imu::RightHand => "right_hand",
         }
     }
 }
 
-/// Bone (joint) carrying each IMU, in IMU order: L elbow, R elbow, L knee, R knee, head, pelvis.
+impl fmt::Display for Imu {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Bone (joint) carrying each site, in wire slot order: L elbow, R elbow, L knee, R knee, head,
+/// pelvis (the six-site set, reference §1), then L hip, R hip (thighs), L ankle, R ankle (feet),
+/// spine3 (chest), L collar, R collar (shoulders), L shoulder, R shoulder (upper arms), L wrist,
+/// R wrist (hands).
+const SITE_JOINTS: [JointId; MAX_SITES] =
+    ids([18, 19, 4, 5, 15, 0, 1, 2, 7, 8, 9, 13, 14, 16, 17, 20, 21]);
+
+/// Bone (joint) carrying each IMU of the six-site set, in its order: L elbow, R elbow, L knee,
+/// R knee, head, pelvis (reference §1).
 pub const IMU_JOINTS: [JointId; NUM_IMUS] = ids([18, 19, 4, 5, 15, 0]);
 
 /// Skeleton geometry: the rest (T-pose) offset of every joint from its parent. Immutable model data;
@@ -303,6 +391,25 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_catalogue_is_in_slot_order_and_starts_with_the_six() {
+        for (slot, imu) in Imu::CATALOGUE.into_iter().enumerate() {
+            assert_eq!(imu.index(), slot);
+            assert_eq!(Imu::from_index(slot), Some(imu));
+            assert_eq!(Imu::from_name(imu.name()), Some(imu));
+            assert_eq!(Imu::NAMES[slot], imu.name());
+        }
+        assert_eq!(Imu::CATALOGUE[..NUM_IMUS], Imu::SIX);
+        assert_eq!(Imu::SIX.map(Imu::joint), IMU_JOINTS);
+        assert_eq!(Imu::from_index(MAX_SITES), None);
+        assert_eq!(Imu::from_name("left_thigh"), None);
+        // One site per bone: two sensors on one bone would need two slots for one orientation.
+        let mut joints: Vec<JointId> = Imu::CATALOGUE.iter().map(|i| i.joint()).collect();
+        joints.sort();
+        joints.dedup();
+        assert_eq!(joints.len(), MAX_SITES);
+    }
+
+    #[test]
     fn the_mirror_maps_pair_left_and_right() {
         assert_eq!(JointId::LEFT_ELBOW.mirror(), JointId::RIGHT_ELBOW);
         assert_eq!(JointId::RIGHT_HAND.mirror(), JointId::LEFT_HAND);
@@ -317,8 +424,16 @@ mod tests {
                     .replace('@', "right")
             );
         }
-        for imu in Imu::ALL {
+        for imu in Imu::CATALOGUE {
             assert_eq!(imu.mirror().joint(), imu.joint().mirror(), "{}", imu.name());
+            assert_eq!(imu.mirror().mirror(), imu);
+            let (name, other) = (imu.name(), imu.mirror().name());
+            assert_eq!(
+                other,
+                name.replace("left", "@")
+                    .replace("right", "left")
+                    .replace('@', "right")
+            );
         }
     }
 
@@ -362,7 +477,7 @@ mod tests {
         assert_eq!(Imu::LeftForearm.joint(), JointId::LEFT_ELBOW);
         assert_eq!(Imu::RightLowerLeg.joint(), JointId::RIGHT_KNEE);
         assert_eq!(Imu::Pelvis.joint(), JointId::PELVIS);
-        assert_eq!(Imu::ALL.map(|i| i.index()), [0, 1, 2, 3, 4, 5]);
+        assert_eq!(Imu::SIX.map(|i| i.index()), [0, 1, 2, 3, 4, 5]);
     }
 
     #[test]

@@ -31,10 +31,11 @@ use rand::{Rng, SeedableRng};
 use rand_distr::StandardNormal;
 
 use crate::retarget::MotionClip;
+use imuflow_body::SiteMask;
 use imuflow_body::body_model::{BodyModel, GRAVITY_IN_MODEL_MPS2};
 use imuflow_body::kinematics::{FkData, forward_kinematics};
 use imuflow_body::rotation::{Axis, axis_angle_from_rotation};
-use imuflow_body::skeleton::{Imu, NUM_IMUS};
+use imuflow_body::skeleton::{Imu, MAX_SITES};
 
 /// Half-width n (frames) of the TransPose/PIP smoothing stencil (reference §3, paper eq. 11: n = 4,
 /// chosen there as closest to real TotalCapture accelerometer statistics). Defined at 60 Hz.
@@ -188,12 +189,27 @@ pub struct Augmentation {
 }
 
 /// Options of [`synthesize_imus`].
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SynthesisOptions {
     /// Acceleration stencil.
     pub stencil: AccelStencil,
     /// `None`: ideal signals.
     pub augmentation: Option<Augmentation>,
+    /// The sites to synthesize (a sensor set's, [`imuflow_body::SensorSet::mask`]); the others'
+    /// slots stay empty. The augmentation draws per site in slot order, so a set's draws do not
+    /// depend on what other sets hold.
+    pub sites: SiteMask,
+}
+
+impl Default for SynthesisOptions {
+    /// The TransPose/PIP stencil, ideal signals, the six-site set.
+    fn default() -> Self {
+        SynthesisOptions {
+            stencil: AccelStencil::default(),
+            augmentation: None,
+            sites: SiteMask::of(Imu::SIX),
+        }
+    }
 }
 
 /// One sensor's signals in one frame.
@@ -229,13 +245,15 @@ impl ImuSample {
     }
 }
 
-/// Synthetic signals of the six sensors (IMU order, [`Imu::ALL`]) for every frame of a clip.
+/// Synthetic signals of a set of sites ([`SynthesisOptions::sites`]) for every frame of a clip.
 #[derive(Clone, Debug, PartialEq, Default)]
 pub struct SyntheticImus {
     /// Seconds between frames (the clip's).
     pub frame_time_s: f64,
-    /// One entry per clip frame, indexed by [`Imu::index`].
-    pub frames: Vec<[ImuSample; NUM_IMUS]>,
+    /// The sites synthesized; the other slots hold a zero sample (identity orientation).
+    pub sites: SiteMask,
+    /// One entry per clip frame, indexed by [`Imu::index`] (wire slot).
+    pub frames: Vec<[ImuSample; MAX_SITES]>,
 }
 
 /// Failure of [`synthesize_imus`].
@@ -255,7 +273,7 @@ pub enum SynthesisError {
     InvalidConfig { field: &'static str, value: f64 },
 }
 
-/// Synthesize the six IMUs for `clip` on `body` (clips should be at 60 Hz, the rate the reference
+/// Synthesize the IMUs of `options.sites` for `clip` on `body` (clips should be at 60 Hz, the rate the reference
 /// stencils and noise magnitudes are defined at; see [`crate::retarget::resample`]).
 ///
 /// Angular velocity: interior frames use `ω_S(t) = log(R_{t−1}ᵀ R_{t+1}) / (2dt)` (second-order accurate,
@@ -285,6 +303,8 @@ pub fn synthesize_imus_into(
     out.frames.clear();
     let dt = clip.frame_time_s;
     out.frame_time_s = dt;
+    out.sites = options.sites;
+    let sites = options.sites;
     if !(dt.is_finite() && dt > 0.0) {
         return Err(SynthesisError::InvalidFrameTime { frame_time_s: dt });
     }
@@ -301,11 +321,11 @@ pub fn synthesize_imus_into(
     if let Some(a) = &options.augmentation {
         a.config.validate()?;
     }
-    out.frames.resize(n, [ImuSample::zero(); NUM_IMUS]);
+    out.frames.resize(n, [ImuSample::zero(); MAX_SITES]);
 
     let mut noise = options
         .augmentation
-        .map(|a| NoiseState::new(&a.config, a.seed, dt));
+        .map(|a| NoiseState::new(&a.config, a.seed, dt, sites));
 
     // Pass 1: true sensor orientations and positions (with the mounting errors).
     let mut fk = FkData::new();
@@ -314,7 +334,7 @@ pub fn synthesize_imus_into(
         if let Some(ns) = noise.as_mut() {
             ns.step_mounting(t);
         }
-        for imu in Imu::ALL {
+        for imu in sites.sites() {
             let s = imu.index();
             let joint = imu.joint();
             let model_from_bone = fk.world_from(joint);
@@ -341,7 +361,7 @@ pub fn synthesize_imus_into(
     }
 
     // Pass 2: free acceleration (true) and pass 3: sensor-frame angular velocity (true).
-    for s in 0..NUM_IMUS {
+    for s in sites.sites().map(Imu::index) {
         for t in 0..n {
             let a = accel_at(&out.frames, s, t, dt, options.stencil);
             let w = angular_velocity_at(&out.frames, s, t, dt);
@@ -356,7 +376,8 @@ pub fn synthesize_imus_into(
         if let Some(ns) = noise.as_mut() {
             ns.step_sensors(t);
         }
-        for (s, sample) in frame.iter_mut().enumerate() {
+        for s in sites.sites().map(Imu::index) {
+            let sample = &mut frame[s];
             let true_model_from_sensor = sample.model_from_sensor;
             let a = sample.free_accel_in_model_mps2;
             let specific_force = true_model_from_sensor.transpose() * (a - g);
@@ -398,7 +419,7 @@ pub fn synthesize_imus_into(
 
 /// Second difference of sensor `s`'s positions at frame `t` (needs ≥ [`MIN_FRAMES`] frames).
 fn accel_at(
-    frames: &[[ImuSample; NUM_IMUS]],
+    frames: &[[ImuSample; MAX_SITES]],
     s: usize,
     t: usize,
     dt: f64,
@@ -440,7 +461,7 @@ fn accel_at(
 /// Sensor-frame angular velocity of sensor `s` at frame `t` from the orientations (see
 /// [`synthesize_imus`]; needs ≥ [`MIN_FRAMES`] frames).
 fn angular_velocity_at(
-    frames: &[[ImuSample; NUM_IMUS]],
+    frames: &[[ImuSample; MAX_SITES]],
     s: usize,
     t: usize,
     dt: f64,
@@ -458,19 +479,20 @@ fn angular_velocity_at(
     }
 }
 
-/// Random state of the augmentation model. Draw order (fixed, so a seed fixes the output): per sensor the
-/// constant mounting rotation then position error; per frame the mounting walks of all sensors (pass 1);
-/// per frame the bias/heading walks of all sensors, then per sensor the accelerometer and gyro white
-/// noise (pass 4).
+/// Random state of the augmentation model. Draw order (fixed, so a seed fixes the output), sensors
+/// in slot order: per sensor the constant mounting rotation then position error; per frame the
+/// mounting walks of all sensors (pass 1); per frame the bias/heading walks of all sensors, then per
+/// sensor the accelerometer and gyro white noise (pass 4).
 struct NoiseState {
     rng: StdRng,
-    mount_rot_const: [Vector3<f64>; NUM_IMUS],
-    mount_pos_const: [Vector3<f64>; NUM_IMUS],
-    mount_rot_walk: [Vector3<f64>; NUM_IMUS],
-    mount_pos_walk: [Vector3<f64>; NUM_IMUS],
-    accel_bias: [Vector3<f64>; NUM_IMUS],
-    gyro_bias: [Vector3<f64>; NUM_IMUS],
-    heading: [f64; NUM_IMUS],
+    sites: SiteMask,
+    mount_rot_const: [Vector3<f64>; MAX_SITES],
+    mount_pos_const: [Vector3<f64>; MAX_SITES],
+    mount_rot_walk: [Vector3<f64>; MAX_SITES],
+    mount_pos_walk: [Vector3<f64>; MAX_SITES],
+    accel_bias: [Vector3<f64>; MAX_SITES],
+    gyro_bias: [Vector3<f64>; MAX_SITES],
+    heading: [f64; MAX_SITES],
     // Per-step / per-sample standard deviations (per axis).
     mount_rot_step_sigma: f64,
     mount_pos_step_sigma: f64,
@@ -482,18 +504,19 @@ struct NoiseState {
 }
 
 impl NoiseState {
-    fn new(c: &AugmentationConfig, seed: u64, dt: f64) -> NoiseState {
+    fn new(c: &AugmentationConfig, seed: u64, dt: f64, sites: SiteMask) -> NoiseState {
         let k = MEAN_NORM_TO_SIGMA;
         let sqrt_dt = dt.sqrt();
         let mut ns = NoiseState {
             rng: StdRng::seed_from_u64(seed),
-            mount_rot_const: [Vector3::zeros(); NUM_IMUS],
-            mount_pos_const: [Vector3::zeros(); NUM_IMUS],
-            mount_rot_walk: [Vector3::zeros(); NUM_IMUS],
-            mount_pos_walk: [Vector3::zeros(); NUM_IMUS],
-            accel_bias: [Vector3::zeros(); NUM_IMUS],
-            gyro_bias: [Vector3::zeros(); NUM_IMUS],
-            heading: [0.0; NUM_IMUS],
+            sites,
+            mount_rot_const: [Vector3::zeros(); MAX_SITES],
+            mount_pos_const: [Vector3::zeros(); MAX_SITES],
+            mount_rot_walk: [Vector3::zeros(); MAX_SITES],
+            mount_pos_walk: [Vector3::zeros(); MAX_SITES],
+            accel_bias: [Vector3::zeros(); MAX_SITES],
+            gyro_bias: [Vector3::zeros(); MAX_SITES],
+            heading: [0.0; MAX_SITES],
             mount_rot_step_sigma: k * c.mounting_rotation_walk_rad_per_sqrt_s * sqrt_dt,
             mount_pos_step_sigma: k * c.mounting_position_walk_m_per_sqrt_s * sqrt_dt,
             accel_noise_sigma: c.accel_noise_mps2,
@@ -502,7 +525,7 @@ impl NoiseState {
             gyro_bias_step_sigma: c.gyro_bias_walk_radps_per_sqrt_s * sqrt_dt,
             heading_step_sigma: c.heading_drift_rad_per_sqrt_s * sqrt_dt,
         };
-        for s in 0..NUM_IMUS {
+        for s in sites.sites().map(Imu::index) {
             ns.mount_rot_const[s] = ns.gaussian3(k * c.mounting_rotation_error_rad);
             ns.mount_pos_const[s] = ns.gaussian3(k * c.mounting_position_error_m);
         }
@@ -526,7 +549,7 @@ impl NoiseState {
         if t == 0 {
             return;
         }
-        for s in 0..NUM_IMUS {
+        for s in self.sites.sites().map(Imu::index) {
             let step = self.gaussian3(self.mount_rot_step_sigma);
             self.mount_rot_walk[s] += step;
             let step = self.gaussian3(self.mount_pos_step_sigma);
@@ -539,7 +562,7 @@ impl NoiseState {
         if t == 0 {
             return;
         }
-        for s in 0..NUM_IMUS {
+        for s in self.sites.sites().map(Imu::index) {
             let step = self.gaussian3(self.accel_bias_step_sigma);
             self.accel_bias[s] += step;
             let step = self.gaussian3(self.gyro_bias_step_sigma);
@@ -558,7 +581,7 @@ mod tests {
     use imuflow_body::body_model::BodyParams;
     use imuflow_body::kinematics::Pose;
     use imuflow_body::rotation::{angle_between, slerp};
-    use imuflow_body::skeleton::{JointId, NUM_JOINTS};
+    use imuflow_body::skeleton::{JointId, NUM_IMUS, NUM_JOINTS};
     use std::f64::consts::PI;
 
     const DT: f64 = 1.0 / 60.0;
@@ -580,6 +603,7 @@ mod tests {
         SynthesisOptions {
             stencil,
             augmentation: None,
+            ..SynthesisOptions::default()
         }
     }
 
@@ -587,6 +611,7 @@ mod tests {
         SynthesisOptions {
             stencil: AccelStencil::SmoothedTransPose,
             augmentation: Some(Augmentation { config, seed }),
+            ..SynthesisOptions::default()
         }
     }
 
@@ -607,6 +632,59 @@ mod tests {
             })
             .collect();
         clip(poses)
+    }
+
+    #[test]
+    fn a_set_synthesizes_its_sites_on_their_bones_and_leaves_the_rest_empty() {
+        let body = body();
+        let clip = busy_clip(30);
+        let six = synthesize_imus(&clip, &body, &SynthesisOptions::default()).unwrap();
+        let suit_options = SynthesisOptions {
+            sites: SiteMask::of(Imu::CATALOGUE),
+            ..SynthesisOptions::default()
+        };
+        let suit = synthesize_imus(&clip, &body, &suit_options).unwrap();
+        let mut fk = FkData::new();
+        for (t, (a, b)) in six.frames.iter().zip(&suit.frames).enumerate() {
+            // Ideal signals of a site do not depend on which other sites are synthesized.
+            assert_eq!(a[..NUM_IMUS], b[..NUM_IMUS]);
+            forward_kinematics(&body.skeleton, &clip.poses[t], &mut fk);
+            for imu in Imu::CATALOGUE {
+                let s = &b[imu.index()];
+                // Each sensor rides its bone: the ideal sensor frame is the bone frame, at the
+                // body model's placement.
+                assert!(angle_between(&s.model_from_sensor, fk.world_from(imu.joint())) < 1e-12);
+                let expected = fk.position(imu.joint())
+                    + fk.world_from(imu.joint()) * body.imu_offsets_in_joint_m[imu.index()];
+                assert_relative_eq!(s.position_in_model_m, expected, epsilon = 1e-12);
+            }
+            for empty in &a[NUM_IMUS..] {
+                assert_eq!(*empty, ImuSample::zero());
+            }
+        }
+        assert_eq!(six.sites, SiteMask::of(Imu::SIX));
+        assert_eq!(suit.sites.len(), MAX_SITES);
+        // Augmented, a seed fixes a set's draws.
+        let config = AugmentationConfig::default();
+        let legs = SiteMask::of([Imu::Pelvis, Imu::LeftUpperLeg, Imu::RightUpperLeg]);
+        let run = || {
+            synthesize_imus(
+                &clip,
+                &body,
+                &SynthesisOptions {
+                    sites: legs,
+                    ..augmented(config, 3)
+                },
+            )
+            .unwrap()
+        };
+        let (x, y) = (run(), run());
+        assert_eq!(x, y);
+        assert_ne!(
+            x.frames[5][Imu::LeftUpperLeg.index()],
+            x.frames[5][Imu::RightUpperLeg.index()]
+        );
+        assert_eq!(x.frames[5][Imu::Head.index()], ImuSample::zero());
     }
 
     #[test]
@@ -718,7 +796,7 @@ mod tests {
             let out = synthesize_imus(&clip, &body, &ideal(stencil)).unwrap();
             assert_eq!(out.frames.len(), 12);
             for frame in &out.frames {
-                for imu in Imu::ALL {
+                for imu in Imu::SIX {
                     let s = &frame[imu.index()];
                     let r = fk.world_from(imu.joint());
                     assert_eq!(s.model_from_sensor, *r);
@@ -768,7 +846,7 @@ mod tests {
         );
         // Every sensor: rest joint position + offset, sensor frame = M.
         let rest = sk.rest_positions_from_root_m();
-        for imu in Imu::ALL {
+        for imu in Imu::SIX {
             let s = &out.frames[0][imu.index()];
             assert_relative_eq!(
                 s.position_in_model_m,
@@ -980,7 +1058,7 @@ mod tests {
         let mut out = SyntheticImus::default();
         for seed in 0..2000 {
             synthesize_imus_into(&clip, &body, &augmented(config, seed), &mut out).unwrap();
-            for s in &out.frames[0] {
+            for s in &out.frames[0][..NUM_IMUS] {
                 // T-pose: the ideal sensor frame is M, so R_MS is the error itself.
                 let v = axis_angle_from_rotation(&s.model_from_sensor);
                 angles.push(v.norm());
@@ -1047,7 +1125,7 @@ mod tests {
         let mut out = SyntheticImus::default();
         for seed in 0..200 {
             synthesize_imus_into(&clip, &body, &augmented(config, seed), &mut out).unwrap();
-            for s in &out.frames[n - 1] {
+            for s in &out.frames[n - 1][..NUM_IMUS] {
                 // T-pose: true R_MS = I, so the reported one is the drift: a rotation about y.
                 let v = axis_angle_from_rotation(&s.model_from_sensor);
                 assert!(v.x.abs() < 1e-12 && v.z.abs() < 1e-12);

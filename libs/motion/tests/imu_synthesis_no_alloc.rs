@@ -45,6 +45,7 @@ fn synthesis_into_a_sized_output_does_not_allocate() {
             let options = SynthesisOptions {
                 stencil,
                 augmentation,
+                ..SynthesisOptions::default()
             };
             synthesize_imus_into(&clip, &body, &options, &mut out).unwrap();
             let before = allocations();

@@ -43,6 +43,7 @@ fn walking_fixture_gives_finite_plausible_signals() {
             &SynthesisOptions {
                 stencil,
                 augmentation,
+                ..SynthesisOptions::default()
             },
         )
         .unwrap();

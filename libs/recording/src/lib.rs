@@ -3,14 +3,15 @@
 //! mode, the tools and the tests read recordings through it.
 //!
 //! The raw channels (message encoding `imuflow-raw`) hold each frame's exact bytes; their schema's
-//! name is the versioned frame type (`imuflow.ImuFrame.v1`).
+//! name is the versioned frame type (`imuflow.ImuFrame.v2`). Recordings of an earlier version of a
+//! frame type (`imuflow.ImuFrame.v1`, six IMU slots) read as the current one, widened.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::{Context, anyhow, bail};
-use imuflow_graph::frames::{Frame, FrameHeader, ImuFrame, MotionFrame, frame_from_bytes};
+use imuflow_graph::frames::{Frame, FrameHeader, ImuFrame, MotionFrame, frame_from_recorded};
 
 /// Message encoding of the recorder's raw channels.
 pub const RAW_ENCODING: &str = "imuflow-raw";
@@ -52,9 +53,11 @@ pub fn schema_name<'a>(channel: &'a mcap::Channel<'_>) -> &'a str {
     channel.schema.as_ref().map_or("", |s| s.name.as_str())
 }
 
-/// Whether `channel` holds raw frames of type `T`.
+/// Whether `channel` holds raw frames of type `T` (its current version or an earlier one).
 pub fn carries<T: Frame>(channel: &mcap::Channel<'_>) -> bool {
-    channel.message_encoding == RAW_ENCODING && schema_name(channel) == T::layout().type_name
+    let name = schema_name(channel);
+    channel.message_encoding == RAW_ENCODING
+        && (name == T::layout().type_name || T::EARLIER_TYPE_NAMES.contains(&name))
 }
 
 /// The channel to read frames of type `T` from: the one named `topic`, or the first (lowest id)
@@ -88,9 +91,10 @@ fn pick<T: Frame>(
     Ok(Some(channel.clone()))
 }
 
-/// Message `index` of `topic` as a frame of type `T`; an error names both and the sizes.
+/// Message `index` of `topic` as a frame of type `T` (an earlier version's widened); an error
+/// names both and the sizes.
 pub fn decode<T: Frame>(data: &[u8], topic: &str, index: u64) -> anyhow::Result<T> {
-    frame_from_bytes::<T>(data).ok_or_else(|| {
+    frame_from_recorded::<T>(data).ok_or_else(|| {
         anyhow!(
             "topic '{topic}' message {index}: {} bytes, but a {} is {} bytes",
             data.len(),
@@ -405,7 +409,7 @@ mod tests {
         let mut f = ImuFrame::default();
         f.header.seq = 7;
         let good = bytemuck_bytes(&f);
-        let bytes = write_mcap("src.imu", "imuflow.ImuFrame.v1", &[good.clone(), good]);
+        let bytes = write_mcap("src.imu", "imuflow.ImuFrame.v2", &[good.clone(), good]);
         let rec = Recording::parse(&bytes, None, None).expect("parses");
         assert_eq!(rec.imu_frames, 2);
         assert_eq!(rec.imu_topic, "src.imu");
@@ -413,7 +417,7 @@ mod tests {
 
         let bytes = write_mcap(
             "src.imu",
-            "imuflow.ImuFrame.v1",
+            "imuflow.ImuFrame.v2",
             &[bytemuck_bytes(&f), vec![0u8; 12]],
         );
         let err = Recording::parse(&bytes, None, None).expect_err("fails");
@@ -433,6 +437,25 @@ mod tests {
         assert!(format!("{err:#}").contains("no topic 'nope'"), "{err:#}");
         let err = Recording::parse(&bytes, Some("src.pose"), None).expect_err("fails");
         assert!(format!("{err:#}").contains("not imuflow-raw"), "{err:#}");
+    }
+
+    #[test]
+    fn a_recording_of_six_slot_frames_reads_widened() {
+        // An ImuFrame.v1 (the bundled sample's kind): 280 bytes, header first, the valid mask at
+        // byte 272 after six quaternions, forces and rates.
+        let mut v1 = vec![0u8; 280];
+        v1[..8].copy_from_slice(&9u64.to_le_bytes());
+        v1[32..36].copy_from_slice(&0.5f32.to_le_bytes()); // slot 0's w
+        v1[272..276].copy_from_slice(&0b11_1111u32.to_le_bytes());
+        let bytes = write_mcap("source.imu", "imuflow.ImuFrame.v1", &[v1]);
+        let rec = Recording::parse(&bytes, None, None).expect("a v1 recording parses");
+        let Recorded::Imu(f) = &rec.frames[0] else {
+            panic!("an IMU frame")
+        };
+        assert_eq!(f.header.seq, 9);
+        assert_eq!(f.valid_mask, 0b11_1111);
+        assert_eq!(f.orientation_wxyz[0][0], 0.5);
+        assert_eq!(ImuFrame::layout().type_name, "imuflow.ImuFrame.v2");
     }
 
     fn bytemuck_bytes(f: &ImuFrame) -> Vec<u8> {

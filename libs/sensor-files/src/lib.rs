@@ -31,14 +31,22 @@ pub mod units;
 use std::path::Path;
 
 pub use error::Error;
-pub use imuflow_graph::frames::NUM_IMUS;
+pub use imuflow_body::NUM_IMUS;
 pub use layout::Layout;
 pub use mvn::resample_truth;
 pub use recording::{SensorCounts, SensorRecording};
 
 /// The six sensor sites, in imuflow's IMU order (docs/architecture.md, "Conventions"); the
 /// layout's `[sensors.<site>]` names.
-pub const SITES: [&str; NUM_IMUS] = imuflow_body::Imu::NAMES;
+pub const SITES: [&str; NUM_IMUS] = {
+    let mut names = [""; NUM_IMUS];
+    let mut i = 0;
+    while i < NUM_IMUS {
+        names[i] = imuflow_body::Imu::SIX[i].name();
+        i += 1;
+    }
+    names
+};
 
 /// A recording's file format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -4,7 +4,8 @@
 use std::fmt;
 use std::path::PathBuf;
 
-use imuflow_graph::frames::{MotionFrame, NUM_IMUS, RawImuFrame};
+use imuflow_body::NUM_IMUS;
+use imuflow_graph::frames::{MotionFrame, RawImuFrame};
 
 use crate::SITES;
 use crate::sample::Sample;

@@ -18,7 +18,8 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use imuflow_body::rotation::{Axis, quat_wxyz_from_rotation};
 use imuflow_body::{BodyModel, BodyParams, Pose};
-use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, NUM_IMUS, NUM_JOINTS, flags};
+use imuflow_body::{Imu, MAX_SITES, NUM_IMUS, SiteMask};
+use imuflow_graph::frames::{FrameHeader, ImuFrame, MotionFrame, NUM_JOINTS, flags};
 use imuflow_motion::bvh::Bvh;
 use imuflow_motion::imu_synthesis::{
     AccelStencil, Augmentation, AugmentationConfig, ImuSample, SynthesisOptions, synthesize_imus,
@@ -52,15 +53,31 @@ pub struct Options {
     /// How the sensors are worn and which inertial frame they report in (default: sensor = bone,
     /// I = M, as without calibration).
     pub sensors: SensorSetup,
+    /// The sites worn (a sensor set's, [`imuflow_body::SensorSet::mask`]); `None`: the six-site
+    /// set.
+    pub sites: Option<SiteMask>,
 }
 
-/// Every sensor valid.
+impl Options {
+    /// The sites worn.
+    pub fn sites(&self) -> SiteMask {
+        self.sites.unwrap_or(SiteMask::of(Imu::SIX))
+    }
+}
+
+/// Every sensor of the six-site set valid.
 pub const ALL_VALID: u32 = (1 << NUM_IMUS) - 1;
 
 /// Marks non-finite sensors of `frame` invalid: clears their `valid_mask` bits (starting from
-/// `valid_mask` as given) and sets the INVALID flag when any sensor is invalid.
+/// `valid_mask` as given) and sets the INVALID flag when any sensor of the six-site set is invalid.
 pub fn mark_invalid_sensors(frame: &mut ImuFrame) {
-    for i in 0..NUM_IMUS {
+    mark_invalid_sites(frame, SiteMask(ALL_VALID));
+}
+
+/// Marks non-finite sensors of `frame` invalid: clears their `valid_mask` bits (starting from
+/// `valid_mask` as given) and sets the INVALID flag when any of `sites` is invalid.
+pub fn mark_invalid_sites(frame: &mut ImuFrame, sites: SiteMask) {
+    for i in 0..MAX_SITES {
         let finite = frame.orientation_wxyz[i].iter().all(|v| v.is_finite())
             && frame.specific_force_mps2[i].iter().all(|v| v.is_finite())
             && frame.angular_rate_radps[i].iter().all(|v| v.is_finite());
@@ -68,7 +85,7 @@ pub fn mark_invalid_sensors(frame: &mut ImuFrame) {
             frame.valid_mask &= !(1 << i);
         }
     }
-    if frame.valid_mask & ALL_VALID != ALL_VALID {
+    if frame.valid_mask & sites.0 != sites.0 {
         frame.header.flags |= flags::INVALID;
     }
 }
@@ -96,25 +113,26 @@ pub struct SensorFrames {
     /// `R_S'S` per sensor: from the mounted sensor frame S to the synthesized sensor frame S' (the
     /// bone frame, with the augmentation's small mounting error when augmenting). The true
     /// `R_SB` is `R_S'Sᵀ·R_S'B`.
-    pub ideal_from_sensor: [Rotation3<f64>; NUM_IMUS],
+    pub ideal_from_sensor: [Rotation3<f64>; MAX_SITES],
     /// `R_IM` per sensor: model frame to the sensor's inertial frame.
-    pub inertial_from_model: [Rotation3<f64>; NUM_IMUS],
+    pub inertial_from_model: [Rotation3<f64>; MAX_SITES],
     /// The total heading of each sensor's inertial frame (rad): `frame_heading_deg` plus its offset.
     /// A walking calibration's heading correction of sensor k is `heading[pelvis] − heading[k]`.
-    pub heading_rad: [f64; NUM_IMUS],
+    pub heading_rad: [f64; MAX_SITES],
 }
 
 impl SensorSetup {
-    /// Draws the mountings and offsets from `seed` (independent of the augmentation's draws).
-    pub fn draw(&self, seed: u64) -> SensorFrames {
+    /// Draws the mountings and offsets of `sites` from `seed` (independent of the augmentation's
+    /// draws; site by site in slot order, so a site's draws depend only on the sites before it).
+    pub fn draw(&self, seed: u64, sites: SiteMask) -> SensorFrames {
         // A distinct stream: "calibrat" in ASCII.
         let mut rng = StdRng::seed_from_u64(seed ^ 0x6361_6c69_6272_6174);
         let mut frames = SensorFrames {
-            ideal_from_sensor: [Rotation3::identity(); NUM_IMUS],
-            inertial_from_model: [Rotation3::identity(); NUM_IMUS],
-            heading_rad: [0.0; NUM_IMUS],
+            ideal_from_sensor: [Rotation3::identity(); MAX_SITES],
+            inertial_from_model: [Rotation3::identity(); MAX_SITES],
+            heading_rad: [0.0; MAX_SITES],
         };
-        for k in 0..NUM_IMUS {
+        for k in sites.sites().map(Imu::index) {
             // Uniform on SO(3): a normalized 4-D Gaussian quaternion. Drawn even when unused so the
             // offsets do not depend on `random_mounting`.
             let q: [f64; 4] = std::array::from_fn(|_| rng.sample(StandardNormal));
@@ -140,8 +158,10 @@ impl SensorSetup {
 pub struct Motion {
     /// The resampled clip (the true poses).
     pub clip: MotionClip,
-    /// One entry per clip frame, IMU order.
-    pub imus: Vec<[ImuSample; NUM_IMUS]>,
+    /// One entry per clip frame, by wire slot ([`Motion::sites`] filled).
+    pub imus: Vec<[ImuSample; MAX_SITES]>,
+    /// The sites worn.
+    pub sites: SiteMask,
     /// The graph's rate (Hz).
     pub rate_hz: f64,
     /// How the sensors are worn and what they report in.
@@ -208,13 +228,15 @@ impl Motion {
                 config: AugmentationConfig::REFERENCE,
                 seed: options.seed,
             }),
+            sites: options.sites(),
         };
         let imus = synthesize_imus(&clip, body, &synthesis)?;
         Ok(Motion {
             clip,
             imus: imus.frames,
+            sites: options.sites(),
             rate_hz,
-            sensors: options.sensors.draw(options.seed),
+            sensors: options.sensors.draw(options.seed, options.sites()),
             prelude_frames,
         })
     }
@@ -324,11 +346,11 @@ impl Motion {
         let samples = self.imus.get(seq)?;
         let mut f = ImuFrame {
             header: self.header(seq),
-            valid_mask: ALL_VALID,
+            valid_mask: self.sites.0,
             ..Default::default()
         };
-        fill_imu(&mut f, samples, &self.sensors);
-        mark_invalid_sensors(&mut f);
+        fill_imu(&mut f, samples, &self.sensors, self.sites);
+        mark_invalid_sites(&mut f, self.sites);
         Some(f)
     }
 
@@ -351,11 +373,18 @@ fn flat(e: impl std::fmt::Display) -> anyhow::Error {
     anyhow::anyhow!("{e}")
 }
 
-/// Writes the six samples into `frame` as the mounted sensors of `sensors` report them: orientation
-/// `R_IS = R_IM·R_MS'·R_S'S`, specific force and angular rate in S (`R_S'Sᵀ` times the synthesized
-/// ones). With the default setup (identities) this is the synthesized `R_MS` and S-frame signals.
-pub fn fill_imu(frame: &mut ImuFrame, samples: &[ImuSample; NUM_IMUS], sensors: &SensorFrames) {
-    for (i, s) in samples.iter().enumerate() {
+/// Writes the samples of `sites` into `frame` as the mounted sensors of `sensors` report them:
+/// orientation `R_IS = R_IM·R_MS'·R_S'S`, specific force and angular rate in S (`R_S'Sᵀ` times the
+/// synthesized ones). With the default setup (identities) this is the synthesized `R_MS` and S-frame
+/// signals. The other slots are left as they are.
+pub fn fill_imu(
+    frame: &mut ImuFrame,
+    samples: &[ImuSample; MAX_SITES],
+    sensors: &SensorFrames,
+    sites: SiteMask,
+) {
+    for i in sites.sites().map(Imu::index) {
+        let s = &samples[i];
         let mount = &sensors.ideal_from_sensor[i];
         let orientation = sensors.inertial_from_model[i] * s.model_from_sensor * mount;
         frame.orientation_wxyz[i] = quat_wxyz_from_rotation(&orientation).map(|v| v as f32);
@@ -398,7 +427,7 @@ mod tests {
             let f = motion.imu_frame(seq).expect("frame");
             assert_eq!(f.valid_mask, ALL_VALID);
             assert_eq!(f.header.flags, 0);
-            for q in f.orientation_wxyz {
+            for q in &f.orientation_wxyz[..NUM_IMUS] {
                 let n: f32 = q.iter().map(|v| v * v).sum();
                 assert!((n - 1.0).abs() < 1e-4);
             }
@@ -540,7 +569,7 @@ mod tests {
     fn default_sensor_setup_reports_the_synthesized_signals_unchanged() {
         let motion = Motion::load(&fixture(), &Options::default(), 60.0).expect("loads");
         let f = motion.imu_frame(20).expect("frame");
-        for (k, s) in motion.imus[20].iter().enumerate() {
+        for (k, s) in motion.imus[20].iter().take(NUM_IMUS).enumerate() {
             let q = quat_wxyz_from_rotation(&s.model_from_sensor).map(|v| v as f32);
             assert_eq!(f.orientation_wxyz[k], q);
             let a = s.specific_force_in_sensor_mps2;

@@ -48,7 +48,8 @@ use anyhow::{Context, bail};
 use imuflow_body::BodyModel;
 use imuflow_body::kinematics::Pose;
 use imuflow_body::rotation::slerp;
-use imuflow_graph::frames::{FrameHeader, NUM_IMUS, RawImuFrame, flags};
+use imuflow_body::{Imu, MAX_SITES};
+use imuflow_graph::frames::{FrameHeader, RawImuFrame, flags};
 use imuflow_motion::imu_synthesis::{AccelStencil, SynthesisOptions, synthesize_imus};
 use imuflow_motion::retarget::MotionClip;
 use nalgebra::{Rotation3, Vector2, Vector3};
@@ -361,15 +362,15 @@ pub struct RawSession {
     pub options: RawOptions,
     /// `R_WM`: model frame to the world frame.
     pub world_from_model: Rotation3<f64>,
-    /// Each sensor's clock.
-    pub clocks: [SensorClock; NUM_IMUS],
-    /// Samples each sensor took (lost ones included).
-    pub ticks: [usize; NUM_IMUS],
+    /// Each slot's clock (drawn for every slot, so a site's clock does not depend on the set).
+    pub clocks: [SensorClock; MAX_SITES],
+    /// Samples each sensor took (lost ones included); 0 for slots the motion's set leaves empty.
+    pub ticks: [usize; MAX_SITES],
     /// Each sensor's constant accelerometer (m/s²) and gyroscope (rad/s) bias, in S.
-    pub accel_bias_mps2: [Vector3<f64>; NUM_IMUS],
-    pub gyro_bias_radps: [Vector3<f64>; NUM_IMUS],
+    pub accel_bias_mps2: [Vector3<f64>; MAX_SITES],
+    pub gyro_bias_radps: [Vector3<f64>; MAX_SITES],
     /// Each sensor's hard-iron offset, µT in S (zero unless disturbed).
-    pub hard_iron_ut: [Vector3<f64>; NUM_IMUS],
+    pub hard_iron_ut: [Vector3<f64>; MAX_SITES],
     /// The floor's field (disturbed magnetometer only).
     pub disturbance: Option<MagneticDisturbance>,
     /// The delivered samples, in delivery order.
@@ -386,7 +387,7 @@ const MAGNET_STREAM: u64 = 0x6d61_676e_6574_0000; // "magnet"
 
 impl RawSession {
     /// Synthesizes the raw samples of `motion` (its clip with prelude, at the graph's rate; worn as
-    /// its sensors were drawn) on `body`.
+    /// its sensors were drawn; the sites it synthesized) on `body`.
     pub fn synthesize(
         motion: &Motion,
         body: &BodyModel,
@@ -409,7 +410,7 @@ impl RawSession {
             let (min, max) = floor_area(&motion.clip, &world_from_model);
             MagneticDisturbance::draw(&mut magnet_rng, min, max)
         });
-        let hard_iron_ut: [Vector3<f64>; NUM_IMUS] = std::array::from_fn(|_| {
+        let hard_iron_ut: [Vector3<f64>; MAX_SITES] = std::array::from_fn(|_| {
             let v = uniform3(&mut magnet_rng, HARD_IRON_UT);
             if disturbance.is_some() {
                 v
@@ -431,15 +432,15 @@ impl RawSession {
             options: *options,
             world_from_model,
             clocks,
-            ticks: [0; NUM_IMUS],
-            accel_bias_mps2: [Vector3::zeros(); NUM_IMUS],
-            gyro_bias_radps: [Vector3::zeros(); NUM_IMUS],
+            ticks: [0; MAX_SITES],
+            accel_bias_mps2: [Vector3::zeros(); MAX_SITES],
+            gyro_bias_radps: [Vector3::zeros(); MAX_SITES],
             hard_iron_ut,
             disturbance: None,
             samples: Vec::new(),
             frames: Vec::new(),
         };
-        for k in 0..NUM_IMUS {
+        for k in motion.sites.sites().map(Imu::index) {
             let sensor = context
                 .sensor(k, &clocks[k], &hard_iron_ut[k])
                 .with_context(|| format!("raw synthesis of sensor {k}"))?;
@@ -463,7 +464,7 @@ pub const HARD_IRON_UT: f64 = 5.0;
 
 /// Draws every sensor's clock (offset and drift, both drawn even when zero so the seed means the
 /// same whatever is configured).
-fn draw_clocks(options: &RawOptions) -> [SensorClock; NUM_IMUS] {
+fn draw_clocks(options: &RawOptions) -> [SensorClock; MAX_SITES] {
     let mut rng = StdRng::seed_from_u64(options.seed ^ CLOCK_STREAM);
     let epoch_ns = options.clock_offset_ms * 1e6;
     std::array::from_fn(|_| {
@@ -542,6 +543,7 @@ impl SensorContext<'_> {
         let synthesis = SynthesisOptions {
             stencil: self.options.stencil,
             augmentation: None,
+            ..SynthesisOptions::default()
         };
         let imus = synthesize_imus(&clip, self.body, &synthesis).with_context(|| {
             format!(

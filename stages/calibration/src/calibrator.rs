@@ -412,7 +412,7 @@ impl Calibrator {
             Some(c) => c.apply(sample, out),
             None => {
                 out.header.flags |= flags::CALIBRATING | flags::INVALID;
-                out.bone_orientation_wxyz = [[1.0, 0.0, 0.0, 0.0]; NUM_IMUS];
+                out.bone_orientation_wxyz[..NUM_IMUS].fill([1.0, 0.0, 0.0, 0.0]);
             }
         }
     }

@@ -37,14 +37,13 @@ pub use stage::{SPEC, run};
 
 /// Number of IMUs (IMU order: left forearm, right forearm, left lower leg, right lower leg, head,
 /// pelvis).
-pub const NUM_IMUS: usize = imuflow_graph::frames::NUM_IMUS;
+pub const NUM_IMUS: usize = imuflow_body::NUM_IMUS;
 
 /// Index of the pelvis sensor, the heading reference of walking calibration (GlobalPose's sixth).
 pub const PELVIS: usize = imuflow_body::Imu::Pelvis.index();
 
-/// The name of IMU `k` (`left_forearm`, ...), as in models/body.toml and calibration files.
+/// The name of the site in wire slot `k` (`left_forearm`, ...), as in models/body.toml and
+/// calibration files.
 pub fn sensor_name(k: usize) -> &'static str {
-    imuflow_body::Imu::ALL
-        .get(k)
-        .map_or("unknown", |imu| imu.name())
+    imuflow_body::Imu::from_index(k).map_or("unknown", |imu| imu.name())
 }

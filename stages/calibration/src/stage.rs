@@ -192,6 +192,15 @@ pub fn run() -> anyhow::Result<()> {
     let config = params
         .config(ctx.graph().rate_hz)
         .with_context(|| format!("stage '{stage}'"))?;
+    let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
+        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
+    if !sensors.is_six() {
+        bail!(
+            "stage '{stage}': the calibration calibrates the six-site set's sensors (its T-pose, \
+             walking and natural starts rely on the forearms, lower legs, head and pelvis); the \
+             graph's sensors are {sensors}"
+        );
+    }
     let save_to = path_param(&params.save_to);
     // A restart (the graph's `restart` policy) reloads the calibration the stage had reached
     // before it failed, instead of asking the subject to calibrate again.

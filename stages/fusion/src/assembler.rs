@@ -9,14 +9,15 @@
 //! The sensors that cannot be resampled then are written as identity / zeros with their bit
 //! cleared and the frame is flagged INVALID.
 
-use imuflow_graph::frames::{ImuFrame, RawImuFrame, flags};
+use imuflow_body::{Imu, SiteMask};
+use imuflow_graph::frames::{ImuFrame, MAX_SITES, RawImuFrame, flags};
 
 use crate::quat::IDENTITY;
 use crate::sensor::{
     Latency, RawSample, STALE_INTERVALS, SensorCounters, SensorSettings, SensorTrack,
     WAIT_INTERVALS,
 };
-use crate::{FusionError, NUM_IMUS, sensor_name};
+use crate::{FusionError, sensor_name};
 
 /// Offline, a first capture time later than this is not "near 0": the grid starts there instead
 /// of emitting this long a run of empty frames first, s.
@@ -55,6 +56,9 @@ pub struct Settings {
     /// A frame waits for late sensors at most this long after its time, s.
     pub max_latency_s: f64,
     pub origin: Origin,
+    /// The sites fused: the graph's sensor set's. A raw sample of another slot is ignored (and
+    /// said once); a frame missing one of these is INVALID.
+    pub sites: SiteMask,
 }
 
 /// Something worth a log line.
@@ -72,19 +76,19 @@ pub struct FrameCounters {
     /// Output frames flagged INVALID.
     pub invalid: u64,
     /// Per sensor: output frames where it could not be resampled.
-    pub sensor_invalid: [u64; NUM_IMUS],
+    pub sensor_invalid: [u64; MAX_SITES],
     /// Output frames flagged DEGRADED (a sensor was stale in them).
     pub degraded: u64,
     /// Per sensor ([`Latency::Smooth`]): output frames emitted at their latency deadline before
     /// the samples describing its specific force and angular rate had come (extrapolated from
     /// the newest two).
-    pub sensor_held: [u64; NUM_IMUS],
+    pub sensor_held: [u64; MAX_SITES],
     /// Per sensor ([`Latency::Low`]): output frames in which its newest sample was more than
     /// [`STALE_INTERVALS`] intervals old (extrapolated one interval, then held; flagged DEGRADED).
-    pub sensor_stale: [u64; NUM_IMUS],
+    pub sensor_stale: [u64; MAX_SITES],
     /// Per sensor: samples that arrived after a frame more than one sample interval after their
     /// time had been built (that frame had to do without them).
-    pub sensor_late: [u64; NUM_IMUS],
+    pub sensor_late: [u64; MAX_SITES],
     /// Raw frames refused for a capture time more than [`MAX_CAPTURE_JUMP_S`] ahead.
     pub refused_raw: u64,
 }
@@ -102,7 +106,12 @@ struct Presence {
 pub struct Assembler {
     settings: Settings,
     rate_hz: f64,
+    /// One track per wire slot; only [`Assembler::slots`]' are fed and read.
     sensors: Vec<SensorTrack>,
+    /// The slots of `settings.sites`, in order.
+    slots: Vec<usize>,
+    /// Slots outside the set whose samples were ignored (each said once).
+    ignored: SiteMask,
     origin_ns: Option<i128>,
     next_k: u64,
     /// The time of the newest frame emitted.
@@ -113,7 +122,7 @@ pub struct Assembler {
     newest_capture: Option<i128>,
     /// The latest source time a raw frame flagged PRELUDE vouches for (see `mark_prelude`).
     prelude_until: Option<i128>,
-    presence: [Presence; NUM_IMUS],
+    presence: [Presence; MAX_SITES],
     first_usable_ns: Option<i128>,
     /// Flushing at the end of the stream.
     finishing: bool,
@@ -126,9 +135,11 @@ impl Assembler {
     pub fn new(settings: Settings) -> Assembler {
         Assembler {
             rate_hz: settings.sensor.output_rate_hz,
-            sensors: (0..NUM_IMUS)
+            sensors: (0..MAX_SITES)
                 .map(|i| SensorTrack::new(i, settings.sensor))
                 .collect(),
+            slots: settings.sites.sites().map(Imu::index).collect(),
+            ignored: SiteMask::default(),
             settings,
             origin_ns: None,
             next_k: 0,
@@ -136,7 +147,7 @@ impl Assembler {
             waiting_since: None,
             newest_capture: None,
             prelude_until: None,
-            presence: [Presence::default(); NUM_IMUS],
+            presence: [Presence::default(); MAX_SITES],
             first_usable_ns: None,
             finishing: false,
             counters: FrameCounters::default(),
@@ -146,6 +157,16 @@ impl Assembler {
 
     pub fn counters(&self) -> &FrameCounters {
         &self.counters
+    }
+
+    /// The wire slots fused (the graph's set's sites), in order.
+    pub fn slots(&self) -> &[usize] {
+        &self.slots
+    }
+
+    /// The tracks of the fused slots.
+    fn fused(&self) -> impl Iterator<Item = &SensorTrack> {
+        self.slots.iter().map(|&i| &self.sensors[i])
     }
 
     pub fn sensor(&self, i: usize) -> &SensorTrack {
@@ -158,7 +179,8 @@ impl Assembler {
 
     /// The log lines gathered since the last call.
     pub fn take_notices(&mut self) -> Vec<Notice> {
-        for s in &mut self.sensors {
+        for &i in &self.slots {
+            let s = &mut self.sensors[i];
             self.notices
                 .extend(s.take_notices().into_iter().map(|text| Notice {
                     warning: text.contains("jumped") || text.contains("implausible"),
@@ -195,6 +217,22 @@ impl Assembler {
         self.newest_capture = Some(self.newest_capture.map_or(capture, |n| n.max(capture)));
         let mut earliest = None::<i128>;
         for (i, sample) in samples(raw) {
+            if !self.settings.sites.contains_slot(i) {
+                if !self.ignored.contains_slot(i) {
+                    self.ignored = SiteMask(self.ignored.0 | 1 << i);
+                    self.notices.push(Notice {
+                        warning: true,
+                        text: format!(
+                            "raw frame {} carries a {} sample, a site outside the graph's sensor set \
+                             ({}): its samples are ignored",
+                            raw.header.seq,
+                            sensor_name(i),
+                            self.settings.sites.names()
+                        ),
+                    });
+                }
+                continue;
+            }
             self.sensors[i].push(sample)?;
             if let Some(t) = self.sensors[i].source_ns_of(sample.sample_ns) {
                 earliest = Some(earliest.map_or(t, |e| e.min(t)));
@@ -216,14 +254,14 @@ impl Assembler {
 
     /// At the end of the stream: every frame up to the newest sample of any sensor.
     pub fn finish(&mut self, out: &mut Vec<ImuFrame>) -> Result<(), FusionError> {
-        for s in &mut self.sensors {
-            s.finish()?;
+        for &i in &self.slots {
+            self.sensors[i].finish()?;
         }
         self.emit_ready(out);
         // The sensors' last samples lie a few milliseconds apart: the flush flags the ones that
         // ended first without calling them missing.
         self.finishing = true;
-        let end = self.sensors.iter().filter_map(|s| s.newest_ns()).max();
+        let end = self.fused().filter_map(|s| s.newest_ns()).max();
         while let (Some(t), Some(end)) = (self.time_of(self.next_k), end)
             && t <= end
         {
@@ -281,8 +319,7 @@ impl Assembler {
                 Latency::Smooth => {
                     newest - t > latency
                         || self
-                            .sensors
-                            .iter()
+                            .fused()
                             .all(|s| s.covered_until_ns().is_some_and(|c| c >= t))
                 }
             };
@@ -302,7 +339,7 @@ impl Assembler {
         // Due from half an interval before its time: the label then lies as often after the
         // newest sample as before it (trackers that tick together would otherwise leave each
         // frame waiting up to a whole interval for the tick after it).
-        let sampled = self.sensors.iter().any(|s| {
+        let sampled = self.fused().any(|s| {
             let lead = (LEAD_INTERVALS * s.period_s().unwrap_or(0.0) * 1e9) as i128;
             s.newest_ns().is_some_and(|n| n + lead >= t)
         });
@@ -311,7 +348,7 @@ impl Assembler {
         }
         // Not for one silent longer than a stall lasts: it rests (a tracker that sends only what
         // changed) or is gone, and every frame would wait for it.
-        let waiting = (0..NUM_IMUS).any(|i| {
+        let waiting = self.slots.iter().any(|&i| {
             let s = &self.sensors[i];
             match (s.behind_s(t), s.period_s()) {
                 (Some(behind), Some(period)) => {
@@ -342,7 +379,8 @@ impl Assembler {
         if self.prelude_at(t) {
             frame.header.flags |= flags::PRELUDE;
         }
-        for i in 0..NUM_IMUS {
+        for slot in 0..self.slots.len() {
+            let i = self.slots[slot];
             let value = self.sensors[i].at(t);
             match value {
                 Some(v) => {
@@ -372,7 +410,7 @@ impl Assembler {
             self.track_presence(i, k, t, value.is_some());
             self.sensors[i].prune(t);
         }
-        if frame.valid_mask != (1 << NUM_IMUS) - 1 {
+        if frame.valid_mask != self.settings.sites.0 {
             frame.header.flags |= flags::INVALID;
             self.counters.invalid += 1;
         }
@@ -438,7 +476,7 @@ impl Assembler {
 /// The samples a raw frame carries, per sensor.
 fn samples(raw: &RawImuFrame) -> impl Iterator<Item = (usize, RawSample)> + '_ {
     let f64s = |v: [f32; 3]| v.map(f64::from);
-    (0..NUM_IMUS)
+    (0..MAX_SITES)
         .filter(|i| raw.valid_mask & (1 << i) != 0)
         .map(move |i| {
             let has = |mask: u32| mask & (1 << i) != 0;

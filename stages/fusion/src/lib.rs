@@ -32,12 +32,12 @@ pub use stage::{SPEC, run};
 
 /// Number of IMUs (IMU order: left forearm, right forearm, left lower leg, right lower leg, head,
 /// pelvis).
-pub const NUM_IMUS: usize = imuflow_graph::frames::NUM_IMUS;
+pub const NUM_IMUS: usize = imuflow_body::NUM_IMUS;
 
-/// The sensors' names in IMU order (as in models/body.toml and calibration files).
-pub const SENSOR_NAMES: [&str; NUM_IMUS] = imuflow_body::Imu::NAMES;
+/// The sites' names in wire slot order (as in models/body.toml and calibration files).
+pub const SENSOR_NAMES: [&str; imuflow_body::MAX_SITES] = imuflow_body::Imu::NAMES;
 
-/// The name of IMU `i`.
+/// The name of the site in wire slot `i`.
 pub fn sensor_name(i: usize) -> &'static str {
     SENSOR_NAMES.get(i).copied().unwrap_or("unknown")
 }

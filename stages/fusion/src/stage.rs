@@ -10,7 +10,8 @@ use imuflow_graph::{FrameType, Mode, StageContext};
 use crate::assembler::{Assembler, Notice, Origin, Settings};
 use crate::filter::VqfParams;
 use crate::sensor::{Latency, MagnetometerUse, OrientationSource, SensorSettings};
-use crate::{NUM_IMUS, sensor_name};
+use crate::sensor_name;
+use imuflow_body::{Imu, SiteMask};
 
 imuflow_graph::stage_params! {
     /// The fusion stage's parameters.
@@ -101,6 +102,7 @@ impl FusionParams {
                 Mode::Live => Origin::FirstCapture,
                 Mode::Offline => Origin::Zero,
             },
+            sites: SiteMask::of(Imu::SIX),
         })
     }
 }
@@ -146,9 +148,12 @@ pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
     let params = FusionParams::from_params(ctx.params());
-    let settings = params
+    let mut settings = params
         .settings(ctx.graph().rate_hz, ctx.mode())
         .with_context(|| format!("stage '{stage}'"))?;
+    settings.sites = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
+        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?
+        .mask();
     let input = ctx.input::<RawImuFrame>("raw")?;
     let mut output = ctx.output::<ImuFrame>("imu")?;
     if !ctx.ready()? {
@@ -216,8 +221,10 @@ fn log(stage: &str, notice: &Notice) {
 
 /// One line per sensor: rate, orientation source, counts, clock.
 pub fn sensor_lines(assembler: &Assembler) -> Vec<String> {
-    (0..NUM_IMUS)
-        .map(|i| {
+    assembler
+        .slots()
+        .iter()
+        .map(|&i| {
             let track = assembler.sensor(i);
             let c = track.counters();
             let frames = assembler.counters();
@@ -268,7 +275,10 @@ pub fn sensor_lines(assembler: &Assembler) -> Vec<String> {
 /// stage: lost, a sample that never came (a gap in the sensor's sample times); late, a sample
 /// that came after a frame that needed it was built; discarded, a repeated or out-of-order one.
 pub fn summary_line(assembler: &Assembler) -> String {
-    let per = |f: &dyn Fn(usize) -> String| (0..NUM_IMUS).map(f).collect::<Vec<_>>().join("/");
+    let per = |f: &dyn Fn(usize) -> String| {
+        let slots = assembler.slots().iter().map(|&i| f(i));
+        slots.collect::<Vec<_>>().join("/")
+    };
     let counts = |i| *assembler.sensor_counters(i);
     let frames = assembler.counters();
     let mut line = format!(

@@ -68,8 +68,8 @@ fn offline_frame_k_lies_at_k_over_rate_and_frames_before_the_first_sample_are_in
     for f in &out[..first_valid] {
         assert!(f.header.has(flags::INVALID));
         assert_eq!(f.valid_mask, 0);
-        assert_eq!(f.orientation_wxyz, [[1.0, 0.0, 0.0, 0.0]; 6]);
-        assert_eq!(f.specific_force_mps2, [[0.0; 3]; 6]);
+        assert_eq!(f.orientation_wxyz[..6], [[1.0, 0.0, 0.0, 0.0]; 6]);
+        assert_eq!(f.specific_force_mps2[..6], [[0.0; 3]; 6]);
     }
     assert!(
         out[first_valid..]
@@ -78,7 +78,7 @@ fn offline_frame_k_lies_at_k_over_rate_and_frames_before_the_first_sample_are_in
     );
     // At rest, z up, field north: the 9D orientation is the identity (ENU).
     let last = out.last().unwrap();
-    for q in last.orientation_wxyz {
+    for q in &last.orientation_wxyz[..6] {
         let q = q.map(f64::from);
         assert!(
             angle_between(&q, &[1.0, 0.0, 0.0, 0.0]).to_degrees() < 0.01,
@@ -292,7 +292,7 @@ fn without_a_gyroscope_the_rate_comes_from_the_on_board_orientations() {
     // A turn about a fixed axis has the same rate in the sensor frame: 0.8·axis (once the
     // band limit's start-up has passed).
     for f in valid.iter().filter(|f| f.header.capture_ns > 500_000_000) {
-        for w in f.angular_rate_radps {
+        for w in &f.angular_rate_radps[..6] {
             let err = (0..3)
                 .map(|j| (f64::from(w[j]) - 0.8 * axis[j]).abs())
                 .fold(0.0, f64::max);
@@ -313,4 +313,51 @@ fn without_a_gyroscope_the_rate_comes_from_the_on_board_orientations() {
             .filter(|f| f.valid_mask == ALL)
             .all(|f| f.angular_rate_radps[2] == [0.0; 3])
     );
+}
+
+#[test]
+fn a_lower_body_set_fuses_its_own_slots_and_ignores_the_others_saying_so() {
+    use imuflow_body::{Imu, SensorSet};
+    let legs = SensorSet::builtin("lower-body").unwrap();
+    let mask = legs.mask().0;
+    let raw = frames(0.0, 2.0, |f, t| {
+        // The six's samples as before, plus the thighs', on the same clock; the set lacks the
+        // forearms and the head.
+        for i in [6, 7] {
+            f.sample_time_ns[i] = ((t + 5.0) * 1e9).round() as u64;
+            f.accelerometer_mps2[i] = [0.0, 0.0, 9.81];
+            f.magnetometer_ut[i] = [0.0, 20.0, -40.0];
+        }
+        f.valid_mask = ALL | 0b11 << 6;
+        f.magnetometer_mask = f.valid_mask;
+    });
+    let (mut assembler, out) = run(
+        Settings {
+            sites: legs.mask(),
+            ..settings(Origin::Zero)
+        },
+        &raw,
+    );
+    assert_eq!(assembler.slots(), [2, 3, 5, 6, 7]);
+    let valid: Vec<&ImuFrame> = out.iter().filter(|f| f.valid_mask != 0).collect();
+    assert!(valid.len() > 60);
+    for f in &valid[1..] {
+        // Every frame once the rates are measured holds exactly the set's sites.
+        assert_eq!(f.valid_mask, mask, "frame {}", f.header.seq);
+        assert!(!f.header.has(flags::INVALID));
+        let q = f.orientation_wxyz[Imu::LeftUpperLeg.index()];
+        assert!((q.iter().map(|v| v * v).sum::<f32>() - 1.0).abs() < 1e-4);
+        assert_eq!(f.orientation_wxyz[Imu::Head.index()], [0.0; 4]);
+    }
+    let notices = assembler.take_notices();
+    let ignored: Vec<&str> = notices
+        .iter()
+        .filter(|n| n.text.contains("outside the graph's sensor set"))
+        .map(|n| n.text.as_str())
+        .collect();
+    assert_eq!(ignored.len(), 3, "{notices:?}");
+    assert!(ignored.iter().any(|t| t.contains("left_forearm")));
+    assert!(ignored.iter().all(|t| {
+        t.contains("(left_lower_leg, right_lower_leg, pelvis, left_upper_leg, right_upper_leg)")
+    }));
 }

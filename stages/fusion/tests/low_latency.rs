@@ -7,10 +7,11 @@
 
 mod common;
 
+use imuflow_body::NUM_IMUS;
 use imuflow_fusion::assembler::{Assembler, Origin, Settings};
 use imuflow_fusion::quat::{Quat, angle_between, from_rotation_vector};
 use imuflow_fusion::sensor::Latency;
-use imuflow_graph::frames::{ImuFrame, NUM_IMUS, RawImuFrame, flags};
+use imuflow_graph::frames::{ImuFrame, MAX_SITES, RawImuFrame, flags};
 
 const RATE_HZ: f64 = 100.0;
 const T0_NS: u64 = 1_700_000_000_000_000_000;
@@ -148,8 +149,8 @@ fn each_frame_goes_out_with_the_first_sample_near_its_time_and_sensors_behind_ar
         );
     }
     let c = assembler.counters();
-    assert_eq!(c.sensor_late, [0; NUM_IMUS]);
-    assert_eq!(c.sensor_stale, [0; NUM_IMUS]);
+    assert_eq!(c.sensor_late, [0; MAX_SITES]);
+    assert_eq!(c.sensor_stale, [0; MAX_SITES]);
     for i in 0..NUM_IMUS {
         assert_eq!(assembler.sensor_counters(i).lost, 0);
     }
@@ -200,7 +201,7 @@ fn a_stall_of_every_tracker_is_dated_back_and_nothing_is_lost_late_or_bunched() 
         assert!(p < 1.0, "sensor {i}: p99 {p:.3}°");
         assert_eq!(assembler.sensor_counters(i).lost, 0);
     }
-    assert_eq!(assembler.counters().sensor_late, [0; NUM_IMUS]);
+    assert_eq!(assembler.counters().sensor_late, [0; MAX_SITES]);
 }
 
 #[test]

@@ -133,9 +133,16 @@ pub fn run() -> anyhow::Result<()> {
     let params = ImuSourceParams::from_params(ctx.params());
     let mode = params.mode.as_str();
     let realtime = params.realtime.unwrap_or(ctx.mode() == Mode::Live);
+    let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
+        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
+    if !sensors.is_six() && matches!(mode, "udp" | "slimevr" | "file") {
+        bail!(
+            "stage '{stage}': mode '{mode}' reads the six-site set's sensors; the graph's sensors are {sensors} (synthesize and replay follow any set)"
+        );
+    }
     match mode {
         "synthesize" => {
-            let (motion, raw) = synthesize(&params, &stage, ctx.graph().rate_hz)?;
+            let (motion, raw) = synthesize(&params, &stage, ctx.graph().rate_hz, &sensors)?;
             match raw {
                 None => synth::run(ctx, &motion, realtime),
                 Some(session) => synth::run_raw(ctx, &motion, &session, realtime),
@@ -206,11 +213,13 @@ pub fn run() -> anyhow::Result<()> {
     }
 }
 
-/// Mode `synthesize`: the motion at the graph's `rate_hz`, and with `raw` its raw sensor samples.
+/// Mode `synthesize`: the motion at the graph's `rate_hz` worn with the graph's `sensors`, and
+/// with `raw` its raw sensor samples.
 fn synthesize(
     params: &ImuSourceParams,
     stage: &str,
     rate_hz: f64,
+    sensors: &imuflow_body::SensorSet,
 ) -> anyhow::Result<(imuflow_synth::Motion, Option<RawSession>)> {
     let path = required_path(params, stage, "synthesize")?;
     let options = imuflow_synth::Options {
@@ -222,6 +231,7 @@ fn synthesize(
         central_stencil: stencil(params) == AccelStencil::Central,
         prelude: prelude_options(params, stage)?,
         sensors: sensor_setup(params, stage)?,
+        sites: Some(sensors.mask()),
     };
     let motion = imuflow_synth::Motion::load(&path, &options, rate_hz).with_context(|| {
         format!(
@@ -365,7 +375,9 @@ mod tests {
         assert!(params.raw && params.raw_magnetometer == "disturbed");
         // The graph's paths are relative to the repository root.
         params.path = params.path.map(|p| root.join(p));
-        let (motion, raw) = synthesize(&params, "source", graph.rate_hz).expect("synthesizes");
+        let sensors = imuflow_body::SensorSet::resolve(&graph.sensors).expect("a shipped set");
+        let (motion, raw) =
+            synthesize(&params, "source", graph.rate_hz, &sensors).expect("synthesizes");
         let raw = raw.expect("raw = true");
         // A 1 s stand, a 1 s blend, then the clip.
         assert_eq!(motion.prelude_frames, 120);
@@ -380,7 +392,9 @@ mod tests {
                 .all(|f| f.magnetometer_mask == f.valid_mask)
         );
         assert!(
-            raw.accel_bias_mps2.iter().all(|b| b.norm() > 0.0),
+            raw.accel_bias_mps2[..imuflow_body::NUM_IMUS]
+                .iter()
+                .all(|b| b.norm() > 0.0),
             "noise 1"
         );
     }

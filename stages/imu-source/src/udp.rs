@@ -26,8 +26,9 @@ use std::net::UdpSocket;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use imuflow_body::NUM_IMUS;
 use imuflow_graph::StageContext;
-use imuflow_graph::frames::{FrameHeader, ImuFrame, NUM_IMUS};
+use imuflow_graph::frames::{FrameHeader, ImuFrame};
 use imuflow_graph::transport::now_ns;
 
 use crate::publisher::Publisher;

@@ -19,6 +19,12 @@ pub enum WeightsError {
     UnexpectedTensor { name: String, method: String },
     #[error("the weights are for method '{found}', not '{expected}'")]
     WrongMethod { expected: String, found: String },
+    #[error(
+        "the weights were trained for the sensors {weights}; the graph's sensors are {graph} (train weights for that set with `imuflow train`, or set the graph's `sensors`)"
+    )]
+    WrongSensors { weights: String, graph: String },
+    #[error("the weights' sensors name '{site}', not a site of the body model")]
+    UnknownSite { site: String },
     #[error("{path}: {message}")]
     File { path: String, message: String },
     #[error(transparent)]

@@ -6,7 +6,8 @@
 //! right lower leg, head, pelvis = root): bone orientations `R_MB` as row-major 3×3, free accelerations
 //! and angular velocities in M. Matrices are flattened row-major (reference §0).
 
-use imuflow_graph::frames::{BodyImuFrame, NUM_IMUS};
+use imuflow_body::NUM_IMUS;
+use imuflow_graph::frames::BodyImuFrame;
 use nalgebra::{Quaternion, UnitQuaternion};
 
 /// Index of the root (pelvis) IMU: always last (reference §1).

@@ -19,7 +19,8 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use imuflow_graph::frames::{BodyImuFrame, KinematicsFrame, NUM_IMUS, flags};
+use imuflow_body::NUM_IMUS;
+use imuflow_graph::frames::{BodyImuFrame, KinematicsFrame, flags};
 use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::{FrameType, StageContext};
 use nalgebra::{Rotation3, UnitQuaternion};
@@ -125,6 +126,12 @@ pub fn run() -> anyhow::Result<()> {
             weights_path.display()
         )
     })?;
+    let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
+        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
+    weights
+        .metadata
+        .check_sensors(&sensors)
+        .with_context(|| format!("stage '{stage}': weights '{}'", weights_path.display()))?;
     let sensor_bones_name = params.sensor_bones.as_str();
     let tolerance_deg = params.sensor_bone_tolerance_deg;
     let Some(sensor_bones) = SensorBones::parse(sensor_bones_name, tolerance_deg) else {

@@ -26,6 +26,43 @@ pub struct WeightsMetadata {
     /// Where the weights come from (training run summary, or "imported from ...").
     pub provenance: serde_json::Value,
     pub licence: String,
+    /// The sites the nets were trained for, in wire slot order (a sensor set's sites; files
+    /// written before sensor sets have none: the six-site set's).
+    #[serde(default = "six_site_names")]
+    pub sensors: Vec<String>,
+}
+
+/// The six-site set's site names, in wire slot order.
+pub fn six_site_names() -> Vec<String> {
+    imuflow_body::Imu::SIX
+        .iter()
+        .map(|s| s.name().to_owned())
+        .collect()
+}
+
+impl WeightsMetadata {
+    /// The sites the nets were trained for.
+    pub fn sites(&self) -> Result<imuflow_body::SiteMask, WeightsError> {
+        let sites = self.sensors.iter().map(|name| {
+            imuflow_body::Imu::from_name(name)
+                .ok_or_else(|| WeightsError::UnknownSite { site: name.clone() })
+        });
+        Ok(imuflow_body::SiteMask::of(
+            sites.collect::<Result<Vec<_>, _>>()?,
+        ))
+    }
+
+    /// Refuses a graph whose sensor set is not the one the nets were trained for, naming both.
+    pub fn check_sensors(&self, graph: &imuflow_body::SensorSet) -> Result<(), WeightsError> {
+        let sites = self.sites()?;
+        if sites == graph.mask() {
+            return Ok(());
+        }
+        Err(WeightsError::WrongSensors {
+            weights: format!("({})", sites.names()),
+            graph: graph.to_string(),
+        })
+    }
 }
 
 /// A method's nets, ready to run.
@@ -70,6 +107,7 @@ impl Weights {
             normalization: normalization(method).to_owned(),
             provenance: serde_json::json!("no metadata in the file"),
             licence: "unknown".to_owned(),
+            sensors: six_site_names(),
         });
         Ok(Weights { metadata, nets })
     }
@@ -296,5 +334,36 @@ mod provenance_tests {
             without_machine_paths(&mut value);
             assert_eq!(value, before, "{file}: its provenance names a machine path");
         }
+    }
+}
+
+#[cfg(test)]
+mod sensor_tests {
+    use super::*;
+    use imuflow_body::SensorSet;
+
+    #[test]
+    fn shipped_weights_are_the_six_sites_and_refuse_another_set_naming_both() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/pip.safetensors");
+        let bytes = std::fs::read(&path).expect("shipped weights");
+        let meta = read_metadata(&bytes).unwrap().expect("metadata");
+        // Written before sensor sets: no `sensors` key, so the six.
+        assert_eq!(meta.sensors, six_site_names());
+        meta.check_sensors(&SensorSet::six()).unwrap();
+        let legs = SensorSet::builtin("lower-body").unwrap();
+        let err = meta.check_sensors(&legs).unwrap_err().to_string();
+        assert!(
+            err.contains("(left_forearm, right_forearm, left_lower_leg, right_lower_leg, head, pelvis)")
+                && err.contains("lower-body (left_lower_leg, right_lower_leg, pelvis, left_upper_leg, right_upper_leg)"),
+            "{err}"
+        );
+        let mut odd = meta.clone();
+        odd.sensors.push("tail".to_owned());
+        assert!(
+            odd.check_sensors(&SensorSet::six())
+                .unwrap_err()
+                .to_string()
+                .contains("'tail'")
+        );
     }
 }

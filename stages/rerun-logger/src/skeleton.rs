@@ -3,15 +3,16 @@
 //! estimate), their ground-reaction forces, contact points and forces ([`log_contacts`]), the IMU
 //! sensors' orientations ([`log_sensors`]), and the fixed colours that tell the skeletons apart.
 
+use imuflow_body::Imu;
 use imuflow_body::skeleton::SIP_JOINTS;
 use imuflow_body::{BodyModel, JointId, NUM_JOINTS, Pose, forward_kinematics};
-use imuflow_graph::frames::{ContactFrame, FrameType, MotionFrame, NUM_IMUS};
+use imuflow_graph::frames::{ContactFrame, FrameType, MAX_SITES, MotionFrame};
 
 use crate::columns::{FrameTime, Log};
 use crate::plots::{ErrorSeries, Plots, Posed, TRUTH_FRAMES_KEPT, group_of};
 
-/// Sensor names in IMU order (docs/architecture.md).
-pub const SENSOR_NAMES: [&str; NUM_IMUS] = imuflow_body::Imu::NAMES;
+/// Site names in wire slot order (docs/architecture.md).
+pub const SENSOR_NAMES: [&str; MAX_SITES] = imuflow_body::Imu::NAMES;
 /// Spacing of the sensors' display positions along x, m.
 const SENSOR_SPACING_M: f32 = 0.3;
 /// Length of the drawn axes, m.
@@ -355,15 +356,16 @@ pub(crate) fn log_contacts(rec: &mut Log, input: &str, f: &ContactFrame) -> anyh
     Ok(())
 }
 
-/// Where each IMU input's sensors stand (side by side along x, so their axes do not overlap),
-/// and their axes: static, logged once before the frames.
+/// Where each IMU input's sensors (the graph's set's `sites`) stand (side by side along x, so
+/// their axes do not overlap), and their axes: static, logged once before the frames.
 pub(crate) fn log_sensor_layout(
     rec: &rerun::RecordingStream,
     inputs: &[(String, FrameType)],
+    sites: &[Imu],
 ) -> anyhow::Result<()> {
     for (name, frame) in inputs {
         if matches!(frame, FrameType::Imu | FrameType::BodyImu) {
-            for (k, sensor) in SENSOR_NAMES.iter().enumerate() {
+            for (k, sensor) in sites.iter().map(|s| s.name()).enumerate() {
                 let base = format!("{name}/{sensor}");
                 rec.log_static(
                     base.clone(),
@@ -380,19 +382,21 @@ pub(crate) fn log_sensor_layout(
 }
 
 /// Each valid sensor's orientation (turning its axes), with its signals as time series next to
-/// it: the sensors are drawn and plotted in one pass, as the frame carries them.
+/// it: the sensors of the graph's set (`sites`) are drawn and plotted in one pass, as the frame
+/// carries them.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn log_sensors(
     rec: &mut Log,
     plots: &mut Plots,
     input: &str,
-    orientation_wxyz: &[[f32; 4]; NUM_IMUS],
-    accel: &[[f32; 3]; NUM_IMUS],
-    rate: &[[f32; 3]; NUM_IMUS],
+    sites: &[Imu],
+    orientation_wxyz: &[[f32; 4]; MAX_SITES],
+    accel: &[[f32; 3]; MAX_SITES],
+    rate: &[[f32; 3]; MAX_SITES],
     valid_mask: u32,
     names: [&str; 2],
 ) -> anyhow::Result<()> {
-    for (k, sensor) in SENSOR_NAMES.iter().enumerate() {
+    for (k, sensor) in sites.iter().map(|s| (s.index(), s.name())) {
         let valid = valid_mask & (1 << k) != 0;
         let [w, x, y, z] = orientation_wxyz[k];
         if valid && [w, x, y, z].iter().all(|v| v.is_finite()) {

@@ -147,7 +147,10 @@ pub fn run() -> anyhow::Result<()> {
         let overlaid = params.views == "overlaid";
         blueprint::send_grouped(&rec, &groups, overlaid, &inputs)?;
     }
-    log_sensor_layout(&rec, &inputs)?;
+    let sensors =
+        imuflow_body::SensorSet::resolve(&ctx.graph().sensors).context("the graph's `sensors`")?;
+    let sites: Vec<imuflow_body::Imu> = sensors.sites().collect();
+    log_sensor_layout(&rec, &inputs, &sites)?;
 
     let body = BodyModel::new(&BodyParams::builtin()?, params.stature_m, 70.0)?;
     let has_truth = inputs
@@ -164,7 +167,15 @@ pub fn run() -> anyhow::Result<()> {
         _ => Log::call_by_call(rec),
     };
     let logged = if ctx.ready()? {
-        log_frames(&mut ctx, &mut log, &inputs, live, single_run, &mut drawer)
+        log_frames(
+            &mut ctx,
+            &mut log,
+            &inputs,
+            &sites,
+            live,
+            single_run,
+            &mut drawer,
+        )
     } else {
         Ok(())
     };
@@ -202,6 +213,7 @@ fn log_frames(
     ctx: &mut StageContext,
     rec: &mut Log,
     inputs: &[(String, FrameType)],
+    sites: &[imuflow_body::Imu],
     live: bool,
     single_run: bool,
     drawer: &mut SkeletonDrawer,
@@ -229,6 +241,7 @@ fn log_frames(
                         rec,
                         &mut plots,
                         name,
+                        sites,
                         &f.orientation_wxyz,
                         &f.specific_force_mps2,
                         &f.angular_rate_radps,
@@ -243,6 +256,7 @@ fn log_frames(
                         rec,
                         &mut plots,
                         name,
+                        sites,
                         &f.bone_orientation_wxyz,
                         &f.free_acceleration_mps2,
                         &f.angular_velocity_radps,

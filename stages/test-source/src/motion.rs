@@ -1,6 +1,7 @@
 //! The synthetic sensors' motion and the frames it gives (see the crate docs).
 
-use imuflow_graph::frames::{ImuFrame, NUM_IMUS};
+use imuflow_body::NUM_IMUS;
+use imuflow_graph::frames::ImuFrame;
 
 /// Standard gravity, m/s² (docs/architecture.md: gravity (0, −9.81, 0) in M).
 pub const GRAVITY_MPS2: f32 = 9.81;

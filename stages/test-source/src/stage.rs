@@ -4,7 +4,8 @@
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use imuflow_graph::frames::{FrameHeader, ImuFrame, NUM_IMUS, flags};
+use imuflow_body::NUM_IMUS;
+use imuflow_graph::frames::{FrameHeader, ImuFrame, flags};
 use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::stage::Step;
 use imuflow_graph::transport::now_ns;

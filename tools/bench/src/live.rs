@@ -26,8 +26,9 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, anyhow, bail};
+use imuflow_body::{MAX_SITES, NUM_IMUS};
 use imuflow_graph::Graph;
-use imuflow_graph::frames::{ImuFrame, NUM_IMUS, RawImuFrame};
+use imuflow_graph::frames::{ImuFrame, RawImuFrame};
 use imuflow_graph::launch::{self, LaunchOptions, RunReport};
 use imuflow_graph::spec::Registry;
 use imuflow_graph::transform::load_without;
@@ -170,8 +171,8 @@ fn slerp(a: [f64; 4], b: [f64; 4], t: f64) -> [f64; 4] {
 #[derive(Debug, Clone)]
 pub struct ImuSample {
     pub time_s: f64,
-    pub orientation_wxyz: [[f32; 4]; NUM_IMUS],
-    pub specific_force_mps2: [[f32; 3]; NUM_IMUS],
+    pub orientation_wxyz: [[f32; 4]; MAX_SITES],
+    pub specific_force_mps2: [[f32; 3]; MAX_SITES],
 }
 
 /// `frames` resampled to `rate_hz` for `seconds` (slerp between orientations, linear between
@@ -397,7 +398,7 @@ pub struct Shown {
 pub fn shown_moments(
     ticks: &[[FirmwareSample; NUM_IMUS]],
     sent: &[Sent],
-    frames: &[(u64, [[f32; 4]; NUM_IMUS], u32)],
+    frames: &[(u64, [[f32; 4]; MAX_SITES], u32)],
 ) -> Vec<Shown> {
     const MAX_OFF_ARC_RAD: f64 = 0.5 * std::f64::consts::PI / 180.0;
     const MIN_STEP_RAD: f64 = 0.05 * std::f64::consts::PI / 180.0;
@@ -600,7 +601,7 @@ pub fn macs_by_site(text: &str, file: &str) -> anyhow::Result<[String; NUM_IMUS]
     let table: toml::Table = text
         .parse()
         .with_context(|| format!("cannot parse the trackers file '{file}'"))?;
-    let sites = imuflow_body::skeleton::Imu::ALL.map(imuflow_body::skeleton::Imu::name);
+    let sites = imuflow_body::skeleton::Imu::SIX.map(imuflow_body::skeleton::Imu::name);
     let mut macs: [Option<String>; NUM_IMUS] = Default::default();
     let entries = table
         .get("tracker")
@@ -1030,7 +1031,7 @@ fn load_sample(path: &Path) -> anyhow::Result<Vec<ImuSample>> {
 /// (`source.raw`, per site with an orientation) its rotation (x, y, z, w), its date and its
 /// frame's capture time; per fusion output frame (`fusion.imu`) its capture time, orientations and
 /// valid mask.
-type FusionFrame = (u64, [[f32; 4]; NUM_IMUS], u32);
+type FusionFrame = (u64, [[f32; 4]; MAX_SITES], u32);
 
 fn read_recording(path: &Path) -> anyhow::Result<(Vec<Arrival>, Vec<FusionFrame>)> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read '{}'", path.display()))?;
@@ -1790,8 +1791,8 @@ mod tests {
     fn still(t: f64, q: [f32; 4], f: [f32; 3]) -> ImuSample {
         ImuSample {
             time_s: t,
-            orientation_wxyz: [q; NUM_IMUS],
-            specific_force_mps2: [f; NUM_IMUS],
+            orientation_wxyz: [q; MAX_SITES],
+            specific_force_mps2: [f; MAX_SITES],
         }
     }
 

@@ -713,6 +713,7 @@ impl ClipWork {
                     config: AugmentationConfig::REFERENCE,
                     seed,
                 }),
+                ..SynthesisOptions::default()
             };
             // Another body size for an augmented training copy (`--vary-stature`).
             let resized = match (seed, options.vary_stature, split) {
@@ -816,14 +817,16 @@ fn is_npz(path: &Path) -> bool {
         .is_some_and(|e| e.eq_ignore_ascii_case("npz"))
 }
 
-/// `imu_orientation`, `imu_free_accel`, `imu_angular_velocity` bytes.
+/// `imu_orientation`, `imu_free_accel`, `imu_angular_velocity` bytes: the synthesized sites'
+/// signals, in wire slot order.
 fn imu_tensors(imus: &SyntheticImus) -> [Vec<u8>; 3] {
     let n = imus.frames.len();
-    let mut ori = Vec::with_capacity(n * 54 * 4);
-    let mut acc = Vec::with_capacity(n * 18 * 4);
-    let mut gyro = Vec::with_capacity(n * 18 * 4);
+    let sites = imus.sites.len();
+    let mut ori = Vec::with_capacity(n * sites * 9 * 4);
+    let mut acc = Vec::with_capacity(n * sites * 3 * 4);
+    let mut gyro = Vec::with_capacity(n * sites * 3 * 4);
     for frame in &imus.frames {
-        for s in frame {
+        for s in imus.sites.sites().map(|site| &frame[site.index()]) {
             push_f32(&mut ori, &row_major_from_rotation(&s.model_from_sensor));
             push_f32(&mut acc, s.free_accel_in_model_mps2.as_slice());
             push_f32(&mut gyro, s.angular_velocity_in_model_radps.as_slice());

@@ -77,6 +77,7 @@ pub fn average_weights(inputs: &[PathBuf], out: &Path, command: &str) -> anyhow:
             })).collect::<Vec<_>>(),
         }),
         licence: first.metadata.licence.clone(),
+        sensors: first.metadata.sensors.clone(),
     };
     weights::save(out, &tensors, &metadata)
         .with_context(|| format!("writing {}", out.display()))?;
@@ -149,6 +150,13 @@ fn check_same_layout(first: &Ingredient, other: &Ingredient) -> anyhow::Result<(
         .find(|k| !first.tensors.contains_key(*k))
     {
         bail!("{b} has a tensor {extra} that {a} lacks");
+    }
+    if first.metadata.sensors != other.metadata.sensors {
+        bail!(
+            "{b} was trained for the sensors {:?}, {a} for {:?}: only one set's weights average",
+            other.metadata.sensors,
+            first.metadata.sensors
+        );
     }
     if first.metadata.normalization != other.metadata.normalization {
         bail!("{b} normalizes its inputs differently from {a} (metadata 'normalization')");

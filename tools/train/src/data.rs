@@ -478,7 +478,7 @@ impl Builder {
     ) -> anyhow::Result<()> {
         self.use_body(stature_m)?;
         let mut fk = FkData::new();
-        let mut imu_pos = [Vector3::zeros(); 6];
+        let mut imu_pos = [Vector3::zeros(); imuflow_body::MAX_SITES];
         for f in start..end {
             let g = shard.globals(f);
             let root = g[0];

@@ -56,6 +56,7 @@ pub fn import_checkpoint(method: Method, input: &Path, output: &Path) -> anyhow:
             "converter": "imuflow import-checkpoint",
         }),
         licence: "that of the imported checkpoint (see its source)".to_owned(),
+        sensors: imuflow_kinematics::weights::six_site_names(),
     };
     weights::save(output, &named, &metadata)
 }

@@ -1,5 +1,6 @@
 use std::path::{Path, PathBuf};
 
+use imuflow_body::NUM_IMUS;
 use imuflow_body::rotation::{angle_between, rotation_from_axis_angle, rotation_from_quat_wxyz};
 use imuflow_graph::frames::flags;
 

@@ -165,7 +165,7 @@ pub fn run(config: CalibratorConfig, motion: &Motion) -> Session {
 pub fn true_bones(body: &BodyModel, pose: &Pose) -> [Rotation3<f64>; NUM_IMUS] {
     let mut fk = FkData::new();
     forward_kinematics(&body.skeleton, pose, &mut fk);
-    Imu::ALL.map(|imu| *fk.world_from(imu.joint()))
+    Imu::SIX.map(|imu| *fk.world_from(imu.joint()))
 }
 
 /// The true `R_SB` at frame `t`: the random mounting composed with the synthesized sensor's own

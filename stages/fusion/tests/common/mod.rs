@@ -19,5 +19,6 @@ pub fn settings(origin: Origin) -> Settings {
         },
         max_latency_s: 0.03,
         origin,
+        sites: imuflow_body::SiteMask::of(imuflow_body::Imu::SIX),
     }
 }

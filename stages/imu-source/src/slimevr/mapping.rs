@@ -19,8 +19,8 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use imuflow_body::NUM_IMUS;
 use imuflow_body::skeleton::Imu;
-use imuflow_graph::frames::NUM_IMUS;
 use serde::Deserialize;
 use toml::Spanned;
 
@@ -71,7 +71,7 @@ struct Entry {
 
 /// Names of the six sites, in IMU order.
 pub fn site_names() -> [&'static str; NUM_IMUS] {
-    Imu::ALL.map(Imu::name)
+    Imu::SIX.map(Imu::name)
 }
 
 impl Mapping {

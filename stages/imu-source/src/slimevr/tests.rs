@@ -389,7 +389,7 @@ fn a_sample_becomes_a_frame_of_its_site() {
         (a[0] - 0.5).abs() < 1e-6 && (a[1] - g).abs() < 1e-5 && a[2].abs() < 1e-5,
         "{a:?}"
     );
-    assert_eq!(f.gyroscope_radps, [[0.0; 3]; 6]);
+    assert!(f.gyroscope_radps.iter().all(|g| *g == [0.0; 3]));
     assert!(
         f.sample_time_ns
             .iter()

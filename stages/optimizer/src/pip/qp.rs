@@ -777,7 +777,7 @@ fn chain_columns(j: JointId, out: &mut Vec<usize>) {
 /// weights: the sensors' bones (`PipConfig::coeff_sensor_bone`) and the SIP joints' frames, which
 /// are exactly the upper legs and upper arms (`PipConfig::coeff_limb_bone`).
 pub fn orientation_rows(config: &PipConfig) -> impl Iterator<Item = (JointId, f64)> {
-    let sensor_bones = Imu::ALL.map(|imu| (imu.joint(), config.coeff_sensor_bone));
+    let sensor_bones = Imu::SIX.map(|imu| (imu.joint(), config.coeff_sensor_bone));
     let limb_bones = SIP_JOINTS.map(|j| (j, config.coeff_limb_bone));
     sensor_bones.into_iter().chain(limb_bones)
 }

@@ -284,7 +284,7 @@ fn sensor_bone_error_pairs_by_seq_and_leaves_out_incomplete_measurements() {
         let mut f = BodyImuFrame::default();
         f.header.seq = seq;
         f.valid_mask = valid_mask;
-        f.bone_orientation_wxyz = [[1.0, 0.0, 0.0, 0.0]; 6];
+        f.bone_orientation_wxyz = [[1.0, 0.0, 0.0, 0.0]; imuflow_graph::frames::MAX_SITES];
         f.bone_orientation_wxyz[4] = quat_wxyz_from_rotation(&head).map(|v| v as f32);
         (seq, f)
     };

@@ -1,0 +1,383 @@
+//! Sensor sets: which sites of the site catalogue ([`Imu::CATALOGUE`]) a capture setup wears.
+//!
+//! A set is data: the shipped ones (`six`, `lower-body`, `full-suit`) come from
+//! `models/sensor-sets.toml`, embedded at compile time; a user's own set is a file of the same
+//! form. Each site of a set is a site of the body model (its bone and its placement are the body
+//! model's `[imus.<site>]`), so a set can only name sites the body model has. The wire carries one
+//! slot per catalogue site; a set fills the slots of its sites ([`SiteMask`]).
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::Path;
+
+use serde::Deserialize;
+
+use crate::skeleton::{Imu, MAX_SITES};
+
+/// The shipped sensor sets (`models/sensor-sets.toml`), embedded at compile time.
+pub const BUILTIN_SENSOR_SETS_TOML: &str = include_str!("../../../models/sensor-sets.toml");
+
+/// The set a graph uses when it names none: PIP's and GlobalPose's six.
+pub const DEFAULT_SENSOR_SET: &str = "six";
+
+/// A set of catalogue sites as a bit mask over wire slots (bit i: [`Imu::index`] i), the form the
+/// frames' `valid_mask` has.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct SiteMask(pub u32);
+
+impl SiteMask {
+    /// The mask of `sites`.
+    pub fn of(sites: impl IntoIterator<Item = Imu>) -> SiteMask {
+        SiteMask(sites.into_iter().fold(0, |m, s| m | 1 << s.index()))
+    }
+
+    /// Whether `site` is in the mask.
+    pub fn contains(self, site: Imu) -> bool {
+        self.0 & (1 << site.index()) != 0
+    }
+
+    /// Whether wire slot `slot` is in the mask.
+    pub fn contains_slot(self, slot: usize) -> bool {
+        slot < MAX_SITES && self.0 & (1 << slot) != 0
+    }
+
+    /// The sites in the mask, in wire slot order.
+    pub fn sites(self) -> impl Iterator<Item = Imu> {
+        Imu::CATALOGUE
+            .into_iter()
+            .filter(move |&s| self.contains(s))
+    }
+
+    /// How many sites the mask holds.
+    pub fn len(self) -> usize {
+        (self.0 & ((1u32 << MAX_SITES) - 1)).count_ones() as usize
+    }
+
+    /// Whether the mask holds no site.
+    pub fn is_empty(self) -> bool {
+        self.len() == 0
+    }
+
+    /// The sites of `self` that `other` lacks.
+    pub fn missing_from(self, other: SiteMask) -> SiteMask {
+        SiteMask(self.0 & !other.0)
+    }
+
+    /// The sites' names, comma-separated (for messages).
+    pub fn names(self) -> String {
+        let names: Vec<&str> = self.sites().map(Imu::name).collect();
+        names.join(", ")
+    }
+}
+
+/// A sensor set: its name, its sites and the site whose heading the calibration takes as the
+/// body's.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SensorSet {
+    name: String,
+    description: String,
+    sites: SiteMask,
+    heading_reference: Imu,
+}
+
+/// A sensor set file, as written.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SetEntry {
+    #[serde(default)]
+    description: String,
+    sites: Vec<String>,
+    heading_reference: String,
+}
+
+/// Failure to find, read or validate a sensor set.
+#[derive(Debug, thiserror::Error)]
+pub enum SensorSetError {
+    /// Neither a shipped set's name nor a readable file.
+    #[error(
+        "sensor set '{name}': not a shipped set ({shipped}) and not a readable file ({reason})"
+    )]
+    Unknown {
+        name: String,
+        shipped: String,
+        reason: String,
+    },
+    /// The file is not valid TOML or a key is missing, unknown or of the wrong type; `detail`
+    /// (from the TOML parser) names the line and the key.
+    #[error("sensor set file '{file}': {detail}")]
+    Parse { file: String, detail: String },
+    /// A set's content breaks a rule; `detail` names the set, the key and what was found.
+    #[error("sensor set file '{file}': {detail}")]
+    Invalid { file: String, detail: String },
+}
+
+impl SensorSet {
+    /// The set's name (`six`, `lower-body`, `full-suit`, or a user set's table name).
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// One line about the set.
+    pub fn description(&self) -> &str {
+        &self.description
+    }
+
+    /// The set's sites as a slot mask.
+    pub fn mask(&self) -> SiteMask {
+        self.sites
+    }
+
+    /// The set's sites, in wire slot order.
+    pub fn sites(&self) -> impl Iterator<Item = Imu> {
+        self.sites.sites()
+    }
+
+    /// How many sites the set has.
+    pub fn len(&self) -> usize {
+        self.sites.len()
+    }
+
+    /// Never true: a set has at least one site.
+    pub fn is_empty(&self) -> bool {
+        self.sites.is_empty()
+    }
+
+    /// Whether the set wears `site`.
+    pub fn contains(&self, site: Imu) -> bool {
+        self.sites.contains(site)
+    }
+
+    /// The site whose heading the calibration takes as the body's.
+    pub fn heading_reference(&self) -> Imu {
+        self.heading_reference
+    }
+
+    /// Whether this is the six-site set of PIP and GlobalPose (whatever its name).
+    pub fn is_six(&self) -> bool {
+        self.sites == SiteMask::of(Imu::SIX)
+    }
+
+    /// PIP's and GlobalPose's six.
+    pub fn six() -> SensorSet {
+        SensorSet {
+            name: DEFAULT_SENSOR_SET.to_owned(),
+            description: "PIP's and GlobalPose's six".to_owned(),
+            sites: SiteMask::of(Imu::SIX),
+            heading_reference: Imu::Pelvis,
+        }
+    }
+
+    /// Every shipped set, in the file's order of names (sorted).
+    pub fn shipped() -> Vec<SensorSet> {
+        // The shipped file is checked by this module's tests; a broken one is a build defect.
+        parse_sets(BUILTIN_SENSOR_SETS_TOML, "models/sensor-sets.toml").unwrap_or_default()
+    }
+
+    /// The shipped set called `name`, if there is one.
+    pub fn builtin(name: &str) -> Option<SensorSet> {
+        SensorSet::shipped().into_iter().find(|s| s.name == name)
+    }
+
+    /// A shipped set by name, or the single set of a user's file by its path.
+    pub fn resolve(name_or_path: &str) -> Result<SensorSet, SensorSetError> {
+        if let Some(set) = SensorSet::builtin(name_or_path) {
+            return Ok(set);
+        }
+        let shipped = || {
+            let names: Vec<String> = SensorSet::shipped().into_iter().map(|s| s.name).collect();
+            names.join(", ")
+        };
+        let path = Path::new(name_or_path);
+        let text = std::fs::read_to_string(path).map_err(|e| SensorSetError::Unknown {
+            name: name_or_path.to_owned(),
+            shipped: shipped(),
+            reason: e.to_string(),
+        })?;
+        let file = path.display().to_string();
+        let mut sets = parse_sets(&text, &file)?;
+        if sets.len() != 1 {
+            return Err(SensorSetError::Invalid {
+                file,
+                detail: format!(
+                    "a user's set file holds exactly one set (one table), found {}",
+                    sets.len()
+                ),
+            });
+        }
+        Ok(sets.remove(0))
+    }
+}
+
+impl fmt::Display for SensorSet {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} ({})", self.name, self.sites.names())
+    }
+}
+
+/// Every set of a sensor set file (`file` names it in errors), sorted by name.
+fn parse_sets(text: &str, file: &str) -> Result<Vec<SensorSet>, SensorSetError> {
+    let entries: BTreeMap<String, SetEntry> =
+        toml::from_str(text).map_err(|e| SensorSetError::Parse {
+            file: file.to_owned(),
+            detail: e.to_string(),
+        })?;
+    let invalid = |detail: String| SensorSetError::Invalid {
+        file: file.to_owned(),
+        detail,
+    };
+    let site = |set: &str, key: &str, name: &str| {
+        Imu::from_name(name).ok_or_else(|| {
+            invalid(format!(
+                "[{set}] {key}: '{name}' is not a site of the body model (its sites: {})",
+                Imu::NAMES.join(", ")
+            ))
+        })
+    };
+    let mut sets = Vec::new();
+    for (name, entry) in entries {
+        if entry.sites.is_empty() {
+            return Err(invalid(format!(
+                "[{name}] sites: empty; a set wears at least one site"
+            )));
+        }
+        let mut mask = SiteMask::default();
+        for s in &entry.sites {
+            let imu = site(&name, "sites", s)?;
+            if mask.contains(imu) {
+                return Err(invalid(format!("[{name}] sites: '{s}' named twice")));
+            }
+            mask = SiteMask(mask.0 | 1 << imu.index());
+        }
+        let reference = site(&name, "heading_reference", &entry.heading_reference)?;
+        if !mask.contains(reference) {
+            return Err(invalid(format!(
+                "[{name}] heading_reference: '{}' is not one of the set's sites ({})",
+                entry.heading_reference,
+                mask.names()
+            )));
+        }
+        sets.push(SensorSet {
+            name,
+            description: entry.description,
+            sites: mask,
+            heading_reference: reference,
+        });
+    }
+    Ok(sets)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shipped_sets_parse_and_six_is_the_first_six_slots() {
+        let sets = parse_sets(BUILTIN_SENSOR_SETS_TOML, "models/sensor-sets.toml").unwrap();
+        let names: Vec<&str> = sets.iter().map(|s| s.name()).collect();
+        assert_eq!(names, ["full-suit", "lower-body", "six"]);
+        let six = SensorSet::builtin("six").unwrap();
+        assert_eq!(six.mask(), SiteMask(0b11_1111));
+        assert_eq!(six.sites().collect::<Vec<_>>(), Imu::SIX);
+        assert!(six.is_six());
+        assert_eq!(six.mask(), SensorSet::six().mask());
+        let suit = SensorSet::builtin("full-suit").unwrap();
+        assert_eq!(suit.len(), MAX_SITES);
+        let legs = SensorSet::builtin("lower-body").unwrap();
+        assert_eq!(
+            legs.mask(),
+            SiteMask::of([
+                Imu::Pelvis,
+                Imu::LeftUpperLeg,
+                Imu::RightUpperLeg,
+                Imu::LeftLowerLeg,
+                Imu::RightLowerLeg
+            ])
+        );
+        assert_eq!(legs.heading_reference(), Imu::Pelvis);
+        // A set's slots are its own whatever the file's order: slot order.
+        assert_eq!(
+            suit.sites().map(|s| s.index()).collect::<Vec<_>>(),
+            (0..17).collect::<Vec<_>>()
+        );
+    }
+
+    #[test]
+    fn a_set_naming_what_the_body_lacks_is_refused_naming_both() {
+        let err = parse_sets(
+            "[legs]\nsites = [\"pelvis\", \"left_thigh\"]\nheading_reference = \"pelvis\"\n",
+            "my.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("my.toml") && err.contains("[legs] sites: 'left_thigh'"),
+            "{err}"
+        );
+        assert!(err.contains("left_upper_leg"), "{err}");
+        let err = parse_sets(
+            "[legs]\nsites = [\"pelvis\", \"pelvis\"]\nheading_reference = \"pelvis\"\n",
+            "my.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("'pelvis' named twice"), "{err}");
+        let err = parse_sets(
+            "[legs]\nsites = [\"left_upper_leg\"]\nheading_reference = \"pelvis\"\n",
+            "my.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("not one of the set's sites (left_upper_leg)"),
+            "{err}"
+        );
+        let err = parse_sets(
+            "[legs]\nsites = []\nheading_reference = \"pelvis\"\n",
+            "my.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("empty"), "{err}");
+        let err = parse_sets("[legs]\nsite = [\"pelvis\"]\n", "my.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("my.toml") && err.contains("site"), "{err}");
+    }
+
+    #[test]
+    fn a_users_set_file_resolves_by_path_and_an_unknown_name_lists_the_shipped() {
+        let dir = std::env::temp_dir().join(format!("imuflow-sets-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("hips.toml");
+        std::fs::write(
+            &path,
+            "[hips]\nsites = [\"right_upper_leg\", \"pelvis\", \"left_upper_leg\"]\nheading_reference = \"pelvis\"\n",
+        )
+        .unwrap();
+        let set = SensorSet::resolve(path.to_str().unwrap()).unwrap();
+        assert_eq!(set.name(), "hips");
+        assert_eq!(
+            set.sites().collect::<Vec<_>>(),
+            [Imu::Pelvis, Imu::LeftUpperLeg, Imu::RightUpperLeg]
+        );
+        assert!(!set.is_six());
+        let err = SensorSet::resolve("legs").unwrap_err().to_string();
+        assert!(
+            err.contains("'legs'") && err.contains("full-suit, lower-body, six"),
+            "{err}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_mask_lists_what_another_lacks() {
+        let six = SensorSet::six().mask();
+        let legs = SensorSet::builtin("lower-body").unwrap().mask();
+        assert_eq!(
+            legs.missing_from(six).names(),
+            "left_upper_leg, right_upper_leg"
+        );
+        assert_eq!(six.missing_from(six), SiteMask::default());
+        assert!(six.missing_from(six).is_empty());
+    }
+}

@@ -1,0 +1,132 @@
+//! A graph's sensor set (`sensors` at the top of the graph file) in real multi-process graphs: a
+//! lower-body set synthesized through raw sensors and fused carries exactly its sites; a set the
+//! body model lacks is refused before any stage starts, and stages made for the six refuse
+//! another set naming it (the weights' refusal naming both sets: the kinematics crate's tests).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{Sandbox, assert_clean, mcap_messages, text};
+use imuflow_graph::frames::{ImuFrame, RawImuFrame, flags, frame_from_bytes};
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("libs/motion/tests/fixtures/bandai-walk-normal-trimmed.bvh")
+}
+
+/// Slots of the lower-body set: left and right lower leg (2, 3), pelvis (5), left and right
+/// upper leg (6, 7), written out here rather than taken from the body crate.
+const LOWER_BODY: u32 = 1 << 2 | 1 << 3 | 1 << 5 | 1 << 6 | 1 << 7;
+
+#[test]
+fn a_lower_body_graph_synthesizes_and_fuses_exactly_its_sites() {
+    let sb = Sandbox::new("sets-legs");
+    let graph = sb.graph(
+        "legs.toml",
+        &format!(
+            r#"
+name = "legs"
+sensors = "lower-body"
+[stages.source]
+kind = "imu-source"
+params = {{ mode = "synthesize", path = "{}", prelude = "stand", raw = true, raw_noise = 1.0 }}
+[stages.fusion]
+kind = "fusion"
+inputs = {{ raw = "source.raw" }}
+[stages.record]
+kind = "recorder"
+inputs = {{ imu = "fusion.imu", raw = "source.raw" }}
+params = {{ path = "{{dir}}/legs.mcap" }}
+"#,
+            fixture().display()
+        ),
+    );
+    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
+    let messages = mcap_messages(&sb.path("legs.mcap"));
+    let mut raw_sites = 0u32;
+    for m in messages.iter().filter(|m| m.0 == "source.raw") {
+        let f: RawImuFrame = frame_from_bytes(&m.2).expect("a RawImuFrame");
+        raw_sites |= f.valid_mask;
+    }
+    assert_eq!(raw_sites, LOWER_BODY, "the raw samples' sites");
+    let fused: Vec<ImuFrame> = messages
+        .iter()
+        .filter(|m| m.0 == "fusion.imu")
+        .map(|m| frame_from_bytes(&m.2).expect("an ImuFrame"))
+        .filter(|f: &ImuFrame| !f.header.is_end())
+        .collect();
+    assert!(fused.len() > 100, "{} fused frames", fused.len());
+    let whole = fused
+        .iter()
+        .filter(|f| f.valid_mask == LOWER_BODY && !f.header.has(flags::INVALID))
+        .count();
+    // Every frame but the few before each sensor's rate is measured.
+    assert!(
+        whole + 10 >= fused.len(),
+        "{whole} of {} whole",
+        fused.len()
+    );
+    for f in &fused {
+        assert_eq!(f.valid_mask & !LOWER_BODY, 0);
+        // The forearms' and the head's slots stay empty.
+        for slot in [0, 1, 4] {
+            assert_eq!(f.orientation_wxyz[slot], [0.0; 4]);
+        }
+    }
+    assert_clean(&sb);
+}
+
+#[test]
+fn a_set_the_body_lacks_and_weights_for_another_set_are_refused_naming_both() {
+    let sb = Sandbox::new("sets-refused");
+    let source = format!(
+        r#"
+[stages.source]
+kind = "imu-source"
+params = {{ mode = "synthesize", path = "{}" }}
+"#,
+        fixture().display()
+    );
+    let graph = sb.graph(
+        "tail.toml",
+        &format!("name = \"tail\"\nsensors = \"tail\"\n{source}"),
+    );
+    let out = sb.run(&["graph", "check", graph.to_str().expect("utf8")]);
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("sensors: sensor set 'tail'") && err.contains("full-suit, lower-body, six"),
+        "{err}"
+    );
+
+    let weights = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/pip.safetensors");
+    let graph = sb.graph(
+        "legs-pip.toml",
+        &format!(
+            r#"name = "legs-pip"
+sensors = "lower-body"
+{source}
+[stages.calib]
+kind = "calibration"
+inputs = {{ imu = "source.imu" }}
+[stages.kin]
+kind = "kinematics"
+inputs = {{ imu = "calib.body_imu" }}
+params = {{ net = "pip", weights = "{}" }}
+"#,
+            weights.display()
+        ),
+    );
+    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    let err = text(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains(
+            "the graph's sensors are lower-body (left_lower_leg, right_lower_leg, pelvis, left_upper_leg, right_upper_leg)"
+        ),
+        "{err}"
+    );
+    assert_clean(&sb);
+}
