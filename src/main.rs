@@ -123,7 +123,8 @@ enum BodyCommand {
 #[derive(Subcommand)]
 enum DatasetCommand {
     /// Retarget every .bvh under --bvh-dir (Bandai Namco skeleton, or any with --mapping), resample
-    /// to 60 Hz, synthesize the six IMUs (ideal plus augmented copies) and write safetensors shards:
+    /// to 60 Hz, synthesize the sensor set's IMUs (--sensors, the six by default; ideal plus
+    /// augmented copies) and write safetensors shards:
     /// held-out motion contents apart, the rest split 80/10/10 by clip (see
     /// tools/dataset/README.md). Clips that fail are reported and skipped.
     Build {
@@ -189,9 +190,13 @@ enum DatasetCommand {
         /// Without it they all go to the holdout, as the protocol's measured weights need
         #[arg(long)]
         every_content: bool,
-        /// Close a shard before it exceeds this many frames (1,524 bytes each).
+        /// Close a shard before it exceeds this many frames (1,524 bytes each with six sensors).
         #[arg(long, default_value_t = imuflow_dataset::DEFAULT_MAX_SHARD_FRAMES)]
         shard_frames: usize,
+        /// The sensor set to synthesize: a shipped set (six, lower-body, full-suit) or a set
+        /// file (models/sensor-sets.toml shows the form)
+        #[arg(long, default_value = "six", value_name = "SET")]
+        sensors: String,
         /// Don't show the progress bar.
         #[arg(long)]
         no_progress: bool,
@@ -447,9 +452,17 @@ fn dataset(cmd: DatasetCommand) -> ExitCode {
         mapping,
         every_content,
         shard_frames,
+        sensors,
         no_progress,
     } = cmd;
     let mut options = imuflow_dataset::BuildOptions::new(bvh_dir, out);
+    options.sensors = match imuflow_body::SensorSet::resolve(&sensors) {
+        Ok(set) => set,
+        Err(e) => {
+            eprintln!("error: --sensors: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
     options.augment_copies = augment_copies;
     options.seed = seed;
     options.limit = limit;

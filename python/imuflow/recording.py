@@ -2,7 +2,7 @@
 
     import imuflow
     rec = imuflow.open_recording("out/sample.mcap")
-    rec.topics                       # {'source.imu': 'imuflow.ImuFrame.v1', 'opt.motion': ..., ...}
+    rec.topics                       # {'source.imu': 'imuflow.ImuFrame.v2', 'opt.motion': ..., ...}
     imu = rec.frames("source.imu")   # structured array, one record per frame, fields by name
     imu["header.seq"], imu["specific_force_mps2"]            # (N,), (N, 6, 3)
     seq, rotations, root = rec.poses("opt.motion")         # (N,), (N, 24, 4) wxyz, (N, 3) m

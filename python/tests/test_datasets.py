@@ -160,7 +160,7 @@ def test_dip_converts_with_hand_derived_values():
         write_py2_pickle(src, dip_fixture())
         done = datasets.convert_dip(src, out)
         rec = imuflow.open_recording(out)
-        assert rec.topics == {"source.imu": "imuflow.ImuFrame.v1",
+        assert rec.topics == {"source.imu": "imuflow.ImuFrame.v2",
                               "source.truth": "imuflow.MotionFrame.v1"}, rec.topics
         imu = rec.frames("source.imu")
         seq, rotations, root = rec.poses("source.truth")
@@ -275,8 +275,8 @@ def test_totalcapture_reorders_and_reads_the_translation():
         datasets.convert_totalcapture(src, bare)
         _, _, bare_root = imuflow.open_recording(bare).poses("source.truth")
     # imuflow's sensor k is DIP's stored sensor [2, 3, 0, 1, 4, 5][k]: f = (index, 9.81, 0).
-    assert np.allclose(imu["specific_force_mps2"][:, :, 0], [2, 3, 0, 1, 4, 5], atol=1e-6)
-    assert np.allclose(imu["specific_force_mps2"][:, :, 1], G, atol=1e-6)
+    assert np.allclose(imu["specific_force_mps2"][:, :6, 0], [2, 3, 0, 1, 4, 5], atol=1e-6)
+    assert np.allclose(imu["specific_force_mps2"][:, :6, 1], G, atol=1e-6)
     # 10 IMU frames, 12 poses, 15 translations: the first 10 of each, and the summary says so.
     assert len(imu) == 10 and len(rotations) == 10 and done.frames == 10
     assert any("kept the first 10" in n for n in done.notes), done.notes
@@ -456,10 +456,10 @@ def binary():
 
 
 def test_the_packaged_layouts_describe_the_frames():
-    """Sizes from graph/src/frames.rs's field lists, by hand: ImuFrame = 32 (header) + 6·4·4 +
-    6·3·4 + 6·3·4 + 4 + 4 = 280; MotionFrame = 32 + 24·4·4 + 3·4 + 3·75·4 + 24·3·4 + 4 + 24·4 +
-    3·4 = 1728; every byte in exactly one field."""
-    for name, size in [("ImuFrame", 280), ("MotionFrame", 1728)]:
+    """Sizes from graph/src/frames.rs's field lists, by hand: ImuFrame = 32 (header) + 17·4·4 +
+    17·3·4 + 17·3·4 + 4 + 4 = 720 (one slot per site of the catalogue); MotionFrame = 32 + 24·4·4
+    + 3·4 + 3·75·4 + 24·3·4 + 4 + 24·4 + 3·4 = 1728; every byte in exactly one field."""
+    for name, size in [("ImuFrame", 720), ("MotionFrame", 1728)]:
         layout = imuflow.writer.packaged_layout(name)
         dtype = imuflow.dtype_from_layout(layout)
         assert layout["size"] == size == dtype.itemsize, (name, layout["size"])

@@ -101,14 +101,14 @@ imuflow_graph::stage_params! {
 pub const SPEC: StageSpec = StageSpec {
     kind: "imu-source",
     role: Role::Source,
-    summary: "six IMUs from a BVH motion (synthesized), an mcap recording (replayed), UDP sensors, sensor files (CSV/TSV, MVNX) or SlimeVR trackers",
+    summary: "IMUs from a BVH motion (synthesized, any sensor set), an mcap recording (replayed), UDP sensors, sensor files (CSV/TSV, MVNX) or SlimeVR trackers (the six-site set)",
     inputs: InputsSpec::Fixed(&[]),
     outputs: &[
         PortSpec {
             name: "imu",
             frame: FrameType::Imu,
             required: false,
-            doc: "six IMUs: orientation R_IS, specific force and angular rate in the sensor frame",
+            doc: "per sensor of the graph's set: orientation R_IS, specific force and angular rate in the sensor frame",
         },
         PortSpec {
             name: "truth",

@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
 use imuflow_body::rotation::row_major_from_rotation;
-use imuflow_body::{BodyModel, BodyParams, FkData, forward_kinematics};
+use imuflow_body::{BodyModel, BodyParams, FkData, SensorSet, forward_kinematics};
 use imuflow_motion::augment;
 use imuflow_motion::bvh::Bvh;
 use imuflow_motion::imu_synthesis::{
@@ -36,7 +36,7 @@ use serde::Serialize;
 
 pub use shard::{
     BYTES_PER_FRAME, BodyModelInfo, FRAME_TENSORS, METADATA_KEY, OFFSETS_TENSOR, SequenceInfo,
-    ShardFile, ShardMetadata, SynthesisInfo,
+    ShardFile, ShardMetadata, SynthesisInfo, frame_tensors, six_site_names,
 };
 pub use split::{
     HELD_OUT_CONTENTS, Split, SplitRule, augmentation_seed, clip_key, content_of, fnv1a64,
@@ -121,6 +121,8 @@ pub struct BuildOptions {
     pub split_rule: SplitRule,
     /// Show a progress bar.
     pub progress: bool,
+    /// The sensor set synthesized (its sites; the shards' `sensors`).
+    pub sensors: SensorSet,
 }
 
 impl BuildOptions {
@@ -147,6 +149,7 @@ impl BuildOptions {
             mass_kg: DEFAULT_MASS_KG,
             split_rule: SplitRule::Protocol,
             progress: true,
+            sensors: SensorSet::six(),
         }
     }
 }
@@ -392,6 +395,11 @@ pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
                 .into(),
             base_seed: options.seed,
         },
+        sensors: options
+            .sensors
+            .sites()
+            .map(|s| s.name().to_owned())
+            .collect(),
         sequences: Vec::new(),
     };
     let mut acc: Vec<ShardAccumulator> = Split::ALL
@@ -713,7 +721,7 @@ impl ClipWork {
                     config: AugmentationConfig::REFERENCE,
                     seed,
                 }),
-                ..SynthesisOptions::default()
+                sites: options.sensors.mask(),
             };
             // Another body size for an augmented training copy (`--vary-stature`).
             let resized = match (seed, options.vary_stature, split) {

@@ -8,7 +8,8 @@ use serde::{Deserialize, Serialize};
 use crate::DatasetError;
 use crate::split::Split;
 
-/// Tensor names, per-frame element counts and shapes after the frame axis, in file order. All are f32
+/// Tensor names, per-frame element counts and shapes after the frame axis, in file order, for the
+/// six-site set (a set of n sites has n where these have 6: [`frame_tensors`]). All are f32
 /// little-endian, row-major; see `tools/dataset/README.md` for units and frames.
 pub const FRAME_TENSORS: [(&str, &[usize]); 6] = [
     ("imu_orientation", &[6, 3, 3]),
@@ -25,8 +26,29 @@ pub const OFFSETS_TENSOR: &str = "clip_offsets";
 /// The header metadata key holding [`ShardMetadata`] as JSON.
 pub const METADATA_KEY: &str = "imuflow";
 
-/// Bytes per frame over all [`FRAME_TENSORS`] (f32).
+/// Bytes per frame over all [`FRAME_TENSORS`] (f32), six sites.
 pub const BYTES_PER_FRAME: usize = 4 * (54 + 18 + 18 + 216 + 3 + 72);
+
+/// [`FRAME_TENSORS`] for a set of `sites` sensors: the IMU tensors' sensor axis is the set's
+/// sites in wire slot order.
+pub fn frame_tensors(sites: usize) -> [(&'static str, Vec<usize>); 6] {
+    FRAME_TENSORS.map(|(name, dims)| {
+        let mut dims = dims.to_vec();
+        if name.starts_with("imu_") {
+            dims[0] = sites;
+        }
+        (name, dims)
+    })
+}
+
+/// The six-site set's site names, in wire slot order: the `sensors` of shards written before
+/// sensor sets.
+pub fn six_site_names() -> Vec<String> {
+    imuflow_body::Imu::SIX
+        .iter()
+        .map(|s| s.name().to_owned())
+        .collect()
+}
 
 /// One sequence (a clip's ideal synthesis or one augmented copy) in a shard.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -66,6 +88,10 @@ pub struct ShardMetadata {
     pub body_model: BodyModelInfo,
     /// IMU synthesis settings.
     pub synthesis: SynthesisInfo,
+    /// The sensor sites synthesized, in wire slot order (the IMU tensors' sensor axis; shards
+    /// written before sensor sets have none: the six-site set's).
+    #[serde(default = "six_site_names")]
+    pub sensors: Vec<String>,
     /// One entry per sequence, in `clip_offsets` order.
     pub sequences: Vec<SequenceInfo>,
 }
@@ -177,7 +203,7 @@ impl ShardAccumulator {
         };
         let offsets: Vec<u8> = self.offsets.iter().flat_map(|o| o.to_le_bytes()).collect();
         let mut views = Vec::with_capacity(FRAME_TENSORS.len() + 1);
-        for ((name, dims), buf) in FRAME_TENSORS.iter().zip(&self.buffers) {
+        for ((name, dims), buf) in frame_tensors(meta.sensors.len()).iter().zip(&self.buffers) {
             let mut shape = vec![self.frames];
             shape.extend_from_slice(dims);
             let view = safetensors::tensor::TensorView::new(safetensors::Dtype::F32, shape, buf)

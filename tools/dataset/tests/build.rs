@@ -749,3 +749,73 @@ fn varied_statures_resize_augmented_training_copies_only() {
         "statures vary: {resized:?}"
     );
 }
+
+#[test]
+fn a_sensor_set_builds_its_sites_and_the_ideal_copy_matches_the_six_sites_own() {
+    let input = input_dir(&GOOD[..2]);
+    let (six_out, legs_out) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    build(&options(input.path(), six_out.path())).unwrap();
+    let mut legs = options(input.path(), legs_out.path());
+    legs.sensors = imuflow_body::SensorSet::builtin("lower-body").unwrap();
+    build(&legs).unwrap();
+    let (six_files, legs_files) = (shard_files(six_out.path()), shard_files(legs_out.path()));
+    assert_eq!(six_files.len(), legs_files.len());
+    // The lower-body set's sites in slot order: left and right lower leg, pelvis, left and right
+    // upper leg; the six's: forearms, lower legs, head, pelvis.
+    let names = [
+        "left_lower_leg",
+        "right_lower_leg",
+        "pelvis",
+        "left_upper_leg",
+        "right_upper_leg",
+    ];
+    for (six_path, legs_path) in six_files.iter().zip(&legs_files) {
+        let (six_bytes, legs_bytes) = (
+            std::fs::read(six_path).unwrap(),
+            std::fs::read(legs_path).unwrap(),
+        );
+        let legs_meta = shard_metadata(&legs_bytes);
+        assert_eq!(legs_meta.sensors, names);
+        assert_eq!(shard_metadata(&six_bytes).sensors.len(), 6);
+        let (six, legs) = (
+            SafeTensors::deserialize(&six_bytes).unwrap(),
+            SafeTensors::deserialize(&legs_bytes).unwrap(),
+        );
+        let frames = six.tensor("root_position").unwrap().shape()[0];
+        assert_eq!(
+            six.tensor("imu_orientation").unwrap().shape(),
+            [frames, 6, 3, 3]
+        );
+        assert_eq!(
+            legs.tensor("imu_orientation").unwrap().shape(),
+            [frames, 5, 3, 3]
+        );
+        assert_eq!(
+            legs.tensor("imu_free_accel").unwrap().shape(),
+            [frames, 5, 3]
+        );
+        // The motion is the set's business not at all.
+        assert_eq!(
+            f32_tensor(&six, "pose_local"),
+            f32_tensor(&legs, "pose_local")
+        );
+        // Ideal signals of a site do not depend on the set: the first sequence is the ideal copy;
+        // the six's slots 2, 3, 5 (lower legs, pelvis) are the lower-body's 0, 1, 2.
+        let first = legs_meta.sequences[0].frames;
+        assert!(!legs_meta.sequences[0].augmented);
+        let (o6, o5) = (
+            f32_tensor(&six, "imu_orientation"),
+            f32_tensor(&legs, "imu_orientation"),
+        );
+        let (a6, a5) = (
+            f32_tensor(&six, "imu_free_accel"),
+            f32_tensor(&legs, "imu_free_accel"),
+        );
+        for f in 0..first {
+            for (k6, k5) in [(2, 0), (3, 1), (5, 2)] {
+                assert_eq!(o6[(f * 6 + k6) * 9..][..9], o5[(f * 5 + k5) * 9..][..9]);
+                assert_eq!(a6[(f * 6 + k6) * 3..][..3], a5[(f * 5 + k5) * 3..][..3]);
+            }
+        }
+    }
+}

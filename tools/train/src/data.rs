@@ -270,6 +270,19 @@ impl<'a> Shard<'a> {
             .as_ref()
             .and_then(|m| m.get("imuflow"))
             .and_then(|s| serde_json::from_str(s).ok());
+        // Shards of another sensor set hold other IMU tensors; say so before their shapes do.
+        if let Some(sensors) = metadata
+            .as_ref()
+            .and_then(|m: &serde_json::Value| m.get("sensors"))
+        {
+            let six = serde_json::json!(imuflow_kinematics::weights::six_site_names());
+            if *sensors != six {
+                bail!(
+                    "the shard was built for the sensors {sensors}; `imuflow train` trains the \
+                     six-site set's networks ({six}) only, so far"
+                );
+            }
+        }
         let st = SafeTensors::deserialize(bytes).context("safetensors")?;
         let f32s = |name: &str, per_frame: usize| -> anyhow::Result<Vec<f32>> {
             let t = st

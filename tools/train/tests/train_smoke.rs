@@ -291,3 +291,28 @@ fn resized_sequences_get_imu_positions_of_their_own_body() {
     }
     assert!(pairs >= 2, "{pairs} resized sequences");
 }
+
+#[test]
+fn a_dataset_of_another_sensor_set_is_refused_naming_it() {
+    let input = tempfile::tempdir().unwrap();
+    std::fs::copy(fixture(), input.path().join("walk_01.bvh")).unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let mut options = imuflow_dataset::BuildOptions::new(input.path(), out.path());
+    options.progress = false;
+    options.sensors = imuflow_body::SensorSet::builtin("lower-body").unwrap();
+    imuflow_dataset::build(&options).unwrap();
+    let shard = std::fs::read_dir(out.path())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "safetensors"))
+        .unwrap();
+    let bytes = std::fs::read(&shard).unwrap();
+    let err = imuflow_train::data::Shard::parse(&bytes)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("\"left_upper_leg\"") && err.contains("six-site set's networks"),
+        "{err}"
+    );
+}
