@@ -130,3 +130,52 @@ params = {{ net = "pip", weights = "{}" }}
     );
     assert_clean(&sb);
 }
+
+#[test]
+fn a_lower_body_export_runs_through_a_lower_body_graph() {
+    let sb = Sandbox::new("sets-dot");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let graph = sb.graph(
+        "dot.toml",
+        &format!(
+            r#"
+name = "dot-legs"
+sensors = "lower-body"
+[stages.source]
+kind = "imu-source"
+params = {{ mode = "file", path = "{}", layout = "{}" }}
+[stages.fusion]
+kind = "fusion"
+inputs = {{ raw = "source.raw" }}
+[stages.record]
+kind = "recorder"
+inputs = {{ imu = "fusion.imu" }}
+params = {{ path = "{{dir}}/dot.mcap" }}
+"#,
+            root.join("libs/sensor-files/tests/fixtures/movella-dot-lower-body")
+                .display(),
+            root.join("configs/sensor-layouts/movella-dot.toml")
+                .display()
+        ),
+    );
+    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    let log = text(&out.stderr);
+    assert!(out.status.success(), "stderr:\n{log}");
+    let fused: Vec<ImuFrame> = mcap_messages(&sb.path("dot.mcap"))
+        .iter()
+        .filter(|m| m.0 == "fusion.imu")
+        .map(|m| frame_from_bytes(&m.2).expect("an ImuFrame"))
+        .filter(|f: &ImuFrame| !f.header.is_end())
+        .collect();
+    let mut seen = 0;
+    for f in &fused {
+        assert_eq!(f.valid_mask & !LOWER_BODY, 0);
+        seen |= f.valid_mask;
+    }
+    // Every site of the set fused at some frame (the left femur's sensor lost most of its
+    // packets, so frames without it are INVALID and the fusion names it).
+    assert_eq!(seen, LOWER_BODY);
+    assert!(fused.iter().any(|f| f.valid_mask == LOWER_BODY));
+    assert!(log.contains("left_upper_leg"), "{log}");
+    assert_clean(&sb);
+}

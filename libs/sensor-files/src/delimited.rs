@@ -17,10 +17,24 @@ use crate::sample::{
 };
 use crate::table::{Row, Table};
 use crate::units::MagnetometerUnit;
-use crate::{NUM_IMUS, SITES};
+use crate::{MAX_SITES, SITES, SiteMask};
 
-/// Reads the recording at `path` (a file, or a folder of per-sensor files) as `layout` says.
-pub fn read(path: &Path, layout: &Layout) -> Result<SensorRecording, Error> {
+/// Reads the sensors of `wanted` from the recording at `path` (a file, or a folder of per-sensor
+/// files) as `layout` says; each of them must be listed in the layout.
+pub fn read(path: &Path, layout: &Layout, wanted: SiteMask) -> Result<SensorRecording, Error> {
+    let unlisted = wanted.missing_from(layout.site_mask());
+    if !unlisted.is_empty() {
+        return Err(Error::file(
+            path,
+            format!(
+                "the layout has no [sensors.<site>] for {} (it lists {}); the sensor set read ({}) needs every one of its sites",
+                unlisted.names(),
+                layout.site_mask().names(),
+                wanted.names()
+            ),
+        ));
+    }
+
     let base = if path.is_dir() {
         path.to_owned()
     } else {
@@ -36,10 +50,20 @@ pub fn read(path: &Path, layout: &Layout) -> Result<SensorRecording, Error> {
         }
         None => None,
     };
+    // Sensors the folder holds for sites the set does not wear (known where each site's file is
+    // found by name or id).
+    let left_out: Vec<&'static str> = match &found {
+        Some(found) => layout
+            .sites()
+            .filter(|(i, _)| !wanted.contains_slot(*i) && found[*i].is_some())
+            .map(|(i, _)| SITES[i])
+            .collect(),
+        None => Vec::new(),
+    };
     let mut site_files: Vec<(usize, &SensorLayout, Vec<PathBuf>)> = Vec::new();
     let mut missing: Vec<&str> = Vec::new();
     let mut missing_files: Vec<String> = Vec::new();
-    for (i, sensor) in layout.sites() {
+    for (i, sensor) in layout.sites().filter(|(i, _)| wanted.contains_slot(*i)) {
         let files = match &found {
             Some(found) => match &found[i] {
                 Some(entry) => files_in(sensor, entry),
@@ -65,11 +89,12 @@ pub fn read(path: &Path, layout: &Layout) -> Result<SensorRecording, Error> {
             &missing,
             &missing_files,
             &site_files,
+            wanted,
         ));
     }
     let mut tables: BTreeMap<PathBuf, Table> = BTreeMap::new();
-    let mut tracks: [Track; NUM_IMUS] = Default::default();
-    let mut counts = [Default::default(); NUM_IMUS];
+    let mut tracks: [Track; MAX_SITES] = Default::default();
+    let mut counts = [Default::default(); MAX_SITES];
     for (i, sensor, files) in site_files {
         for f in &files {
             if !tables.contains_key(f) {
@@ -102,6 +127,8 @@ pub fn read(path: &Path, layout: &Layout) -> Result<SensorRecording, Error> {
         frames,
         truth: None,
         counts,
+        sites: wanted,
+        left_out,
     })
 }
 
@@ -113,6 +140,7 @@ fn missing_sites(
     missing: &[&str],
     missing_files: &[String],
     present: &[(usize, &SensorLayout, Vec<PathBuf>)],
+    wanted: SiteMask,
 ) -> Error {
     let have: Vec<&str> = present.iter().map(|(i, _, _)| SITES[*i]).collect();
     let how = match &layout.files {
@@ -137,14 +165,14 @@ fn missing_sites(
     Error::file(
         path,
         format!(
-            "no sensor for {} ({how}); found {}. imuflow needs all six sites ({}): a partial sensor set is not supported",
+            "no sensor for {} ({how}); found {}. The sensor set read needs every one of its sites ({}): for a recording of fewer sensors, a graph names a set of fewer sites (`sensors`: lower-body, a set file)",
             missing.join(", "),
             if have.is_empty() {
                 "none of the sites".to_owned()
             } else {
                 have.join(", ")
             },
-            SITES.join(", ")
+            wanted.names()
         ),
     )
 }

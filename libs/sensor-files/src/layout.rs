@@ -325,6 +325,11 @@ impl Layout {
         Ok(layout)
     }
 
+    /// The sites the layout lists.
+    pub fn site_mask(&self) -> crate::SiteMask {
+        crate::SiteMask(self.sites().fold(0, |m, (i, _)| m | 1 << i))
+    }
+
     /// The sensors in site order, each with its index.
     pub fn sites(&self) -> impl Iterator<Item = (usize, &SensorLayout)> {
         SITES

@@ -31,22 +31,14 @@ pub mod units;
 use std::path::Path;
 
 pub use error::Error;
-pub use imuflow_body::NUM_IMUS;
+pub use imuflow_body::{MAX_SITES, SiteMask};
 pub use layout::Layout;
 pub use mvn::resample_truth;
 pub use recording::{SensorCounts, SensorRecording};
 
-/// The six sensor sites, in imuflow's IMU order (docs/architecture.md, "Conventions"); the
-/// layout's `[sensors.<site>]` names.
-pub const SITES: [&str; NUM_IMUS] = {
-    let mut names = [""; NUM_IMUS];
-    let mut i = 0;
-    while i < NUM_IMUS {
-        names[i] = imuflow_body::Imu::SIX[i].name();
-        i += 1;
-    }
-    names
-};
+/// The sensor sites of the body model's catalogue, in wire slot order (docs/architecture.md,
+/// "Conventions"); the layout's `[sensors.<site>]` names.
+pub const SITES: [&str; MAX_SITES] = imuflow_body::Imu::NAMES;
 
 /// A recording's file format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -78,10 +70,17 @@ pub(crate) fn plain_extension(path: &Path) -> String {
     }
 }
 
-/// Reads a recording: MVNX as is, CSV/TSV with the layout at `layout`.
-pub fn read(path: &Path, format: Format, layout: Option<&Path>) -> Result<SensorRecording, Error> {
+/// Reads the sensors of `sites` (a graph's sensor set) from a recording: MVNX as is, CSV/TSV with
+/// the layout at `layout`. A site of `sites` the recording or the layout lacks is an error naming
+/// it; sensors on other sites are left out ([`SensorRecording::left_out`]).
+pub fn read(
+    path: &Path,
+    format: Format,
+    layout: Option<&Path>,
+    sites: SiteMask,
+) -> Result<SensorRecording, Error> {
     match format {
-        Format::Mvnx => read_mvnx(path),
+        Format::Mvnx => mvnx::read(path, sites),
         Format::Csv => {
             let Some(layout) = layout else {
                 return Err(Error::file(
@@ -89,20 +88,31 @@ pub fn read(path: &Path, format: Format, layout: Option<&Path>) -> Result<Sensor
                     "a CSV/TSV recording needs a layout TOML that describes its columns",
                 ));
             };
-            read_csv(path, &Layout::load(layout)?)
+            read_csv_sites(path, &Layout::load(layout)?, sites)
         }
     }
 }
 
-/// Reads a CSV/TSV recording (a file, or a folder of per-sensor files) as `layout` describes it.
+/// Reads a CSV/TSV recording (a file, or a folder of per-sensor files) as `layout` describes it:
+/// every site the layout lists.
 pub fn read_csv(path: &Path, layout: &Layout) -> Result<SensorRecording, Error> {
+    read_csv_sites(path, layout, layout.site_mask())
+}
+
+/// [`read_csv`] of the sensors of `sites` only, each of which the layout must list.
+pub fn read_csv_sites(
+    path: &Path,
+    layout: &Layout,
+    sites: SiteMask,
+) -> Result<SensorRecording, Error> {
     if !path.exists() {
         return Err(Error::file(path, "no such file or folder"));
     }
-    delimited::read(path, layout)
+    delimited::read(path, layout, sites)
 }
 
-/// Reads an Xsens MVNX file: the sensors on imuflow's six sites and the segment poses as truth.
+/// Reads an Xsens MVNX file: the sensors on the six-site set's sites and the segment poses as
+/// truth ([`read`] reads another set's).
 pub fn read_mvnx(path: &Path) -> Result<SensorRecording, Error> {
-    mvnx::read(path)
+    mvnx::read(path, SiteMask::of(imuflow_body::Imu::SIX))
 }

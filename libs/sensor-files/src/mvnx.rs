@@ -31,16 +31,28 @@ use crate::sample::{
     specific_force_from_free_acceleration, unit_quaternion,
 };
 use crate::units::{GRAVITY_MPS2, SignedAxis};
-use crate::{NUM_IMUS, SITES};
+use crate::{MAX_SITES, SITES, SiteMask};
 
-/// MVN's sensor labels on imuflow's six sites, in site order (MVN names sensors by segment).
-pub const SENSOR_LABELS: [&str; NUM_IMUS] = [
+/// MVN's sensor labels on the catalogue's sites, in wire slot order (MVN names sensors by
+/// segment; its chest sensor sits on the T8 segment, the sternum).
+pub const SENSOR_LABELS: [&str; MAX_SITES] = [
     "LeftForeArm",
     "RightForeArm",
     "LeftLowerLeg",
     "RightLowerLeg",
     "Head",
     "Pelvis",
+    "LeftUpperLeg",
+    "RightUpperLeg",
+    "LeftFoot",
+    "RightFoot",
+    "T8",
+    "LeftShoulder",
+    "RightShoulder",
+    "LeftUpperArm",
+    "RightUpperArm",
+    "LeftHand",
+    "RightHand",
 ];
 
 /// The per-frame elements this reader uses.
@@ -70,10 +82,10 @@ impl FrameData {
     }
 }
 
-/// Reads an MVNX file into a recording with truth.
-pub fn read(path: &Path) -> Result<SensorRecording, Error> {
+/// Reads the sensors of `wanted` from an MVNX file into a recording with truth.
+pub fn read(path: &Path, wanted: SiteMask) -> Result<SensorRecording, Error> {
     let text = read_text(path)?;
-    let mut doc = Document::new(path, &text);
+    let mut doc = Document::new(path, &text, wanted);
     doc.parse()?;
     doc.finish()
 }
@@ -86,9 +98,11 @@ struct Document<'a> {
     frame_rate: Option<f64>,
     segments: Vec<String>,
     sensors: Vec<String>,
-    /// Set at the first frame: the segment map and each site's sensor index.
-    map: Option<(SegmentMap, [usize; NUM_IMUS])>,
-    tracks: [Track; NUM_IMUS],
+    /// The sites to read.
+    wanted: SiteMask,
+    /// Set at the first frame: the segment map and each wanted site's (slot, sensor index).
+    map: Option<(SegmentMap, Vec<(usize, usize)>)>,
+    tracks: [Track; MAX_SITES],
     truth: Vec<(i64, imuflow_graph::frames::MotionFrame)>,
     /// Calibration and reference poses (`identity`, `tpose`, ...), by type.
     poses: Vec<(String, imuflow_graph::frames::MotionFrame)>,
@@ -97,10 +111,11 @@ struct Document<'a> {
 }
 
 impl<'a> Document<'a> {
-    fn new(path: &'a Path, text: &'a str) -> Self {
+    fn new(path: &'a Path, text: &'a str, wanted: SiteMask) -> Self {
         Document {
             path,
             text,
+            wanted,
             lines: LineIndex::default(),
             frame_rate: None,
             segments: Vec::new(),
@@ -253,14 +268,15 @@ impl<'a> Document<'a> {
     }
 
     /// The segment map and the sensors of our sites, found at the first frame.
-    fn mapping(&mut self) -> Result<(SegmentMap, [usize; NUM_IMUS]), Error> {
+    fn mapping(&mut self) -> Result<(SegmentMap, Vec<(usize, usize)>), Error> {
         if let Some(m) = &self.map {
             return Ok(m.clone());
         }
         let map = SegmentMap::new(&self.segments).map_err(|m| Error::file(self.path, m))?;
-        let mut sites = [0; NUM_IMUS];
-        for (slot, label) in sites.iter_mut().zip(SENSOR_LABELS) {
-            *slot = self
+        let mut sites = Vec::new();
+        for slot in self.wanted.sites().map(|s| s.index()) {
+            let label = SENSOR_LABELS[slot];
+            let sensor = self
                 .sensors
                 .iter()
                 .position(|s| s == label)
@@ -268,14 +284,16 @@ impl<'a> Document<'a> {
                     Error::file(
                         self.path,
                         format!(
-                            "no sensor '{label}' (needed for {}; sensors: {})",
-                            SITES[SENSOR_LABELS.iter().position(|l| *l == label).unwrap_or(0)],
+                            "no sensor '{label}' (needed for {} of the sensor set read: {}; sensors: {})",
+                            SITES[slot],
+                            self.wanted.names(),
                             self.sensors.join(", ")
                         ),
                     )
                 })?;
+            sites.push((slot, sensor));
         }
-        self.map = Some((map.clone(), sites));
+        self.map = Some((map.clone(), sites.clone()));
         Ok((map, sites))
     }
 
@@ -314,7 +332,7 @@ impl<'a> Document<'a> {
         let gyr = optional(&f, "sensorAngularVelocity", 3, n).map_err(at)?;
         self.has_angular_velocity |= gyr.is_some();
         let gravity = gravity_in_inertial(SignedAxis::PlusZ, GRAVITY_MPS2);
-        for (site, &s) in sites.iter().enumerate() {
+        for &(site, s) in &sites {
             let v3 = |v: Option<&[f64]>| {
                 v.map(|v| Vector3::new(v[3 * s], v[3 * s + 1], v[3 * s + 2]))
                     .filter(|v| v.iter().all(|x| x.is_finite()))
@@ -400,8 +418,15 @@ impl<'a> Document<'a> {
         if self.truth.is_empty() {
             return Err(Error::file(self.path, "no frame of type \"normal\""));
         }
-        let mut counts = [Default::default(); NUM_IMUS];
-        for (track, c) in self.tracks.iter_mut().zip(counts.iter_mut()) {
+        let mut counts = [Default::default(); MAX_SITES];
+        let wanted = self.wanted;
+        let read = self
+            .tracks
+            .iter_mut()
+            .zip(counts.iter_mut())
+            .enumerate()
+            .filter(|(slot, _)| wanted.contains_slot(*slot));
+        for (_, (track, c)) in read {
             let derived = if self.has_angular_velocity {
                 0
             } else {
@@ -427,6 +452,15 @@ impl<'a> Document<'a> {
             frames,
             truth: Some(truth),
             counts,
+            sites: self.wanted,
+            left_out: SENSOR_LABELS
+                .iter()
+                .enumerate()
+                .filter(|(slot, label)| {
+                    !self.wanted.contains_slot(*slot) && self.sensors.iter().any(|s| s == *label)
+                })
+                .map(|(slot, _)| SITES[slot])
+                .collect(),
         })
     }
 }
@@ -509,7 +543,7 @@ mod tests {
     fn the_identity_pose_is_the_rest_pose_and_the_tpose_is_near_it() {
         let path = fixture("mvnx/session.mvnx");
         let text = read_text(&path).unwrap();
-        let mut doc = Document::new(&path, &text);
+        let mut doc = Document::new(&path, &text, SiteMask::of(imuflow_body::Imu::SIX));
         doc.parse().unwrap();
         let kinds: Vec<&str> = doc.poses.iter().map(|(k, _)| k.as_str()).collect();
         assert_eq!(kinds, ["identity", "tpose"]);

@@ -4,10 +4,9 @@
 use std::fmt;
 use std::path::PathBuf;
 
-use imuflow_body::NUM_IMUS;
+use imuflow_body::{MAX_SITES, SiteMask};
 use imuflow_graph::frames::{MotionFrame, RawImuFrame};
 
-use crate::SITES;
 use crate::sample::Sample;
 
 /// What was read for one sensor.
@@ -68,17 +67,21 @@ pub struct SensorRecording {
     /// The true motion where the file has one (MVNX): local pose and root position per file
     /// frame, `capture_ns` on the same shared clock, `seq` the index.
     pub truth: Option<Vec<MotionFrame>>,
-    /// Per sensor, in site order.
-    pub counts: [SensorCounts; NUM_IMUS],
+    /// Per sensor, by wire slot (zero for the sites not read).
+    pub counts: [SensorCounts; MAX_SITES],
+    /// The sites read.
+    pub sites: SiteMask,
+    /// Sites the recording holds a sensor for that were not asked for, by name: not read (MVNX;
+    /// CSV/TSV folders whose files are found by site or sensor id).
+    pub left_out: Vec<&'static str>,
 }
 
 impl SensorRecording {
-    /// One line per sensor, for logs and run summaries.
+    /// One line per sensor read, for logs and run summaries.
     pub fn summary(&self) -> String {
-        SITES
-            .iter()
-            .zip(&self.counts)
-            .map(|(site, c)| format!("{site}: {c}"))
+        self.sites
+            .sites()
+            .map(|site| format!("{site}: {}", self.counts[site.index()]))
             .collect::<Vec<_>>()
             .join("; ")
     }
@@ -112,7 +115,7 @@ pub fn count(track: &Track, has_magnetometer: bool, has_orientation: bool) -> Se
 /// frame at every new time (sensors sampled at the same instant share a frame). The shared clock
 /// starts at 0 with the earliest sample. Also returns that start, in the tracks' shared time, so
 /// other streams (the truth) can be put on the same clock.
-pub fn merge(tracks: &[Track; NUM_IMUS]) -> (Vec<RawImuFrame>, i64) {
+pub fn merge(tracks: &[Track; MAX_SITES]) -> (Vec<RawImuFrame>, i64) {
     let mut events: Vec<(i64, usize, &Sample)> = tracks
         .iter()
         .enumerate()

@@ -10,7 +10,7 @@ use quick_xml::events::Event;
 
 use crate::error::{Error, read_text};
 use crate::layout::{FilesLayout, Layout};
-use crate::{NUM_IMUS, SITES};
+use crate::{MAX_SITES, SITES};
 
 /// A name reduced for comparison: lower case, letters and digits only, a trailing "imu" (OpenSim's
 /// `tibia_r_imu`) or "sensor" dropped.
@@ -30,14 +30,21 @@ pub fn normalise(name: &str) -> String {
     s
 }
 
-/// The site a body-part name means, if it is one of the six: imuflow's names and the ones
-/// vendors and labs use for the same places (MVN's `LeftForeArm`, OpenSim's `tibia_l`,
-/// "Left Lower Leg", `LShank`, ...). Sides are left/right or l/r before or after the part.
+/// The site a body-part name means, if it is one of the catalogue's: imuflow's names and the
+/// ones vendors and labs use for the same places (MVN's `LeftForeArm`, OpenSim's `tibia_l` and
+/// `femur_r`, "Left Lower Leg", `LShank`, `LFemur`, ...). Sides are left/right or l/r before or
+/// after the part.
 pub fn site_of(name: &str) -> Option<usize> {
     let n = normalise(name);
-    // Parts per limb site; a sensor on the wrist or ankle sits on the forearm or shank.
-    const ARM: [&str; 5] = ["forearm", "lowerarm", "wrist", "radius", "ulna"];
-    const LEG: [&str; 6] = ["lowerleg", "shank", "tibia", "shin", "ankle", "calf"];
+    // Parts per limb site; a sensor on the wrist or ankle sits on the forearm or shank, one on
+    // the heel or toes on the foot.
+    const FOREARM: [&str; 5] = ["forearm", "lowerarm", "wrist", "radius", "ulna"];
+    const SHANK: [&str; 6] = ["lowerleg", "shank", "tibia", "shin", "ankle", "calf"];
+    const THIGH: [&str; 4] = ["upperleg", "thigh", "femur", "femoral"];
+    const FOOT: [&str; 5] = ["foot", "heel", "calcn", "toes", "midfoot"];
+    const UPPER_ARM: [&str; 3] = ["upperarm", "humerus", "arm"];
+    const SHOULDER: [&str; 3] = ["shoulder", "scapula", "clavicle"];
+    const HAND: [&str; 2] = ["hand", "metacarpal"];
     let sided = |parts: &[&str], side: &str, s: &str| {
         parts.iter().any(|p| {
             n == format!("{side}{p}")
@@ -46,20 +53,33 @@ pub fn site_of(name: &str) -> Option<usize> {
                 || n == format!("{p}{s}")
         })
     };
-    let site = if sided(&ARM, "left", "l") {
-        "left_forearm"
-    } else if sided(&ARM, "right", "r") {
-        "right_forearm"
-    } else if sided(&LEG, "left", "l") {
-        "left_lower_leg"
-    } else if sided(&LEG, "right", "r") {
-        "right_lower_leg"
-    } else if n == "head" {
-        "head"
-    } else if ["pelvis", "sacrum", "lumbar", "lowerback"].contains(&n.as_str()) {
-        "pelvis"
-    } else {
-        return None;
+    let limbs: [(&[&str], &str, &str); 7] = [
+        (&FOREARM, "left_forearm", "right_forearm"),
+        (&SHANK, "left_lower_leg", "right_lower_leg"),
+        (&THIGH, "left_upper_leg", "right_upper_leg"),
+        (&FOOT, "left_foot", "right_foot"),
+        (&UPPER_ARM, "left_upper_arm", "right_upper_arm"),
+        (&SHOULDER, "left_shoulder", "right_shoulder"),
+        (&HAND, "left_hand", "right_hand"),
+    ];
+    let limb = limbs.iter().find_map(|(parts, left, right)| {
+        if sided(parts, "left", "l") {
+            Some(*left)
+        } else if sided(parts, "right", "r") {
+            Some(*right)
+        } else {
+            None
+        }
+    });
+    let site = match limb {
+        Some(site) => site,
+        None if n == "head" => "head",
+        None if ["pelvis", "sacrum", "lumbar", "lowerback"].contains(&n.as_str()) => "pelvis",
+        // OpenSense's torso sensor and MVN's T8 sit on the sternum (the chest's front).
+        None if ["sternum", "stern", "chest", "torso", "t8", "thorax"].contains(&n.as_str()) => {
+            "sternum"
+        }
+        None => return None,
     };
     SITES.iter().position(|s| *s == site)
 }
@@ -123,9 +143,9 @@ pub fn find(
     folder: &Path,
     files: &FilesLayout,
     layout: &Layout,
-) -> Result<[Option<PathBuf>; NUM_IMUS], Error> {
+) -> Result<[Option<PathBuf>; MAX_SITES], Error> {
     let by_id = files.pattern.contains("{id}");
-    let mut ids: [Option<String>; NUM_IMUS] = Default::default();
+    let mut ids: [Option<String>; MAX_SITES] = Default::default();
     if by_id {
         let listed = files.ids.as_ref().map_or(&[][..], |p| p.list());
         if let Some(table) = listed.iter().map(|t| folder.join(t)).find(|t| t.exists()) {
@@ -160,7 +180,7 @@ pub fn find(
         .collect();
     names.sort();
     let tokens = tokens(&files.pattern);
-    let mut found: [Option<PathBuf>; NUM_IMUS] = Default::default();
+    let mut found: [Option<PathBuf>; MAX_SITES] = Default::default();
     for (i, _) in layout.sites() {
         let accept = |capture: &str| {
             if by_id {
@@ -345,7 +365,7 @@ mod tests {
     }
 
     #[test]
-    fn vendors_names_of_the_six_sites() {
+    fn vendors_names_of_the_sites() {
         assert_eq!(site("left_forearm"), Some("left_forearm"));
         assert_eq!(site("LeftForeArm"), Some("left_forearm"));
         assert_eq!(site("Left Lower Leg"), Some("left_lower_leg"));
@@ -354,14 +374,24 @@ mod tests {
         assert_eq!(site("RTibia"), Some("right_lower_leg"));
         assert_eq!(site("Pelvis"), Some("pelvis"));
         assert_eq!(site("head"), Some("head"));
-        for other in [
-            "LFemur",
-            "femur_l_imu",
-            "Left Upper Leg",
-            "torso_imu",
-            "right_hand",
-            "stern",
-        ] {
+        // The lower-body sets' and the full suit's (Movella DOT tags, OpenSense's model bodies,
+        // x-IMU3 folder names, MVN labels).
+        assert_eq!(site("LFemur"), Some("left_upper_leg"));
+        assert_eq!(site("femur_r_imu"), Some("right_upper_leg"));
+        assert_eq!(site("Left Upper Leg"), Some("left_upper_leg"));
+        assert_eq!(site("calcn_l_imu"), Some("left_foot"));
+        assert_eq!(site("Right Foot"), Some("right_foot"));
+        assert_eq!(site("torso_imu"), Some("sternum"));
+        assert_eq!(site("T8"), Some("sternum"));
+        // The Palermo MTw trial's sensors.csv.
+        assert_eq!(site("stern"), Some("sternum"));
+        assert_eq!(site("RightShoulder"), Some("right_shoulder"));
+        assert_eq!(site("humerus_l_imu"), Some("left_upper_arm"));
+        assert_eq!(site("right_hand"), Some("right_hand"));
+        for (k, name) in SITES.iter().enumerate() {
+            assert_eq!(site_of(name), Some(k), "{name}");
+        }
+        for other in ["sternal", "neck", "Left", "spine", "hips"] {
             assert_eq!(site(other), None, "{other}");
         }
     }

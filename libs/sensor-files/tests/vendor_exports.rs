@@ -83,7 +83,10 @@ fn first_of(r: &SensorRecording, i: usize) -> &RawImuFrame {
 fn refusal(e: &Error, folder: &str, missing: &[&str], present: &[&str]) {
     let text = e.to_string();
     assert!(text.contains(folder), "names the folder: {text}");
-    let sites_part = text.split(". imuflow needs").next().unwrap_or_default();
+    let sites_part = text
+        .split(". The sensor set read needs")
+        .next()
+        .unwrap_or_default();
     for m in missing {
         assert!(sites_part.contains(m), "names the missing {m}: {text}");
     }
@@ -93,7 +96,10 @@ fn refusal(e: &Error, folder: &str, missing: &[&str], present: &[&str]) {
             "names the present {p}: {text}"
         );
     }
-    assert!(text.contains("all six sites"), "{text}");
+    assert!(
+        text.contains("needs every one of its sites") && text.contains("lower-body"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -103,12 +109,13 @@ fn xsens_mtw_awinda_csv_per_sensor_mapped_by_sensors_csv() {
         &folder,
         Format::detect(&folder),
         Some(&layout_path("xsens-mt-manager.toml")),
+        imuflow_sensor_files::SiteMask(0b11_1111),
     )
     .unwrap_or_else(|e| panic!("{e}"));
     // Every file: PacketCounter 28597..=29849 at the header's 60 Hz, no gap, all six sensors on
     // the same counter (one Awinda network): 1253 frames of six samples each.
     assert_eq!(r.frames.len(), 1253);
-    for (i, c) in r.counts.iter().enumerate() {
+    for (i, c) in r.counts.iter().enumerate().take(6) {
         assert_eq!(
             (c.samples, c.valid, c.lost, c.derived_gyroscope),
             (1253, 1253, 0, 0),
@@ -380,9 +387,28 @@ fn mvnx_3_from_mvn_studio_4_2_4() {
     assert_eq!(r.frames.len(), 4);
     assert_eq!(r.frames[3].header.capture_ns, 12_500_000);
     assert_eq!(r.truth.as_ref().map(Vec::len), Some(4));
-    for (i, c) in r.counts.iter().enumerate() {
+    for (i, c) in r.counts.iter().enumerate().take(6) {
         assert_eq!((c.samples, c.valid), (4, 4), "{}", SITES[i]);
     }
+    // The suit's other 11 sensors are there, left out of the six-site set's reading; read for
+    // the full suit, every one of the 17.
+    assert_eq!(r.left_out.len(), 11, "{:?}", r.left_out);
+    let suit = imuflow_sensor_files::read(
+        &fixture("mvnx-mvn-4.2.4/Meri-020.mvnx"),
+        Format::Mvnx,
+        None,
+        imuflow_sensor_files::SiteMask((1 << 17) - 1),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert!(suit.left_out.is_empty());
+    for (i, c) in suit.counts.iter().enumerate() {
+        assert_eq!((c.samples, c.valid), (4, 4), "{}", SITES[i]);
+    }
+    let mut seen = 0u32;
+    for f in &suit.frames {
+        seen |= f.valid_mask;
+    }
+    assert_eq!(seen, (1 << 17) - 1);
 }
 
 #[test]
@@ -413,4 +439,85 @@ fn gzip_recordings_read_as_the_file_they_hold_and_other_archives_are_named() {
         "names the file and line: {e}"
     );
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The lower-body set's sites, by wire slot: left and right lower leg (2, 3), pelvis (5), left and
+/// right upper leg (6, 7).
+const LOWER_BODY: u32 = 1 << LL | 1 << RL | 1 << PV | 1 << 6 | 1 << 7;
+
+#[test]
+fn a_lower_body_export_reads_as_the_lower_body_set_and_a_partial_one_is_refused_naming_what_it_lacks()
+ {
+    let legs = imuflow_sensor_files::SiteMask(LOWER_BODY);
+    // Movella DOT's five: pelvis, femurs, tibias, each file named by its device tag.
+    let folder = fixture("movella-dot-lower-body");
+    let r = read(
+        &folder,
+        Format::Csv,
+        Some(&layout_path("movella-dot.toml")),
+        legs,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(r.sites, legs);
+    let mut seen = 0u32;
+    for f in &r.frames {
+        seen |= f.valid_mask;
+    }
+    assert_eq!(seen, LOWER_BODY);
+    // The left femur's sensor lost most packets (PacketCounter gaps: 157 in its first 195 rows),
+    // the right one none.
+    assert_eq!((r.counts[6].samples, r.counts[6].lost), (195, 157));
+    assert_eq!(r.counts[7].lost, 0);
+    assert!(r.left_out.is_empty(), "{:?}", r.left_out);
+    assert!(
+        r.summary().starts_with("left_lower_leg: 200 samples"),
+        "{}",
+        r.summary()
+    );
+    // The same folder read for the six: the forearms and the head are not there.
+    let six = imuflow_sensor_files::SiteMask(0b11_1111);
+    let e = read(
+        &folder,
+        Format::Csv,
+        Some(&layout_path("movella-dot.toml")),
+        six,
+    )
+    .unwrap_err();
+    let text = e.to_string();
+    assert!(
+        text.contains("no sensor for left_forearm, right_forearm, head")
+            && text.contains("found left_lower_leg, right_lower_leg, pelvis"),
+        "{text}"
+    );
+    // x-IMU3's excerpt holds the lower legs and the pelvis but not the upper legs: refused naming
+    // them, for the set read.
+    let folder = fixture("x-io-lower-body");
+    let e = read(
+        &folder,
+        Format::Csv,
+        Some(&layout_path("x-imu3.toml")),
+        legs,
+    )
+    .unwrap_err();
+    let text = e.to_string();
+    assert!(
+        text.contains("no sensor for left_upper_leg, right_upper_leg")
+            && text.contains(
+                "(left_lower_leg, right_lower_leg, pelvis, left_upper_leg, right_upper_leg)"
+            ),
+        "{text}"
+    );
+    // A layout without tables for a set's site is refused naming them.
+    let e = read(
+        &fixture("movella-dot-lower-body"),
+        Format::Csv,
+        Some(&layout_path("noraxon.toml")),
+        legs,
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("the layout has no [sensors.<site>] for left_upper_leg, right_upper_leg"),
+        "{e}"
+    );
 }

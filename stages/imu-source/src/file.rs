@@ -7,29 +7,29 @@
 
 use std::time::{Duration, Instant};
 
+use imuflow_body::SensorSet;
 use imuflow_graph::StageContext;
 use imuflow_graph::frames::MotionFrame;
-use imuflow_sensor_files::{SITES, SensorRecording, resample_truth};
+use imuflow_sensor_files::{SensorRecording, resample_truth};
 
 use crate::publisher::Publisher;
 
-/// Refuses a recording without samples of some of the six sites (a layout that leaves sites
-/// out, a lower-body set): the estimators need all six, and a site that never delivers would
-/// only show up later as INVALID frames or a calibration that waits forever.
-pub fn check_sites(recording: &SensorRecording) -> anyhow::Result<()> {
-    let missing: Vec<&str> = SITES
-        .iter()
-        .zip(&recording.counts)
-        .filter(|(_, c)| c.samples == 0)
-        .map(|(site, _)| *site)
+/// Refuses a recording without samples of some of the graph's set's sites (a layout that leaves
+/// sites out, a lower-body recording in a six-site graph): the estimators need every site of
+/// their set, and a site that never delivers would only show up later as INVALID frames or a
+/// calibration that waits forever.
+pub fn check_sites(recording: &SensorRecording, set: &SensorSet) -> anyhow::Result<()> {
+    let missing: Vec<&str> = set
+        .sites()
+        .filter(|s| recording.counts[s.index()].samples == 0)
+        .map(|s| s.name())
         .collect();
     if missing.is_empty() {
         return Ok(());
     }
     anyhow::bail!(
-        "no samples of {}: imuflow needs all six sites ({}); a partial sensor set is not supported",
+        "no samples of {}: the graph's sensor set {set} needs every one of its sites; for a recording of fewer sensors the graph names a set of fewer sites (`sensors`: lower-body, a set file)",
         missing.join(", "),
-        SITES.join(", ")
     )
 }
 
@@ -101,14 +101,20 @@ mod tests {
             // Lower body only: the legs (2, 3) and the pelvis (5).
             c.samples = if [2, 3, 5].contains(&i) { 10 } else { 0 };
         }
-        let e = check_sites(&r).unwrap_err().to_string();
+        let six = SensorSet::six();
+        let e = check_sites(&r, &six).unwrap_err().to_string();
         assert!(
-            e.contains("no samples of left_forearm, right_forearm, head:"),
+            e.contains("no samples of left_forearm, right_forearm, head:")
+                && e.contains("set six (left_forearm, right_forearm"),
             "{e}"
         );
+        // The thighs (6, 7) too: a lower-body set's recording.
+        r.counts[6].samples = 10;
+        r.counts[7].samples = 10;
+        check_sites(&r, &SensorSet::builtin("lower-body").unwrap()).unwrap();
         for c in r.counts.iter_mut() {
             c.samples = 10;
         }
-        check_sites(&r).unwrap();
+        check_sites(&r, &six).unwrap();
     }
 }

@@ -135,9 +135,9 @@ pub fn run() -> anyhow::Result<()> {
     let realtime = params.realtime.unwrap_or(ctx.mode() == Mode::Live);
     let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
         .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
-    if !sensors.is_six() && matches!(mode, "udp" | "slimevr" | "file") {
+    if !sensors.is_six() && matches!(mode, "udp" | "slimevr") {
         bail!(
-            "stage '{stage}': mode '{mode}' reads the six-site set's sensors; the graph's sensors are {sensors} (synthesize and replay follow any set)"
+            "stage '{stage}': mode '{mode}' reads the six-site set's sensors; the graph's sensors are {sensors} (synthesize, replay and file follow any set)"
         );
     }
     match mode {
@@ -197,9 +197,17 @@ pub fn run() -> anyhow::Result<()> {
                 "mvnx" => imuflow_sensor_files::Format::Mvnx,
                 _ => imuflow_sensor_files::Format::detect(&path),
             };
-            let recording = imuflow_sensor_files::read(&path, format, params.layout.as_deref())
-                .with_context(|| format!("stage '{stage}': cannot read the recording"))?;
-            file::check_sites(&recording).with_context(|| {
+            let recording =
+                imuflow_sensor_files::read(&path, format, params.layout.as_deref(), sensors.mask())
+                    .with_context(|| format!("stage '{stage}': cannot read the recording"))?;
+            if !recording.left_out.is_empty() {
+                tracing::info!(
+                    stage,
+                    "the recording's sensors on {} are left out: not sites of the graph's sensor set {sensors}",
+                    recording.left_out.join(", ")
+                );
+            }
+            file::check_sites(&recording, &sensors).with_context(|| {
                 format!(
                     "stage '{stage}': cannot use the recording '{}'",
                     path.display()
