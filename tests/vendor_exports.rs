@@ -218,7 +218,8 @@ fn a_lower_body_export_is_refused_naming_the_missing_sites() {
         "x-io-lower-body",
         "no sensor for left_forearm, right_forearm, head",
         "found left_lower_leg, right_lower_leg, pelvis",
-        "all six sites",
+        "needs every one of its sites (left_forearm, right_forearm, left_lower_leg, right_lower_leg, head, pelvis)",
+        "`sensors`: lower-body",
     ] {
         assert!(log.contains(words), "'{words}' in: {log}");
     }
