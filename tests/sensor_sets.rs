@@ -1,7 +1,8 @@
 //! A graph's sensor set (`sensors` at the top of the graph file) in real multi-process graphs: a
-//! lower-body set synthesized through raw sensors and fused carries exactly its sites; a set the
-//! body model lacks is refused before any stage starts, and stages made for the six refuse
-//! another set naming it (the weights' refusal naming both sets: the kinematics crate's tests).
+//! lower-body set synthesized through raw sensors and fused carries exactly its sites; a lower-body
+//! export reads and fuses as that set; a set the body model lacks is refused before any stage
+//! starts; the six-site networks refuse another set, and the walking calibration a set without
+//! the pelvis and shanks, naming what they lack.
 
 mod common;
 
@@ -122,10 +123,46 @@ params = {{ net = "pip", weights = "{}" }}
     let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     let err = text(&out.stderr);
     assert!(!out.status.success(), "{err}");
+    // The calibration takes the lower body; the six-site networks refuse it.
     assert!(
-        err.contains(
-            "the graph's sensors are lower-body (left_lower_leg, right_lower_leg, pelvis, left_upper_leg, right_upper_leg)"
+        err.contains("stage 'kin'")
+            && err.contains(
+                "the graph's sensors are lower-body (left_lower_leg, right_lower_leg, pelvis, left_upper_leg, right_upper_leg)"
+            ),
+        "{err}"
+    );
+
+    // A user's set without the shanks: the walking calibration says what it lacks.
+    let set = sb.path("hips-set.toml");
+    std::fs::write(
+        &set,
+        "[hips]\nsites = [\"pelvis\", \"left_upper_leg\", \"right_upper_leg\"]\nheading_reference = \"pelvis\"\n",
+    )
+    .expect("write the set");
+    let graph = sb.graph(
+        "hips.toml",
+        &format!(
+            r#"name = "hips"
+sensors = "{}"
+{source}
+[stages.calib]
+kind = "calibration"
+inputs = {{ imu = "source.imu" }}
+params = {{ method = "walking" }}
+[stages.record]
+kind = "recorder"
+inputs = {{ imu = "calib.body_imu" }}
+params = {{ path = "{{dir}}/hips.mcap" }}
+"#,
+            set.display()
         ),
+    );
+    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    let err = text(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("lack left_lower_leg, right_lower_leg")
+            && err.contains("hips (pelvis, left_upper_leg, right_upper_leg)"),
         "{err}"
     );
     assert_clean(&sb);

@@ -20,8 +20,9 @@ use imuflow_body::rotation::{Axis, quat_wxyz_from_rotation};
 use imuflow_graph::frames::{BodyImuFrame, flags};
 use nalgebra::{Rotation3, Vector3};
 
-use crate::NUM_IMUS;
-use crate::sample::{ALL_VALID, Sample};
+use imuflow_body::{Imu, MAX_SITES, SiteMask};
+
+use crate::sample::Sample;
 
 /// Which procedure produced a calibration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -77,23 +78,26 @@ impl SensorCalibration {
     };
 }
 
-/// A complete calibration of the six sensors.
+/// A complete calibration of a sensor set's sensors.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Calibration {
     pub method: Method,
     /// `R_MI` of the reference (pelvis) sensor.
     pub model_from_inertial: Rotation3<f64>,
-    /// IMU order.
-    pub sensors: [SensorCalibration; NUM_IMUS],
+    /// The sites calibrated (the sensor set's).
+    pub sites: SiteMask,
+    /// By wire slot; identities outside `sites`.
+    pub sensors: [SensorCalibration; MAX_SITES],
 }
 
 impl Calibration {
-    /// `method = "none"`: the readings are already bone orientations in M.
-    pub fn identity() -> Calibration {
+    /// `method = "none"`: the readings are already bone orientations in M (every site of `sites`).
+    pub fn identity(sites: SiteMask) -> Calibration {
         Calibration {
             method: Method::None,
             model_from_inertial: Rotation3::identity(),
-            sensors: [SensorCalibration::IDENTITY; NUM_IMUS],
+            sites,
+            sensors: [SensorCalibration::IDENTITY; MAX_SITES],
         }
     }
 
@@ -102,15 +106,17 @@ impl Calibration {
         Axis::Y.rotation(self.sensors[k].heading_correction_rad) * self.model_from_inertial
     }
 
-    /// The per-sensor heading corrections ψ (rad).
-    pub fn heading_corrections_rad(&self) -> [f64; NUM_IMUS] {
+    /// The per-sensor heading corrections ψ (rad), by wire slot.
+    pub fn heading_corrections_rad(&self) -> [f64; MAX_SITES] {
         self.sensors.map(|s| s.heading_correction_rad)
     }
 
     /// Writes the calibrated payload of `sample` into `out` (header flags: INVALID when a sensor
     /// is unusable; its entry is then the identity and zeros, with its `valid_mask` bit clear).
+    /// Slots outside the calibrated sites are left as they are.
     pub fn apply(&self, sample: &Sample, out: &mut BodyImuFrame) {
-        for (k, cal) in self.sensors.iter().enumerate() {
+        for k in self.sites.sites().map(Imu::index) {
+            let cal = &self.sensors[k];
             out.heading_correction_rad[k] = cal.heading_correction_rad as f32;
             if sample.valid_mask & (1 << k) == 0 {
                 out.bone_orientation_wxyz[k] = [1.0, 0.0, 0.0, 0.0];
@@ -128,8 +134,8 @@ impl Calibration {
             out.free_acceleration_mps2[k] = to_f32(&accel);
             out.angular_velocity_radps[k] = to_f32(&omega);
         }
-        out.valid_mask = sample.valid_mask & ALL_VALID;
-        if out.valid_mask != ALL_VALID {
+        out.valid_mask = sample.valid_mask & self.sites.0;
+        if out.valid_mask != self.sites.0 {
             out.header.flags |= flags::INVALID;
         }
     }

@@ -23,6 +23,7 @@ use crate::convention::{InertialFrame, ReferencePose};
 use crate::error::{NotCalibrated, Rejection};
 use crate::sample::Sample;
 use crate::segments::{Hold, Segmenter};
+use crate::sensor_name;
 use crate::stage::CalibrationParams;
 use crate::stillness::{StillnessConfig, StillnessDetector, motion_onset};
 use crate::tpose::{TposeConfig, calibrate_tpose};
@@ -30,7 +31,7 @@ use crate::walking::{
     StepWindows, WalkDirection, WalkStartConfig, WalkStartWindows, WalkingConfig,
     calibrate_walk_start, calibrate_walking, measure_step,
 };
-use crate::{NUM_IMUS, sensor_name};
+use imuflow_body::{Imu, MAX_SITES, SiteMask};
 
 /// The least of a natural start's stand's end left out of its averages (s): where the stillness
 /// test first failed, a sudden motion began at most a few samples earlier.
@@ -91,6 +92,8 @@ pub struct CalibratorConfig {
     pub max_walk_mismatch_m: f64,
     pub max_walk_vertical_m: f64,
     pub max_walk_turn_deg: f64,
+    /// The sites calibrated (the graph's sensor set; the six-site set by default).
+    pub sites: SiteMask,
 }
 
 impl Default for CalibratorConfig {
@@ -168,8 +171,10 @@ pub enum Event {
     /// A later stand–step–stand re-estimated the heading corrections (rad, IMU order).
     HeadingUpdated {
         seq: u64,
-        previous_rad: [f64; NUM_IMUS],
-        corrections_rad: [f64; NUM_IMUS],
+        /// The sites calibrated.
+        sites: SiteMask,
+        previous_rad: [f64; MAX_SITES],
+        corrections_rad: [f64; MAX_SITES],
     },
     /// A later stand–motion–stand did not qualify for a heading update.
     HeadingUpdateSkipped { seq: u64, reason: Rejection },
@@ -272,9 +277,9 @@ pub struct Calibrator {
     holds: u64,
     /// Per sensor, the first frame in which it was usable. The frames before are a fusing
     /// source's start-up (no sample of a sensor before its first), not bad samples.
-    first_usable: [Option<u64>; NUM_IMUS],
+    first_usable: [Option<u64>; MAX_SITES],
     /// Per sensor, frames after its first usable one in which it was unusable.
-    invalid_frames: [u64; NUM_IMUS],
+    invalid_frames: [u64; MAX_SITES],
     /// Natural starts attempted (a stand of `walk_stand_s`, then `walk_s` of walking).
     walk_attempts: u64,
     /// A capture day's calibration whose `R_SB` every accepted calibration keeps
@@ -286,7 +291,8 @@ pub struct Calibrator {
 impl Calibrator {
     /// A session that calibrates from the data (`method = none`: calibrated from the start).
     pub fn new(config: CalibratorConfig) -> Calibrator {
-        let calibration = (config.method == Method::None).then(Calibration::identity);
+        let calibration =
+            (config.method == Method::None).then(|| Calibration::identity(config.sites));
         let step_capacity = config.margin_frames()
             + config.frames(config.average_s)
             + config.frames(config.max_step_s)
@@ -316,8 +322,8 @@ impl Calibrator {
             capacity,
             frames: 0,
             holds: 0,
-            first_usable: [None; NUM_IMUS],
-            invalid_frames: [0; NUM_IMUS],
+            first_usable: [None; MAX_SITES],
+            invalid_frames: [0; MAX_SITES],
             walk_attempts: 0,
             mounting: None,
             last_rejection: None,
@@ -352,7 +358,7 @@ impl Calibrator {
     /// happened, if anything.
     pub fn push(&mut self, frame: &ImuFrame, out: &mut BodyImuFrame) -> Option<Event> {
         let time_s = self.clock.time_s(frame.header.capture_ns);
-        let sample = Sample::from_frame(frame, time_s);
+        let sample = Sample::from_frame_of(frame, time_s, self.config.sites);
         self.count_invalid(&sample);
         let still = self.detector.push(&sample);
         let index = self.frames;
@@ -376,7 +382,7 @@ impl Calibrator {
     /// when there is none), without taking the frame into the session: offline, the frames held
     /// while calibrating are released calibrated by the calibration accepted after them.
     pub fn calibrate_held(&self, frame: &ImuFrame, out: &mut BodyImuFrame) {
-        let sample = Sample::from_frame(frame, 0.0);
+        let sample = Sample::from_frame_of(frame, 0.0, self.config.sites);
         self.write_output(frame, &sample, out);
     }
 
@@ -390,7 +396,7 @@ impl Calibrator {
     }
 
     fn count_invalid(&mut self, sample: &Sample) {
-        for k in 0..NUM_IMUS {
+        for k in self.config.sites.sites().map(Imu::index) {
             let usable = sample.valid_mask & (1 << k) != 0;
             match self.first_usable[k] {
                 None if usable => self.first_usable[k] = Some(self.frames),
@@ -412,7 +418,9 @@ impl Calibrator {
             Some(c) => c.apply(sample, out),
             None => {
                 out.header.flags |= flags::CALIBRATING | flags::INVALID;
-                out.bone_orientation_wxyz[..NUM_IMUS].fill([1.0, 0.0, 0.0, 0.0]);
+                for k in self.config.sites.sites().map(Imu::index) {
+                    out.bone_orientation_wxyz[k] = [1.0, 0.0, 0.0, 0.0];
+                }
             }
         }
     }
@@ -466,6 +474,7 @@ impl Calibrator {
                 }
                 Event::HeadingUpdated {
                     seq,
+                    sites: self.config.sites,
                     previous_rad,
                     corrections_rad: geometry.heading_to_pelvis_rad,
                 }
@@ -604,7 +613,7 @@ impl Calibrator {
         }
         let rate = config.nominal_rate_hz;
         let secs = |frames: u64| frames as f64 / rate;
-        let never: Vec<&str> = (0..NUM_IMUS)
+        let never: Vec<&str> = (config.sites.sites().map(Imu::index))
             .filter(|&k| self.first_usable[k].is_none())
             .map(sensor_name)
             .collect();
@@ -687,7 +696,7 @@ impl Calibrator {
             )),
             Method::Tpose | Method::None => {}
         }
-        let invalid: Vec<String> = (0..NUM_IMUS)
+        let invalid: Vec<String> = (config.sites.sites().map(Imu::index))
             .filter(|&k| self.invalid_frames[k] > 0)
             .map(|k| {
                 let since = self.first_usable[k].unwrap_or(0);

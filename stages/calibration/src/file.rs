@@ -26,7 +26,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::calibration::{Calibration, Method, SensorCalibration};
 use crate::error::FileError;
-use crate::{NUM_IMUS, sensor_name};
+use crate::sensor_name;
+use imuflow_body::{Imu, MAX_SITES, SiteMask};
 
 /// The `format` every calibration file carries.
 pub const FORMAT: &str = "imuflow-calibration";
@@ -60,9 +61,9 @@ pub fn save(calibration: &Calibration, path: &Path) -> Result<(), FileError> {
         method: calibration.method,
         model_from_inertial_wxyz: quat_wxyz_from_rotation(&calibration.model_from_inertial),
         sensors: calibration
-            .sensors
-            .iter()
-            .enumerate()
+            .sites
+            .sites()
+            .map(|site| (site.index(), &calibration.sensors[site.index()]))
             .map(|(k, s)| SensorRepr {
                 name: sensor_name(k).to_owned(),
                 heading_correction_rad: s.heading_correction_rad,
@@ -112,30 +113,41 @@ pub fn load(path: &Path) -> Result<Calibration, FileError> {
             format!("is {}, this build reads {VERSION}", repr.version),
         ));
     }
-    if repr.sensors.len() != NUM_IMUS {
-        return Err(field(
-            "sensors".into(),
-            format!(
-                "has {} entries, this pipeline has {NUM_IMUS} sensors",
-                repr.sensors.len()
-            ),
-        ));
+    if repr.sensors.is_empty() {
+        return Err(field("sensors".into(), "is empty".into()));
     }
     let model_from_inertial = rotation(&repr.model_from_inertial_wxyz)
         .map_err(|p| field("model_from_inertial_wxyz".into(), p))?;
-    let mut sensors = [SensorCalibration::IDENTITY; NUM_IMUS];
-    for (k, (s, out)) in repr.sensors.iter().zip(sensors.iter_mut()).enumerate() {
-        let at = |name: &str| format!("sensors[{k}].{name}");
-        if s.name != sensor_name(k) {
+    let mut sensors = [SensorCalibration::IDENTITY; MAX_SITES];
+    let mut sites = SiteMask::default();
+    let mut last_slot = None;
+    for (i, s) in repr.sensors.iter().enumerate() {
+        let at = |name: &str| format!("sensors[{i}].{name}");
+        // The sites in wire slot order, each once (as `save` writes them).
+        let Some(site) = Imu::from_name(&s.name) else {
             return Err(field(
                 at("name"),
                 format!(
-                    "is \"{}\", expected \"{}\" (IMU order)",
+                    "is \"{}\", not a site of the body model ({})",
                     s.name,
-                    sensor_name(k)
+                    Imu::NAMES.join(", ")
+                ),
+            ));
+        };
+        let k = site.index();
+        if last_slot.is_some_and(|last| k <= last) {
+            return Err(field(
+                at("name"),
+                format!(
+                    "is \"{}\", out of order or twice: the sites come in wire slot order ({})",
+                    s.name,
+                    Imu::NAMES.join(", ")
                 ),
             ));
         }
+        last_slot = Some(k);
+        sites = SiteMask(sites.0 | 1 << k);
+        let out = &mut sensors[k];
         if !s.heading_correction_rad.is_finite() {
             return Err(field(
                 at("heading_correction_rad"),
@@ -158,6 +170,7 @@ pub fn load(path: &Path) -> Result<Calibration, FileError> {
     Ok(Calibration {
         method: repr.method,
         model_from_inertial,
+        sites,
         sensors,
     })
 }

@@ -1,12 +1,13 @@
 //! One input frame in the calibration's own (f64, checked) form.
 
 use imuflow_body::rotation::rotation_from_quat_wxyz;
+use imuflow_body::{Imu, MAX_SITES, SiteMask};
 use imuflow_graph::frames::ImuFrame;
 use nalgebra::{Rotation3, Vector3};
 
 use crate::NUM_IMUS;
 
-/// Every sensor's bit in a valid mask.
+/// Every sensor's bit in a valid mask, for the six-site set.
 pub const ALL_VALID: u32 = (1 << NUM_IMUS) - 1;
 
 /// One sensor's reading.
@@ -38,30 +39,38 @@ impl SensorSample {
     }
 }
 
-/// All six sensors at one instant.
+/// The sensors of a set at one instant.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sample {
     /// The frame's `seq`.
     pub seq: u64,
     /// Capture time (s) on the calibrator's clock (see `Calibrator`).
     pub time_s: f64,
+    /// The sites calibrated (the graph's sensor set).
+    pub sites: SiteMask,
     /// Bit i set when sensor i's reading is usable: its bit was set in the frame and every number
     /// is finite with a quaternion of positive finite norm. Unusable sensors hold zeros.
     pub valid_mask: u32,
-    /// IMU order.
-    pub sensors: [SensorSample; NUM_IMUS],
+    /// By wire slot; the sites outside `sites` hold zeros.
+    pub sensors: [SensorSample; MAX_SITES],
 }
 
 impl Sample {
-    /// Converts and checks a wire frame.
+    /// Converts and checks a wire frame of the six-site set.
     pub fn from_frame(frame: &ImuFrame, time_s: f64) -> Sample {
+        Sample::from_frame_of(frame, time_s, SiteMask::of(Imu::SIX))
+    }
+
+    /// Converts and checks the sensors of `sites` in a wire frame.
+    pub fn from_frame_of(frame: &ImuFrame, time_s: f64, sites: SiteMask) -> Sample {
         let mut s = Sample {
             seq: frame.header.seq,
             time_s,
+            sites,
             valid_mask: 0,
-            sensors: [SensorSample::ZERO; NUM_IMUS],
+            sensors: [SensorSample::ZERO; MAX_SITES],
         };
-        for i in 0..NUM_IMUS {
+        for i in sites.sites().map(Imu::index) {
             if frame.valid_mask & (1 << i) == 0 {
                 continue;
             }
@@ -73,9 +82,14 @@ impl Sample {
         s
     }
 
-    /// Whether every sensor is usable.
+    /// Whether every sensor of the set is usable.
     pub fn all_valid(&self) -> bool {
-        self.valid_mask & ALL_VALID == ALL_VALID
+        self.valid_mask & self.sites.0 == self.sites.0
+    }
+
+    /// The slots of the set's sites, in order.
+    pub fn slots(&self) -> impl Iterator<Item = usize> + use<> {
+        self.sites.sites().map(Imu::index)
     }
 }
 

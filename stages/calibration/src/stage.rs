@@ -16,7 +16,7 @@ use crate::calibration::{Calibration, Method};
 use crate::calibrator::{Calibrator, CalibratorConfig, Event};
 use crate::convention::{InertialFrame, ReferencePose};
 use crate::walking::WalkDirection;
-use crate::{NUM_IMUS, file, sensor_name};
+use crate::{file, sensor_name};
 
 imuflow_graph::stage_params! {
     /// The calibration stage's parameters, and so [`CalibratorConfig::default`].
@@ -148,6 +148,7 @@ impl CalibrationParams {
             max_walk_mismatch_m: self.max_walk_mismatch_m,
             max_walk_vertical_m: self.max_walk_vertical_m,
             max_walk_turn_deg: self.max_walk_turn_deg,
+            sites: imuflow_body::SiteMask::of(imuflow_body::Imu::SIX),
         }
     }
 }
@@ -189,16 +190,17 @@ pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
     let params = CalibrationParams::from_params(ctx.params());
-    let config = params
+    let mut config = params
         .config(ctx.graph().rate_hz)
         .with_context(|| format!("stage '{stage}'"))?;
     let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
         .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
-    if !sensors.is_six() {
+    config.sites = sensors.mask();
+    if let Some(missing) = method_needs(config.method, &sensors) {
         bail!(
-            "stage '{stage}': the calibration calibrates the six-site set's sensors (its T-pose, \
-             walking and natural starts rely on the forearms, lower legs, head and pelvis); the \
-             graph's sensors are {sensors}"
+            "stage '{stage}': method = \"walking\" takes the body's heading from the pelvis and \
+             the walk's direction from both lower legs; the graph's sensors {sensors} lack {missing} \
+             (method = \"tpose\" calibrates any set)"
         );
     }
     let save_to = path_param(&params.save_to);
@@ -220,6 +222,13 @@ pub fn run() -> anyhow::Result<()> {
         Some(path) => {
             let calibration =
                 file::load(path).with_context(|| format!("stage '{stage}': from_file"))?;
+            if calibration.sites != sensors.mask() {
+                bail!(
+                    "stage '{stage}': from_file '{}' calibrates the sensors ({}); the graph's sensors are {sensors}",
+                    path.display(),
+                    calibration.sites.names()
+                );
+            }
             tracing::info!(
                 stage,
                 "loaded the {} calibration from {}",
@@ -400,10 +409,11 @@ fn on_event(
         }
         Event::HeadingUpdated {
             seq,
+            sites,
             previous_rad,
             corrections_rad,
         } => {
-            let change: Vec<String> = (0..NUM_IMUS)
+            let change: Vec<String> = (sites.sites().map(|s| s.index()))
                 .map(|k| {
                     format!(
                         "{} {:+.1}°",
@@ -493,8 +503,21 @@ fn log_walk_direction(stage: &str, d: &WalkDirection) {
     }
 }
 
+/// The sites `method` needs that `sensors` lacks (their names), if any: the walking calibrations
+/// take the heading from the pelvis and the walk's direction from the shanks.
+fn method_needs(method: Method, sensors: &imuflow_body::SensorSet) -> Option<String> {
+    use imuflow_body::Imu;
+    if method != Method::Walking {
+        return None;
+    }
+    let needed = imuflow_body::SiteMask::of([Imu::Pelvis, Imu::LeftLowerLeg, Imu::RightLowerLeg]);
+    let missing = needed.missing_from(sensors.mask());
+    (!missing.is_empty()).then(|| missing.names())
+}
+
 fn log_calibration(stage: &str, c: &Calibration) {
-    for (k, sensor) in c.sensors.iter().enumerate() {
+    for k in c.sites.sites().map(|s| s.index()) {
+        let sensor = &c.sensors[k];
         let v = imuflow_body::rotation::axis_angle_from_rotation(&sensor.sensor_from_bone);
         let axis = v / v.norm().max(1e-12);
         tracing::info!(

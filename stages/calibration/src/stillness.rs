@@ -6,8 +6,8 @@ use std::collections::VecDeque;
 
 use nalgebra::Vector3;
 
-use crate::NUM_IMUS;
 use crate::sample::Sample;
+use imuflow_body::{MAX_SITES, SiteMask};
 
 /// Thresholds of [`StillnessDetector`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -25,8 +25,10 @@ pub struct StillnessConfig {
 #[derive(Debug)]
 pub struct StillnessDetector {
     config: StillnessConfig,
-    /// Per frame in the window: per sensor (gyro norm, specific force).
-    window: VecDeque<[(f64, Vector3<f64>); NUM_IMUS]>,
+    /// Per frame in the window: per sensor (gyro norm, specific force), by wire slot.
+    window: VecDeque<[(f64, Vector3<f64>); MAX_SITES]>,
+    /// The sites judged (the samples' set).
+    sites: SiteMask,
 }
 
 impl StillnessDetector {
@@ -38,6 +40,7 @@ impl StillnessDetector {
                 ..config
             },
             window: VecDeque::with_capacity(window_frames),
+            sites: SiteMask::default(),
         }
     }
 
@@ -50,6 +53,7 @@ impl StillnessDetector {
         if self.window.len() == self.config.window_frames {
             self.window.pop_front();
         }
+        self.sites = sample.sites;
         self.window.push_back(std::array::from_fn(|i| {
             let s = &sample.sensors[i];
             (s.angular_rate_radps.norm(), s.specific_force_mps2)
@@ -59,7 +63,7 @@ impl StillnessDetector {
 
     fn window_is_still(&self) -> bool {
         let n = self.window.len() as f64;
-        (0..NUM_IMUS).all(|i| {
+        self.sites.sites().map(|s| s.index()).all(|i| {
             let gyro = self.window.iter().map(|f| f[i].0).sum::<f64>() / n;
             let mean = self.window.iter().map(|f| f[i].1).sum::<Vector3<f64>>() / n;
             let var = self
@@ -104,7 +108,8 @@ pub fn motion_onset(stand: &[Sample], window: usize) -> usize {
     let earliest = stand.len().saturating_sub(window).max(reference);
     let part = &stand[..reference];
     let n = reference as f64;
-    let limits: [(Vector3<f64>, f64, Vector3<f64>, f64); NUM_IMUS] = std::array::from_fn(|k| {
+    let sites = stand[0].sites;
+    let limits: [(Vector3<f64>, f64, Vector3<f64>, f64); MAX_SITES] = std::array::from_fn(|k| {
         let force = part
             .iter()
             .map(|s| s.sensors[k].specific_force_mps2)
@@ -129,6 +134,7 @@ pub fn motion_onset(stand: &[Sample], window: usize) -> usize {
         limits
             .iter()
             .enumerate()
+            .filter(|(k, _)| sites.contains_slot(*k))
             .all(|(k, (force, max_force, rate, max_rate))| {
                 (s.sensors[k].specific_force_mps2 - force).norm() <= *max_force
                     && (s.sensors[k].angular_rate_radps - rate).norm() <= *max_rate
@@ -151,6 +157,7 @@ pub fn motion_onset(stand: &[Sample], window: usize) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::NUM_IMUS;
     use imuflow_graph::frames::ImuFrame;
 
     fn sample(gyro: f32, accel_x: f32, valid_mask: u32) -> Sample {

@@ -18,7 +18,8 @@ use crate::convention::{InertialFrame, ReferencePose};
 use crate::error::Rejection;
 use crate::math::mean_rotation;
 use crate::sample::Sample;
-use crate::{NUM_IMUS, sensor_name};
+use crate::sensor_name;
+use imuflow_body::MAX_SITES;
 
 /// What a held-pose calibration needs to know.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -41,8 +42,10 @@ pub fn calibrate_tpose(window: &[Sample], config: &TposeConfig) -> Result<Calibr
     check_gravity(window, config.frame, config.max_gravity_deg)?;
     let model_from_inertial = config.frame.model_from_inertial(config.heading_rad);
     let reference = config.pose.bone_orientations();
-    let mut sensors = [SensorCalibration::IDENTITY; NUM_IMUS];
-    for (k, cal) in sensors.iter_mut().enumerate() {
+    let sites = window[0].sites;
+    let mut sensors = [SensorCalibration::IDENTITY; MAX_SITES];
+    for k in window[0].slots() {
+        let cal = &mut sensors[k];
         let inertial_from_sensor =
             mean_rotation(window.iter().map(|s| &s.sensors[k].inertial_from_sensor))
                 .ok_or(Rejection::NoSamples { phase: "hold" })?;
@@ -63,6 +66,7 @@ pub fn calibrate_tpose(window: &[Sample], config: &TposeConfig) -> Result<Calibr
     Ok(Calibration {
         method: Method::Tpose,
         model_from_inertial,
+        sites,
         sensors,
     })
 }
@@ -75,7 +79,10 @@ pub fn check_gravity(
     max_deg: f64,
 ) -> Result<(), Rejection> {
     let up = frame.up_in_inertial();
-    for k in 0..NUM_IMUS {
+    let Some(first) = window.first() else {
+        return Err(Rejection::NoSamples { phase: "hold" });
+    };
+    for k in first.slots() {
         let measured_up: Vector3<f64> = window
             .iter()
             .map(|s| s.sensors[k].inertial_from_sensor * s.sensors[k].specific_force_mps2)

@@ -24,7 +24,8 @@ use crate::error::Rejection;
 use crate::math::{horizontal, mean_rotation, signed_angle_about};
 use crate::sample::Sample;
 use crate::tpose::check_gravity;
-use crate::{NUM_IMUS, PELVIS, sensor_name};
+use crate::{PELVIS, sensor_name};
+use imuflow_body::{MAX_SITES, SiteMask};
 
 /// What a walking calibration needs to know and accept.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -58,32 +59,36 @@ pub struct StepWindows<'a> {
     pub after: &'a [Sample],
 }
 
-/// What the step measured, per sensor in its own inertial frame.
+/// What the step measured, per sensor in its own inertial frame (by wire slot; identities and
+/// zeros outside `sites`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct StepGeometry {
+    /// The sites measured (the samples' set).
+    pub sites: SiteMask,
     /// R̄_IS averaged over the stand before (R_IS^(1)) and after (R_IS^(2)).
-    pub stand_before: [Rotation3<f64>; NUM_IMUS],
-    pub stand_after: [Rotation3<f64>; NUM_IMUS],
+    pub stand_before: [Rotation3<f64>; MAX_SITES],
+    pub stand_after: [Rotation3<f64>; MAX_SITES],
     /// Horizontal displacement p̄ (Eq. 21), m.
-    pub displacement_m: [Vector3<f64>; NUM_IMUS],
+    pub displacement_m: [Vector3<f64>; MAX_SITES],
     /// Vertical displacement removed by Eq. 21, m.
-    pub vertical_m: [f64; NUM_IMUS],
+    pub vertical_m: [f64; MAX_SITES],
     /// Mean free acceleration in I over both stands (the accelerometer offset), m/s².
-    pub offset_in_inertial_mps2: [Vector3<f64>; NUM_IMUS],
+    pub offset_in_inertial_mps2: [Vector3<f64>; MAX_SITES],
     /// Relative heading to the pelvis ψ_k, Eq. 22, rad (pelvis: 0).
-    pub heading_to_pelvis_rad: [f64; NUM_IMUS],
+    pub heading_to_pelvis_rad: [f64; MAX_SITES],
 }
 
 impl StepGeometry {
-    /// Nothing measured yet: identities and zeros.
-    fn unmeasured() -> StepGeometry {
+    /// Nothing measured yet of `sites`: identities and zeros.
+    fn unmeasured(sites: SiteMask) -> StepGeometry {
         StepGeometry {
-            stand_before: [Rotation3::identity(); NUM_IMUS],
-            stand_after: [Rotation3::identity(); NUM_IMUS],
-            displacement_m: [Vector3::zeros(); NUM_IMUS],
-            vertical_m: [0.0; NUM_IMUS],
-            offset_in_inertial_mps2: [Vector3::zeros(); NUM_IMUS],
-            heading_to_pelvis_rad: [0.0; NUM_IMUS],
+            sites,
+            stand_before: [Rotation3::identity(); MAX_SITES],
+            stand_after: [Rotation3::identity(); MAX_SITES],
+            displacement_m: [Vector3::zeros(); MAX_SITES],
+            vertical_m: [0.0; MAX_SITES],
+            offset_in_inertial_mps2: [Vector3::zeros(); MAX_SITES],
+            heading_to_pelvis_rad: [0.0; MAX_SITES],
         }
     }
 }
@@ -178,8 +183,9 @@ fn estimate_from(
     walk_direction: Option<WalkDirection>,
 ) -> Result<WalkingEstimate, Rejection> {
     let reference = config.pose.bone_orientations();
-    let mut sensors = [SensorCalibration::IDENTITY; NUM_IMUS];
-    for (k, cal) in sensors.iter_mut().enumerate() {
+    let mut sensors = [SensorCalibration::IDENTITY; MAX_SITES];
+    for k in geometry.sites.sites().map(|s| s.index()) {
+        let cal = &mut sensors[k];
         cal.heading_correction_rad = geometry.heading_to_pelvis_rad[k];
         let sensor_model_from_inertial = imuflow_body::rotation::Axis::Y
             .rotation(cal.heading_correction_rad)
@@ -200,6 +206,7 @@ fn estimate_from(
         calibration: Calibration {
             method: Method::Walking,
             model_from_inertial,
+            sites: geometry.sites,
             sensors,
         },
         geometry,
@@ -232,8 +239,9 @@ pub fn measure_step(
     let up = config.frame.up_in_inertial();
     let gravity = -up.into_inner() * imuflow_body::GRAVITY_IN_MODEL_MPS2.norm();
 
-    let mut g = StepGeometry::unmeasured();
-    for k in 0..NUM_IMUS {
+    let mut g = StepGeometry::unmeasured(before[0].sites);
+    let slots: Vec<usize> = before[0].slots().collect();
+    for &k in &slots {
         g.stand_before[k] = stand_orientation(before, k)?;
         g.stand_after[k] = stand_orientation(after, k)?;
         let angle_deg =
@@ -247,7 +255,7 @@ pub fn measure_step(
             });
         }
     }
-    for k in 0..NUM_IMUS {
+    for &k in &slots {
         let offset = if config.accel_offset {
             mean_free_acceleration(before.iter().chain(after), k, &gravity)
         } else {
@@ -268,9 +276,9 @@ pub fn measure_step(
             });
         }
     }
-    check_lengths(&g.displacement_m, config)?;
+    check_lengths(&g.displacement_m, g.sites, config)?;
     let pelvis = g.displacement_m[PELVIS];
-    for k in 0..NUM_IMUS {
+    for &k in &slots {
         g.heading_to_pelvis_rad[k] = signed_angle_about(&up, &g.displacement_m[k], &pelvis);
     }
     Ok(g)
@@ -325,7 +333,8 @@ pub fn integrate_with_zupt(samples: &[Sample], k: usize, gravity: &Vector3<f64>)
 }
 
 fn check_lengths(
-    displacement: &[Vector3<f64>; NUM_IMUS],
+    displacement: &[Vector3<f64>; MAX_SITES],
+    sites: SiteMask,
     config: &WalkingConfig,
 ) -> Result<(), Rejection> {
     let pelvis_m = displacement[PELVIS].norm();
@@ -336,7 +345,11 @@ fn check_lengths(
             max_m: config.max_step_m,
         });
     }
-    for (k, d) in displacement.iter().enumerate() {
+    for (k, d) in displacement
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| sites.contains_slot(*k))
+    {
         let length_m = d.norm();
         if (length_m - pelvis_m).abs() > config.max_step_mismatch_m {
             return Err(Rejection::StepMismatch {
@@ -408,22 +421,20 @@ pub fn calibrate_walk_start(
     let up = walking.frame.up_in_inertial();
     let gravity = -up.into_inner() * imuflow_body::GRAVITY_IN_MODEL_MPS2.norm();
 
-    let mut g = StepGeometry::unmeasured();
-    // Each sensor's path from rest, and how a residual accelerometer bias would bend it.
-    let mut raw_paths = Vec::with_capacity(NUM_IMUS);
-    let mut bias_bases = Vec::with_capacity(NUM_IMUS);
-    for k in 0..NUM_IMUS {
+    let mut g = StepGeometry::unmeasured(stand[0].sites);
+    let slots: Vec<usize> = stand[0].slots().collect();
+    // Each sensor's path from rest, and how a residual accelerometer bias would bend it (by
+    // wire slot, empty outside the set).
+    let mut raw_paths = vec![Vec::new(); MAX_SITES];
+    let mut bias_bases = vec![Vec::new(); MAX_SITES];
+    for &k in &slots {
         g.stand_before[k] = stand_orientation(stand, k)?;
         g.stand_after[k] = g.stand_before[k];
         if walking.accel_offset {
             g.offset_in_inertial_mps2[k] = mean_free_acceleration(still.iter(), k, &gravity);
         }
-        raw_paths.push(integrate_path(
-            walk,
-            k,
-            &(gravity - g.offset_in_inertial_mps2[k]),
-        ));
-        bias_bases.push(bias_paths(walk, k, &g.stand_before[k]));
+        raw_paths[k] = integrate_path(walk, k, &(gravity - g.offset_in_inertial_mps2[k]));
+        bias_bases[k] = bias_paths(walk, k, &g.stand_before[k]);
     }
     // The pelvis first: its own bias only from its height staying level (it turns too little
     // for more); then every sensor against it.
@@ -437,7 +448,7 @@ pub fn calibrate_walk_start(
     );
     let pelvis: Vec<Vector3<f64>> = pelvis_fit.path.iter().map(|p| horizontal(p, &up)).collect();
     check_walk(&pelvis, &up, config)?;
-    for k in 0..NUM_IMUS {
+    for &k in &slots {
         let fit = if k == PELVIS {
             PathFit {
                 heading_rad: 0.0,

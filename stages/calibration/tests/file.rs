@@ -82,11 +82,11 @@ fn malformed_files_name_the_file_and_the_field() {
     type Edit = Box<dyn Fn(&mut serde_json::Value)>;
     let cases: Vec<(&str, Edit, &str)> = vec![
         (
-            "five.json",
+            "none.json",
             Box::new(|j| {
-                j["sensors"].as_array_mut().expect("array").pop();
+                j["sensors"].as_array_mut().expect("array").clear();
             }),
-            "field `sensors` has 5 entries, this pipeline has 6 sensors",
+            "field `sensors` is empty",
         ),
         (
             "norm.json",
@@ -98,9 +98,16 @@ fn malformed_files_name_the_file_and_the_field() {
         (
             "order.json",
             Box::new(|j| {
-                j["sensors"][0]["name"] = serde_json::json!("pelvis");
+                j["sensors"][1]["name"] = serde_json::json!("left_forearm");
             }),
-            "field `sensors[0].name` is \"pelvis\", expected \"left_forearm\"",
+            "field `sensors[1].name` is \"left_forearm\", out of order or twice",
+        ),
+        (
+            "site.json",
+            Box::new(|j| {
+                j["sensors"][0]["name"] = serde_json::json!("left_wing");
+            }),
+            "field `sensors[0].name` is \"left_wing\", not a site of the body model",
         ),
         (
             "version.json",
@@ -138,6 +145,13 @@ fn malformed_files_name_the_file_and_the_field() {
             "{name}: {msg}"
         );
     }
+    // A file of fewer sites is another set's calibration: it loads with its sites (the stage then
+    // refuses it for a graph of another set, naming both).
+    let mut j = json.clone();
+    j["sensors"].as_array_mut().expect("array").pop();
+    let five = dir.join("five.json");
+    std::fs::write(&five, serde_json::to_string(&j).expect("json")).expect("write");
+    assert_eq!(load(&five).expect("five sites").sites.0, 0b1_1111);
     let garbage = dir.join("garbage.json");
     std::fs::write(&garbage, "not json at all").expect("write");
     let msg = load(&garbage).expect_err("garbage").to_string();
