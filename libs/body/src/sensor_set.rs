@@ -12,7 +12,7 @@ use std::path::Path;
 
 use serde::Deserialize;
 
-use crate::skeleton::{Imu, MAX_SITES};
+use crate::skeleton::{Imu, JointId, MAX_SITES, NUM_JOINTS};
 
 /// The shipped sensor sets (`models/sensor-sets.toml`), embedded at compile time.
 pub const BUILTIN_SENSOR_SETS_TOML: &str = include_str!("../../../models/sensor-sets.toml");
@@ -150,6 +150,34 @@ impl SensorSet {
     /// The site whose heading the calibration takes as the body's.
     pub fn heading_reference(&self) -> Imu {
         self.heading_reference
+    }
+
+    /// The joints whose local rotation the set's sensors observe, as a mask over joint indices:
+    /// every joint on the kinematic chain from the root to a sensed bone (the joint that turns
+    /// a sensed bone included; a sensor sees its bone's turn relative to every sensed or
+    /// inferred bone above it). Joints beyond the last sensor of a chain (wrists and hands
+    /// without hand sensors, ankles and feet without foot sensors, toes and finger ends always)
+    /// are not observed: an estimate for a set leaves them at rest and says so. For the six-site
+    /// set the unobserved joints are exactly the ones PIP and GlobalPose do not estimate
+    /// (reference §1, "ignored": ankles, feet, wrists, hands).
+    pub fn observed_joints(&self) -> u32 {
+        let mut mask = 0u32;
+        for site in self.sites() {
+            let mut joint = Some(site.joint());
+            while let Some(j) = joint {
+                mask |= 1 << j.index();
+                joint = j.parent();
+            }
+        }
+        mask & ((1u64 << NUM_JOINTS) - 1) as u32
+    }
+
+    /// The joints [`SensorSet::observed_joints`] leaves out, in joint order.
+    pub fn unobserved_joints(&self) -> Vec<JointId> {
+        let observed = self.observed_joints();
+        JointId::all()
+            .filter(|j| observed & (1 << j.index()) == 0)
+            .collect()
     }
 
     /// Whether this is the six-site set of PIP and GlobalPose (whatever its name).
@@ -367,6 +395,32 @@ mod tests {
             "{err}"
         );
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn the_six_observe_what_pip_estimates_and_the_lower_body_its_legs() {
+        let names = |set: &SensorSet| -> Vec<&str> {
+            set.unobserved_joints().iter().map(|j| j.name()).collect()
+        };
+        // PIP's ignored joints (reference §1) but the root, which the pelvis sensor gives.
+        let six = SensorSet::six();
+        let ignored: Vec<&str> = crate::skeleton::IGNORED_JOINTS[1..]
+            .iter()
+            .map(|j| j.name())
+            .collect();
+        assert_eq!(names(&six), ignored);
+        let legs = SensorSet::builtin("lower-body").unwrap();
+        let observed: Vec<&str> = JointId::all()
+            .filter(|j| legs.observed_joints() & (1 << j.index()) != 0)
+            .map(|j| j.name())
+            .collect();
+        assert_eq!(observed, ["pelvis", "left_hip", "right_hip", "left_knee", "right_knee"]);
+        // The full suit: all but the toes' and the fingers' ends.
+        let suit = SensorSet::builtin("full-suit").unwrap();
+        assert_eq!(
+            names(&suit),
+            ["left_foot", "right_foot", "left_hand", "right_hand"]
+        );
     }
 
     #[test]
