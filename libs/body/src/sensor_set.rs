@@ -414,7 +414,10 @@ mod tests {
             .filter(|j| legs.observed_joints() & (1 << j.index()) != 0)
             .map(|j| j.name())
             .collect();
-        assert_eq!(observed, ["pelvis", "left_hip", "right_hip", "left_knee", "right_knee"]);
+        assert_eq!(
+            observed,
+            ["pelvis", "left_hip", "right_hip", "left_knee", "right_knee"]
+        );
         // The full suit: all but the toes' and the fingers' ends.
         let suit = SensorSet::builtin("full-suit").unwrap();
         assert_eq!(

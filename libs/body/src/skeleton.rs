@@ -219,14 +219,16 @@ pub enum Imu {
 impl Imu {
     /// The six-site set's IMUs in wire order: [left forearm, right forearm, left lower leg, right
     /// lower leg, head, pelvis] (PIP's and GlobalPose's sensors; wire slots 0..6).
-    pub const SIX: [Imu; NUM_IMUS] = [
-        Imu::LeftForearm,
-        Imu::RightForearm,
-        Imu::LeftLowerLeg,
-        Imu::RightLowerLeg,
-        Imu::Head,
-        Imu::Pelvis,
-    ];
+    pub const SIX: [Imu; NUM_IMUS] = {
+        // The catalogue's first six.
+        let mut six = [Imu::Pelvis; NUM_IMUS];
+        let mut i = 0;
+        while i < NUM_IMUS {
+            six[i] = Imu::CATALOGUE[i];
+            i += 1;
+        }
+        six
+    };
 
     /// Every site of the catalogue, in wire slot order.
     pub const CATALOGUE: [Imu; MAX_SITES] = [
@@ -409,6 +411,13 @@ mod tests {
         assert_eq!(joints.len(), MAX_SITES);
     }
 
+    /// `name` with left and right swapped.
+    fn other_side(name: &str) -> String {
+        name.replace("left", "@")
+            .replace("right", "left")
+            .replace('@', "right")
+    }
+
     #[test]
     fn the_mirror_maps_pair_left_and_right() {
         assert_eq!(JointId::LEFT_ELBOW.mirror(), JointId::RIGHT_ELBOW);
@@ -416,24 +425,12 @@ mod tests {
         assert_eq!(JointId::HEAD.mirror(), JointId::HEAD);
         for j in JointId::all() {
             assert_eq!(j.mirror().mirror(), j);
-            let (name, other) = (j.name(), j.mirror().name());
-            assert_eq!(
-                other,
-                name.replace("left", "@")
-                    .replace("right", "left")
-                    .replace('@', "right")
-            );
+            assert_eq!(j.mirror().name(), other_side(j.name()));
         }
         for imu in Imu::CATALOGUE {
             assert_eq!(imu.mirror().joint(), imu.joint().mirror(), "{}", imu.name());
             assert_eq!(imu.mirror().mirror(), imu);
-            let (name, other) = (imu.name(), imu.mirror().name());
-            assert_eq!(
-                other,
-                name.replace("left", "@")
-                    .replace("right", "left")
-                    .replace('@', "right")
-            );
+            assert_eq!(imu.mirror().name(), other_side(imu.name()));
         }
     }
 

@@ -69,12 +69,7 @@ fn a_lower_body_set_calibrates_from_a_natural_start() {
             panic!(
                 "seed {seed}: not calibrated: {:?}; {}",
                 session.rejections(),
-                session
-                    .calibrator
-                    .finish()
-                    .err()
-                    .map(|e| e.to_string())
-                    .unwrap_or_default()
+                refusal(&session)
             )
         });
         // Only the set's slots carry data, every one of them valid once calibrated.

@@ -39,16 +39,6 @@ fn bone_errors_from(
     errors
 }
 
-/// Why a session did not calibrate (its refusal), for a failing test's message.
-fn refusal(session: &Session) -> String {
-    session
-        .calibrator
-        .finish()
-        .err()
-        .map(|e| e.to_string())
-        .unwrap_or_default()
-}
-
 /// Heading-correction errors and the bone errors over the rest of the walk (deg), for one seed.
 fn errors(seed: u64, offset_deg: f64, augment: bool) -> (Vec<f64>, Vec<f64>) {
     let motion = synthesize(

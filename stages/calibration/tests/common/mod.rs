@@ -154,6 +154,16 @@ pub fn run_frames(config: CalibratorConfig, frames: impl IntoIterator<Item = Imu
     }
 }
 
+/// Why a session did not calibrate (its refusal), for a failing test's message.
+pub fn refusal(session: &Session) -> String {
+    session
+        .calibrator
+        .finish()
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default()
+}
+
 pub fn run(config: CalibratorConfig, motion: &Motion) -> Session {
     run_frames(
         config,
