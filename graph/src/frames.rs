@@ -764,6 +764,64 @@ mod tests {
         assert!(frame_from_recorded::<MotionFrame>(&bytes).is_none());
     }
 
+    /// The bytes of `slots`' first six entries, one after the other (a v1 field).
+    fn six<T: Pod>(slots: &[T]) -> Vec<u8> {
+        bytemuck::cast_slice(&slots[..6]).to_vec()
+    }
+
+    #[test]
+    fn v1_raw_and_body_imu_frames_read_as_their_first_six_slots() {
+        // A v2 frame with the first six slots filled; its v1 bytes written field by field in the
+        // v1 order; read back, the same frame.
+        let mut raw = RawImuFrame::default();
+        raw.header.seq = 3;
+        for i in 0..6 {
+            let k = i as f32;
+            raw.sample_time_ns[i] = 1000 + i as u64;
+            raw.accelerometer_mps2[i] = [k, 1.0 + k, 2.0 + k];
+            raw.gyroscope_radps[i] = [10.0 + k, 0.0, -k];
+            raw.magnetometer_ut[i] = [20.0, k, 0.5];
+            raw.orientation_wxyz[i] = [1.0, 0.0, k * 0.1, 0.0];
+        }
+        (raw.valid_mask, raw.magnetometer_mask) = (0b11_1111, 0b10_1010);
+        (raw.orientation_mask, raw.no_gyroscope_mask) = (0b1, 0b10);
+        let mut bytes = bytemuck::bytes_of(&raw.header).to_vec();
+        bytes.extend(six(&raw.sample_time_ns));
+        bytes.extend(six(&raw.accelerometer_mps2));
+        bytes.extend(six(&raw.gyroscope_radps));
+        bytes.extend(six(&raw.magnetometer_ut));
+        bytes.extend(six(&raw.orientation_wxyz));
+        for mask in [0b11_1111u32, 0b10_1010, 0b1, 0b10] {
+            bytes.extend(mask.to_le_bytes());
+        }
+        assert_eq!(bytes.len(), 408);
+        assert_eq!(frame_from_recorded::<RawImuFrame>(&bytes), Some(raw));
+
+        let mut body = BodyImuFrame::default();
+        body.header.seq = 4;
+        for i in 0..6 {
+            let k = i as f32;
+            body.bone_orientation_wxyz[i] = [0.0, 1.0, 0.0, k];
+            body.free_acceleration_mps2[i] = [k, -k, 0.25];
+            body.angular_velocity_radps[i] = [0.5, k, k * k];
+            body.heading_correction_rad[i] = -k;
+        }
+        body.valid_mask = 0b11_0111;
+        let mut bytes = bytemuck::bytes_of(&body.header).to_vec();
+        bytes.extend(six(&body.bone_orientation_wxyz));
+        bytes.extend(six(&body.free_acceleration_mps2));
+        bytes.extend(six(&body.angular_velocity_radps));
+        bytes.extend(six(&body.heading_correction_rad));
+        bytes.extend(0b11_0111u32.to_le_bytes());
+        bytes.extend(0u32.to_le_bytes());
+        assert_eq!(bytes.len(), 304);
+        assert_eq!(frame_from_recorded::<BodyImuFrame>(&bytes), Some(body));
+        assert_eq!(
+            BodyImuFrame::EARLIER_TYPE_NAMES,
+            ["imuflow.BodyImuFrame.v1"]
+        );
+    }
+
     #[test]
     fn flag_names() {
         let h = FrameHeader {
