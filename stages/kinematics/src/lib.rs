@@ -15,6 +15,7 @@ pub mod lean;
 pub mod method;
 pub mod mirror;
 pub mod net;
+pub mod sensed;
 pub mod stage;
 pub mod weights;
 

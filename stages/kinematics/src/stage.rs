@@ -31,13 +31,16 @@ use crate::infer::{
     Streamer, impose_measured_bones, sensor_rotation,
 };
 use crate::method::Method;
+use crate::sensed::SensedEstimator;
 use crate::weights::Weights;
 
 imuflow_graph::stage_params! {
     /// The kinematics stage's parameters.
     pub struct KinematicsParams {
-        /// which paper's networks
-        net: String = "pip", choice(&["pip", "globalpose"]);
+        /// which paper's networks; sensed: no networks, the pose from the sensed bones'
+        /// orientations and the root moved by the standing foot (sensor sets that sense their
+        /// legs: lower-body, full-suit)
+        net: String = "pip", choice(&["pip", "globalpose", "sensed"]);
         /// weight file (safetensors from `imuflow train` or `imuflow import-checkpoint`)
         weights: Option<PathBuf> = computed("models/<net>.safetensors"), path;
         /// the pose the subject holds when calibration ends (initializes the networks' state);
@@ -76,7 +79,7 @@ fn default_weights(method: Method) -> PathBuf {
 pub const SPEC: StageSpec = StageSpec {
     kind: "kinematics",
     role: Role::Transform,
-    summary: "PIP or GlobalPose networks: calibrated IMUs to pose, joint positions/velocities, contacts, root velocity",
+    summary: "PIP or GlobalPose networks (or the sensed bones, no networks): calibrated IMUs to pose, joint positions/velocities, contacts, root velocity",
     inputs: InputsSpec::Fixed(&[PortSpec {
         name: "imu",
         frame: FrameType::BodyImu,
@@ -97,6 +100,9 @@ pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
     let params = KinematicsParams::from_params(ctx.params());
+    if params.net == "sensed" {
+        return run_sensed(ctx, &stage);
+    }
     let method_name = params.net.as_str();
     let Some(method) = Method::parse(method_name) else {
         bail!("stage '{stage}': unknown net '{method_name}' (pip or globalpose)");
@@ -201,6 +207,38 @@ pub fn run() -> anyhow::Result<()> {
             streamer
                 .step(&held.input)
                 .with_context(|| format!("stage '{stage}': frame {}", step.seq))?
+        };
+        output.publish(header, |out| fill(out, &estimate))?;
+    }
+    ctx.finish(&mut [&mut output])?;
+    Ok(())
+}
+
+/// `net = "sensed"`: the pose of the graph's sensor set from its sensed bones, no networks
+/// ([`SensedEstimator`]). A frame still calibrating, or without every sensor of the set, goes out
+/// as the rest pose flagged INVALID, and the next whole frame starts standing where it is.
+fn run_sensed(mut ctx: StageContext, stage: &str) -> anyhow::Result<()> {
+    let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
+        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
+    let body = imuflow_body::BodyModel::new(&imuflow_body::BodyParams::builtin()?, 1.75, 70.0)?;
+    let mut estimator = SensedEstimator::new(&sensors, body, ctx.graph().rate_hz)
+        .map_err(|e| anyhow::anyhow!("stage '{stage}': {e}"))?;
+    let input = ctx.input::<BodyImuFrame>("imu")?;
+    let mut output = ctx.output::<KinematicsFrame>("kinematics")?;
+    if !ctx.ready()? {
+        return Ok(());
+    }
+    let whole = sensors.mask().0;
+    while let Some(step) = ctx.next()? {
+        let frame = *ctx.get(&input);
+        let mut header = step.header();
+        let estimate = if step.flags & flags::CALIBRATING != 0 || frame.valid_mask & whole != whole
+        {
+            estimator.reset();
+            header.flags |= flags::INVALID;
+            start_estimate(StartPose::TPose)
+        } else {
+            estimator.step(&frame)
         };
         output.publish(header, |out| fill(out, &estimate))?;
     }
