@@ -48,7 +48,8 @@ imuflow_graph::stage_params! {
         /// shorter gaps are interpolated, ms
         max_gap_ms: f64 = 50, float(0.1, 600000.0);
         /// an output frame waits at most this long (source time) for a late sensor, ms (latency
-        /// smooth)
+        /// smooth; offline at least max_gap_ms, so a lost packet's gap is interpolated over
+        /// instead of the frame going out without the sensor)
         max_latency_ms: f64 = 30, float(0.0, 600000.0);
         /// low: a frame goes out as soon as a sample from half an interval before its time on
         /// arrived, sensors behind extrapolated (at most one sample interval), no band limit; smooth: accelerometer and
@@ -97,7 +98,13 @@ impl FusionParams {
                 output_rate_hz: rate_hz,
                 latency,
             },
-            max_latency_s: self.max_latency_ms * 1e-3,
+            // Offline nobody waits for a frame: it waits for a sensor as long as a gap it would
+            // fill lasts (a lost packet of a 50 Hz x-IMU3 is a 40 ms gap; at the 30 ms deadline
+            // the frame went out without that sensor, and a natural start with it).
+            max_latency_s: match mode {
+                Mode::Live => self.max_latency_ms,
+                Mode::Offline => self.max_latency_ms.max(self.max_gap_ms),
+            } * 1e-3,
             origin: match mode {
                 Mode::Live => Origin::FirstCapture,
                 Mode::Offline => Origin::Zero,

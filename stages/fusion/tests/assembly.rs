@@ -361,3 +361,32 @@ fn a_lower_body_set_fuses_its_own_slots_and_ignores_the_others_saying_so() {
         t.contains("(left_lower_leg, right_lower_leg, pelvis, left_upper_leg, right_upper_leg)")
     }));
 }
+
+#[test]
+fn offline_a_lost_packets_gap_is_waited_for_and_filled_not_left_out() {
+    // Three samples of sensor 2 lost in a row: a 40 ms gap (under max_gap_ms), whose frames are
+    // due before its next sample by the 30 ms deadline.
+    let raw = frames(0.0, 2.0, |f, t| {
+        if (1.0..1.035).contains(&t) {
+            f.valid_mask &= !(1 << 2);
+            f.magnetometer_mask &= !(1 << 2);
+        }
+    });
+    let offline = imuflow_fusion::stage::FusionParams::default()
+        .settings(60.0, imuflow_graph::Mode::Offline)
+        .unwrap();
+    let live_deadline = Settings {
+        max_latency_s: 0.03,
+        ..offline
+    };
+    let after_start = |out: &[ImuFrame]| {
+        out.iter()
+            .filter(|f| f.header.capture_ns > 500_000_000 && f.valid_mask != ALL)
+            .count()
+    };
+    // At the live deadline the frames in the gap go out without the sensor; offline they wait
+    // for its next sample and the gap is interpolated over.
+    assert!(after_start(&run(live_deadline, &raw).1) > 0);
+    assert_eq!(after_start(&run(offline, &raw).1), 0);
+    assert_eq!(offline.max_latency_s, 0.05);
+}
