@@ -1,8 +1,10 @@
 //! A real recording as it comes, end to end with the defaults: the Xsens MTw Awinda walk (MT
-//! Manager CSV per sensor, sensor ids mapped to sites by the folder's `sensors.csv`; fixture in
-//! libs/sensor-files/tests/fixtures/xsens-mtw-awinda-walk) through `configs/examples/xsens-mtw.toml`
-//! (fusion, walking calibration, GlobalPose). The recording has no truth: what is checked is what
-//! a person sees in it (about 5 s standing in an N-pose, walking out, turning, walking back).
+//! Manager CSV per sensor, 17 MTw, sensor ids mapped to sites by the folder's `sensors.csv`;
+//! fixture in libs/sensor-files/tests/fixtures/xsens-mtw-awinda-walk) through
+//! `configs/examples/xsens-mtw.toml` (fusion, walking calibration, GlobalPose on the six sites;
+//! and as a full suit, all 17, estimated from the sensed bones). The recording has no truth: what
+//! is checked is what a person sees in it (about 5 s standing in an N-pose, walking out, turning,
+//! walking back).
 
 mod common;
 
@@ -43,9 +45,29 @@ fn frames<T: Frame>(bytes: &[u8], port: &str) -> Vec<T> {
 #[test]
 fn xsens_mtw_walk_calibrates_stays_on_the_floor_and_walks_out_and_back() {
     let sb = Sandbox::new("xsens-mtw");
+    mtw_walk_out_and_back(&sb, &[]);
+}
+
+/// The same walk as a full suit (`sensors = "full-suit"`: all 17 MTw read, fused and
+/// calibrated) estimated from the sensed bones without networks (`net = "sensed"`).
+#[test]
+fn xsens_mtw_walk_as_a_full_suit_from_its_sensed_bones_walks_out_and_back() {
+    let sb = Sandbox::new("xsens-mtw-suit");
+    mtw_walk_out_and_back(
+        &sb,
+        &[
+            "sensors=full-suit",
+            "stages.kin.params.net=sensed",
+            "stages.opt.params.method=integrate",
+        ],
+    );
+}
+
+/// Runs `configs/examples/xsens-mtw.toml` with `extra` overrides and checks what a person sees.
+fn mtw_walk_out_and_back(sb: &Sandbox, extra: &[&str]) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mcap = sb.path("mtw.mcap");
-    let sets = [
+    let mut sets = vec![
         format!("stages.record.params.path={}", mcap.display()),
         format!("stages.viz.params.path={}", sb.path("mtw.rrd").display()),
         format!(
@@ -53,6 +75,7 @@ fn xsens_mtw_walk_calibrates_stays_on_the_floor_and_walks_out_and_back() {
             sb.path("calibration.json").display()
         ),
     ];
+    sets.extend(extra.iter().map(|s| s.to_string()));
     let graph = root.join("configs/examples/xsens-mtw.toml");
     let mut args = vec![
         "run".to_owned(),
@@ -73,7 +96,7 @@ fn xsens_mtw_walk_calibrates_stays_on_the_floor_and_walks_out_and_back() {
     let log = format!("{}{}", text(&out.stdout), text(&out.stderr));
     assert!(out.status.success(), "{log}");
     assert!(!log.contains("panicked"), "{log}");
-    // The six sites' files, found by sensors.csv: 1253 samples each, none lost.
+    // The sites' files, found by sensors.csv: 1253 samples each, none lost.
     assert!(
         log.contains("left_forearm: 1253 samples, 1253 valid")
             && log.contains("pelvis: 1253 samples, 1253 valid"),
