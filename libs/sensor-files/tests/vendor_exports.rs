@@ -489,16 +489,26 @@ fn a_lower_body_export_reads_as_the_lower_body_set_and_a_partial_one_is_refused_
             && text.contains("found left_lower_leg, right_lower_leg, pelvis"),
         "{text}"
     );
-    // x-IMU3's excerpt holds the lower legs and the pelvis but not the upper legs: refused naming
-    // them, for the set read.
-    let folder = fixture("x-io-lower-body");
-    let e = read(
-        &folder,
+    // x-IMU3's excerpt holds the lower body (its folders named after the body part).
+    let r = read(
+        &fixture("x-io-lower-body"),
         Format::Csv,
         Some(&layout_path("x-imu3.toml")),
         legs,
     )
-    .unwrap_err();
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(r.sites, legs);
+    assert!((6..8).all(|k| r.counts[k].samples == 300));
+    // OpenSense's MTw excerpt holds the shanks and the pelvis but not the thighs: refused naming
+    // them, for the set read.
+    let e = read(
+        &fixture("xsens-mtw-lower-body-opensense"),
+        Format::Csv,
+        Some(&layout_path("xsens-mt-manager.toml")),
+        legs,
+    )
+    .err()
+    .expect("refused");
     let text = e.to_string();
     assert!(
         text.contains("no sensor for left_upper_leg, right_upper_leg")
