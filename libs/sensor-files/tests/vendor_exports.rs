@@ -501,14 +501,14 @@ fn a_lower_body_export_reads_as_the_lower_body_set_and_a_partial_one_is_refused_
     assert!((6..8).all(|k| r.counts[k].samples == 300));
     // OpenSense's MTw excerpt holds the shanks and the pelvis but not the thighs: refused naming
     // them, for the set read.
-    let e = read(
+    let Err(e) = read(
         &fixture("xsens-mtw-lower-body-opensense"),
         Format::Csv,
         Some(&layout_path("xsens-mt-manager.toml")),
         legs,
-    )
-    .err()
-    .expect("refused");
+    ) else {
+        panic!("the OpenSense excerpt without thighs was read as the lower body");
+    };
     let text = e.to_string();
     assert!(
         text.contains("no sensor for left_upper_leg, right_upper_leg")
