@@ -20,6 +20,48 @@ fn fixture() -> PathBuf {
 /// upper leg (6, 7), written out here rather than taken from the body crate.
 const LOWER_BODY: u32 = 1 << 2 | 1 << 3 | 1 << 5 | 1 << 6 | 1 << 7;
 
+/// A lower-body graph reading the fixture export `folder` with the shipped `layout` into the
+/// fusion stage (its `fusion_params`), followed by `rest` (stages reading `fusion.imu`).
+fn export_graph(
+    sb: &Sandbox,
+    folder: &str,
+    layout: &str,
+    fusion_params: &str,
+    rest: &str,
+) -> PathBuf {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    sb.graph(
+        "export.toml",
+        &format!(
+            r#"
+name = "export-legs"
+sensors = "lower-body"
+[stages.source]
+kind = "imu-source"
+params = {{ mode = "file", path = "{}", layout = "{}" }}
+[stages.fusion]
+kind = "fusion"
+inputs = {{ raw = "source.raw" }}
+params = {{ {fusion_params} }}
+{rest}"#,
+            root.join("libs/sensor-files/tests/fixtures")
+                .join(folder)
+                .display(),
+            root.join("configs/sensor-layouts").join(layout).display()
+        ),
+    )
+}
+
+/// The frames of `topic` in the recording at `path`, END_OF_STREAM left out.
+fn frames_of<T: imuflow_graph::frames::Frame>(path: &Path, topic: &str) -> Vec<T> {
+    mcap_messages(path)
+        .iter()
+        .filter(|m| m.0 == topic)
+        .map(|m| frame_from_bytes(&m.2).expect("a frame of the topic's type"))
+        .filter(|f: &T| !f.header().is_end())
+        .collect()
+}
+
 #[test]
 fn a_lower_body_graph_synthesizes_and_fuses_exactly_its_sites() {
     let sb = Sandbox::new("sets-legs");
@@ -52,12 +94,7 @@ params = {{ path = "{{dir}}/legs.mcap" }}
         raw_sites |= f.valid_mask;
     }
     assert_eq!(raw_sites, LOWER_BODY, "the raw samples' sites");
-    let fused: Vec<ImuFrame> = messages
-        .iter()
-        .filter(|m| m.0 == "fusion.imu")
-        .map(|m| frame_from_bytes(&m.2).expect("an ImuFrame"))
-        .filter(|f: &ImuFrame| !f.header.is_end())
-        .collect();
+    let fused: Vec<ImuFrame> = frames_of(&sb.path("legs.mcap"), "fusion.imu");
     assert!(fused.len() > 100, "{} fused frames", fused.len());
     let whole = fused
         .iter()
@@ -171,39 +208,21 @@ params = {{ path = "{{dir}}/hips.mcap" }}
 #[test]
 fn a_lower_body_export_runs_through_a_lower_body_graph() {
     let sb = Sandbox::new("sets-dot");
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let graph = sb.graph(
-        "dot.toml",
-        &format!(
-            r#"
-name = "dot-legs"
-sensors = "lower-body"
-[stages.source]
-kind = "imu-source"
-params = {{ mode = "file", path = "{}", layout = "{}" }}
-[stages.fusion]
-kind = "fusion"
-inputs = {{ raw = "source.raw" }}
-[stages.record]
+    let graph = export_graph(
+        &sb,
+        "movella-dot-lower-body",
+        "movella-dot.toml",
+        "",
+        r#"[stages.record]
 kind = "recorder"
-inputs = {{ imu = "fusion.imu" }}
-params = {{ path = "{{dir}}/dot.mcap" }}
+inputs = { imu = "fusion.imu" }
+params = { path = "{dir}/dot.mcap" }
 "#,
-            root.join("libs/sensor-files/tests/fixtures/movella-dot-lower-body")
-                .display(),
-            root.join("configs/sensor-layouts/movella-dot.toml")
-                .display()
-        ),
     );
     let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     let log = text(&out.stderr);
     assert!(out.status.success(), "stderr:\n{log}");
-    let fused: Vec<ImuFrame> = mcap_messages(&sb.path("dot.mcap"))
-        .iter()
-        .filter(|m| m.0 == "fusion.imu")
-        .map(|m| frame_from_bytes(&m.2).expect("an ImuFrame"))
-        .filter(|f: &ImuFrame| !f.header.is_end())
-        .collect();
+    let fused: Vec<ImuFrame> = frames_of(&sb.path("dot.mcap"), "fusion.imu");
     let mut seen = 0;
     for f in &fused {
         assert_eq!(f.valid_mask & !LOWER_BODY, 0);
@@ -262,16 +281,9 @@ params = {{ path = "{{dir}}/legs.mcap" }}
     );
     let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
-    let messages = mcap_messages(&sb.path("legs.mcap"));
-    let frames = |topic: &str| -> Vec<MotionFrame> {
-        messages
-            .iter()
-            .filter(|m| m.0 == topic)
-            .map(|m| frame_from_bytes(&m.2).expect("a MotionFrame"))
-            .filter(|f: &MotionFrame| !f.header.is_end())
-            .collect()
-    };
-    let (motion, truth) = (frames("opt.motion"), frames("source.truth"));
+    let recording = sb.path("legs.mcap");
+    let motion: Vec<MotionFrame> = frames_of(&recording, "opt.motion");
+    let truth: Vec<MotionFrame> = frames_of(&recording, "source.truth");
     let mut knee_error = Vec::new();
     let (mut walked, mut walked_truth) = (0.0, 0.0);
     let horizontal = |f: &MotionFrame| [f.root_position_m[0], f.root_position_m[2]];
@@ -313,52 +325,35 @@ params = {{ path = "{{dir}}/legs.mcap" }}
 #[test]
 fn the_x_imu3_lower_body_excerpt_runs_end_to_end_from_its_sensed_bones() {
     let sb = Sandbox::new("sets-xio");
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let graph = sb.graph(
-        "xio.toml",
-        &format!(
-            r#"
-name = "xio-legs"
-sensors = "lower-body"
-[stages.source]
-kind = "imu-source"
-params = {{ mode = "file", path = "{}", layout = "{}" }}
-[stages.fusion]
-kind = "fusion"
-inputs = {{ raw = "source.raw" }}
-params = {{ max_gap_ms = 80 }}  # two packets lost in a row at 50 Hz: a 60 ms gap
-[stages.calib]
+    let graph = export_graph(
+        &sb,
+        "x-io-lower-body",
+        "x-imu3.toml",
+        // Two packets lost in a row at 50 Hz: a 60 ms gap.
+        "max_gap_ms = 80",
+        r#"[stages.calib]
 kind = "calibration"
-inputs = {{ imu = "fusion.imu" }}
-params = {{ method = "walking", frame = "z-up", pose = "n" }}
+inputs = { imu = "fusion.imu" }
+params = { method = "walking", frame = "z-up", pose = "n" }
 [stages.kin]
 kind = "kinematics"
-inputs = {{ imu = "calib.body_imu" }}
-params = {{ net = "sensed" }}
+inputs = { imu = "calib.body_imu" }
+params = { net = "sensed" }
 [stages.opt]
 kind = "optimizer"
-inputs = {{ kin = "kin.kinematics" }}
-params = {{ method = "integrate" }}
+inputs = { kin = "kin.kinematics" }
+params = { method = "integrate" }
 [stages.record]
 kind = "recorder"
-inputs = {{ motion = "opt.motion" }}
-params = {{ path = "{{dir}}/xio.mcap" }}
+inputs = { motion = "opt.motion" }
+params = { path = "{dir}/xio.mcap" }
 "#,
-            root.join("libs/sensor-files/tests/fixtures/x-io-lower-body")
-                .display(),
-            root.join("configs/sensor-layouts/x-imu3.toml").display()
-        ),
     );
     let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     let log = text(&out.stderr);
     assert!(out.status.success(), "stderr:\n{log}");
     // Calibrated (else every frame would be INVALID) and estimated.
-    let motion: Vec<MotionFrame> = mcap_messages(&sb.path("xio.mcap"))
-        .iter()
-        .filter(|m| m.0 == "opt.motion")
-        .map(|m| frame_from_bytes(&m.2).expect("a MotionFrame"))
-        .filter(|f: &MotionFrame| !f.header.is_end())
-        .collect();
+    let motion: Vec<MotionFrame> = frames_of(&sb.path("xio.mcap"), "opt.motion");
     let estimated = motion
         .iter()
         .filter(|f| !f.header.has(flags::INVALID))
