@@ -85,10 +85,22 @@ pub struct Options {
 /// How long one wait for a datagram lasts at most (the stop flag is checked in between).
 const POLL: Duration = Duration::from_millis(20);
 
-/// Receives from the trackers and publishes their samples until timeout, `frames` or stop.
-pub fn run(ctx: StageContext, options: &Options) -> anyhow::Result<()> {
-    let mapping = Mapping::load(&options.trackers)?;
-    let missing = mapping.missing_sites();
+/// Receives from the trackers of the sites of `sites` (the graph's sensor set) and publishes
+/// their samples until timeout, `frames` or stop.
+pub fn run(
+    ctx: StageContext,
+    options: &Options,
+    sites: imuflow_body::SiteMask,
+) -> anyhow::Result<()> {
+    let mut mapping = Mapping::load(&options.trackers)?;
+    let left_out = mapping.keep_only(sites);
+    if !left_out.is_empty() {
+        tracing::info!(
+            "the trackers on {} are left out: not sites of the graph's sensor set",
+            left_out.join(", ")
+        );
+    }
+    let missing = mapping.missing_sites(sites);
     if !missing.is_empty() {
         tracing::warn!(
             "the trackers file maps nothing to {}: those sites get no samples",

@@ -135,9 +135,9 @@ pub fn run() -> anyhow::Result<()> {
     let realtime = params.realtime.unwrap_or(ctx.mode() == Mode::Live);
     let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
         .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
-    if !sensors.is_six() && matches!(mode, "udp" | "slimevr") {
+    if !sensors.is_six() && mode == "udp" {
         bail!(
-            "stage '{stage}': mode '{mode}' reads the six-site set's sensors; the graph's sensors are {sensors} (synthesize, replay and file follow any set)"
+            "stage '{stage}': mode 'udp' reads the six-site set's sensors (its packets carry six); the graph's sensors are {sensors} (synthesize, replay, file and slimevr follow any set)"
         );
     }
     match mode {
@@ -187,7 +187,7 @@ pub fn run() -> anyhow::Result<()> {
                 timeout: Duration::from_millis(params.timeout_ms),
                 frames: params.frames,
             };
-            slimevr::run(ctx, &options)
+            slimevr::run(ctx, &options, sensors.mask())
                 .with_context(|| format!("stage '{stage}': slimevr source on '{}'", options.bind))
         }
         "file" => {

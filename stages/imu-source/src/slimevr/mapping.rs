@@ -1,5 +1,5 @@
 //! The `trackers` file of the `slimevr` mode: which tracker (MAC address) and which IMU on it
-//! (sensor id) is worn on which of the six sites.
+//! (sensor id) is worn on which site of the body model.
 //!
 //! ```toml
 //! [[tracker]]
@@ -12,15 +12,15 @@
 //! site = "head"
 //! ```
 //!
-//! Sites: `left_forearm`, `right_forearm`, `left_lower_leg`, `right_lower_leg`, `head`, `pelvis`
-//! (IMU order). Every problem (unknown key or site, malformed MAC, a site or a tracker's sensor
+//! Sites: the body model's (`left_forearm`, ..., `pelvis`, `left_upper_leg`, ..., `right_hand`;
+//! `imuflow_body::Imu::NAMES`); the graph's sensor set says which are read. Every problem (unknown key or site, malformed MAC, a site or a tracker's sensor
 //! given twice) is an error naming the file and the line.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use imuflow_body::NUM_IMUS;
 use imuflow_body::skeleton::Imu;
+use imuflow_body::{MAX_SITES, SiteMask};
 use serde::Deserialize;
 use toml::Spanned;
 
@@ -69,9 +69,9 @@ struct Entry {
     site: Spanned<String>,
 }
 
-/// Names of the six sites, in IMU order.
-pub fn site_names() -> [&'static str; NUM_IMUS] {
-    Imu::SIX.map(Imu::name)
+/// Names of the sites, in wire slot order.
+pub fn site_names() -> [&'static str; MAX_SITES] {
+    Imu::NAMES
 }
 
 impl Mapping {
@@ -103,7 +103,7 @@ impl Mapping {
         };
         let mut sites = BTreeMap::new();
         // Where each site and each (tracker, sensor) was given, for the duplicate errors.
-        let mut site_lines: [Option<usize>; NUM_IMUS] = [None; NUM_IMUS];
+        let mut site_lines: [Option<usize>; MAX_SITES] = [None; MAX_SITES];
         let mut key_lines = BTreeMap::new();
         for entry in &parsed.tracker {
             let mac: Mac = entry
@@ -156,13 +156,26 @@ impl Mapping {
         self.sites.keys().any(|(m, _)| *m == mac)
     }
 
-    /// The sites no tracker is mapped to, by name.
-    pub fn missing_sites(&self) -> Vec<&'static str> {
-        let names = site_names();
-        (0..NUM_IMUS)
-            .filter(|i| !self.sites.values().any(|s| s == i))
-            .map(|i| names[i])
+    /// The sites of `set` no tracker is mapped to, by name.
+    pub fn missing_sites(&self, set: SiteMask) -> Vec<&'static str> {
+        set.sites()
+            .filter(|site| !self.sites.values().any(|s| *s == site.index()))
+            .map(Imu::name)
             .collect()
+    }
+
+    /// Forgets the trackers mapped to sites outside `set`; their sites, by name.
+    pub fn keep_only(&mut self, set: SiteMask) -> Vec<&'static str> {
+        let names = site_names();
+        let mut left_out: Vec<&'static str> = self
+            .sites
+            .values()
+            .filter(|&&s| !set.contains_slot(s))
+            .map(|&s| names[s])
+            .collect();
+        left_out.sort_by_key(|name| Imu::from_name(name).map(Imu::index));
+        self.sites.retain(|_, s| set.contains_slot(*s));
+        left_out
     }
 
     /// Every mapped (tracker, sensor) with its site, ordered by tracker.
@@ -187,8 +200,8 @@ mod tests {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../configs/trackers/slimevr-sim.toml");
         let mapping = Mapping::load(&path).expect("configs/trackers/slimevr-sim.toml loads");
-        assert!(mapping.missing_sites().is_empty());
-        assert_eq!(mapping.entries().count(), NUM_IMUS);
+        assert!(mapping.missing_sites(SiteMask::of(Imu::SIX)).is_empty());
+        assert_eq!(mapping.entries().count(), imuflow_body::NUM_IMUS);
     }
 
     fn error(text: &str) -> String {
@@ -216,8 +229,40 @@ site = \"left_forearm\"
         assert_eq!(m.site(mac(2), 0), None);
         assert!(m.knows(mac(2)) && !m.knows(mac(3)));
         assert_eq!(
-            m.missing_sites(),
+            m.missing_sites(SiteMask::of(Imu::SIX)),
             ["right_forearm", "left_lower_leg", "right_lower_leg", "head"]
+        );
+    }
+
+    #[test]
+    fn a_lower_body_mapping_reads_its_sites_and_leaves_the_others_out() {
+        // SlimeVR's five-tracker lower body (hip, thighs, ankles) and a chest tracker.
+        let entry = |last: u8, site: &str| {
+            format!("[[tracker]]\nmac = \"aa:bb:cc:dd:ee:{last:02x}\"\nsite = \"{site}\"\n")
+        };
+        let text: String = [
+            (1, "pelvis"),
+            (2, "left_upper_leg"),
+            (3, "right_upper_leg"),
+            (4, "left_lower_leg"),
+            (5, "right_lower_leg"),
+            (6, "sternum"),
+        ]
+        .iter()
+        .map(|(last, site)| entry(*last, site))
+        .collect();
+        let mut m = Mapping::parse(&text, "trackers.toml").unwrap();
+        let legs = imuflow_body::SensorSet::builtin("lower-body")
+            .unwrap()
+            .mask();
+        assert!(m.missing_sites(legs).is_empty());
+        assert_eq!(m.site(Mac([0xaa, 0xbb, 0xcc, 0xdd, 0xee, 2]), 0), Some(6));
+        assert_eq!(m.keep_only(legs), ["sternum"]);
+        assert!(!m.knows(Mac([0xaa, 0xbb, 0xcc, 0xdd, 0xee, 6])));
+        assert_eq!(m.entries().count(), 5);
+        assert_eq!(
+            m.missing_sites(SiteMask::of(Imu::SIX)),
+            ["left_forearm", "right_forearm", "head"]
         );
     }
 
@@ -228,8 +273,10 @@ site = \"left_forearm\"
         let ok = entry("aa:bb:cc:dd:ee:01", "head");
         assert_eq!(
             error(&format!("{ok}{}", entry("aa:bb:cc:dd:ee:02", "knee"))),
-            "trackers file 'trackers.toml', line 6: unknown site 'knee' (left_forearm, \
-             right_forearm, left_lower_leg, right_lower_leg, head, pelvis)"
+            format!(
+                "trackers file 'trackers.toml', line 6: unknown site 'knee' ({})",
+                Imu::NAMES.join(", ")
+            )
         );
         assert_eq!(
             error(&format!("{ok}{}", entry("aa:bb:cc:dd:ee", "pelvis"))),
