@@ -9,8 +9,10 @@
 //!   head's): the turn between the sensed bones at the chain's ends is shared evenly by its
 //!   joints. The joints the set does not observe stay at rest (identity: the body model's
 //!   T-pose), not guessed.
-//! - **Translation.** The ankle that is lower relative to the pelvis stands: the root moves so
-//!   that it stays where it is ("stance foot pinning"); the other foot touches too when it is
+//! - **Translation.** A foot touches with its lower point, the ankle or the ball of the foot (as
+//!   it rolls over it); of the two feet the one that moved least in the world with the root's last
+//!   velocity stands (unless the other is lower by [`STANCE_HEIGHT_M`]), and the root moves so that
+//!   its point stays where it is ("stance foot pinning"); the other foot touches too when it is
 //!   within [`CONTACT_HEIGHT_M`] of the standing one's height.
 //!
 //! A set the method cannot estimate is refused when the stage starts: it needs the pelvis, both
@@ -167,14 +169,25 @@ impl SensedEstimator {
         );
         let positions: [Vector3<f64>; NUM_JOINTS] =
             std::array::from_fn(|j| self.fk.joint_in_world_m[j]);
-        let feet = [
-            positions[JointId::LEFT_ANKLE.index()],
-            positions[JointId::RIGHT_ANKLE.index()],
-        ];
+        // Each foot touches with its lower point: the ankle, or the ball of the foot as it rolls.
+        let point = |side: usize| {
+            let (ankle, ball) = [
+                (JointId::LEFT_ANKLE, JointId::LEFT_FOOT),
+                (JointId::RIGHT_ANKLE, JointId::RIGHT_FOOT),
+            ][side];
+            if positions[ball.index()].y < positions[ankle.index()].y {
+                ball
+            } else {
+                ankle
+            }
+        };
+        let points = [point(0), point(1)];
+        let feet = points.map(|j| positions[j.index()]);
         let lower = if feet[0].y <= feet[1].y { 0 } else { 1 };
-        let (stance, root_velocity) = match self.last_feet {
-            Some(last) => {
-                // The standing ankle stays put in the world: of the two, the one that moved
+        let (stance, root_velocity) = match &self.last_positions {
+            Some(last_positions) => {
+                let last = points.map(|j| last_positions[j.index()]);
+                // The standing foot stays put in the world: of the two, the one that moved
                 // least there with the root's last velocity, unless the other is clearly lower.
                 let moved = |f: usize| ((feet[f] - last[f]) / self.dt_s + self.last_root).norm();
                 let by_motion = if moved(0) <= moved(1) { 0 } else { 1 };
@@ -184,7 +197,7 @@ impl SensedEstimator {
                 } else {
                     by_motion
                 };
-                // The root moves against the standing ankle's motion relative to the root.
+                // The root moves against the standing foot's motion relative to the root.
                 (stance, -(feet[stance] - last[stance]) / self.dt_s)
             }
             None => (lower, Vector3::zeros()),
@@ -264,28 +277,38 @@ mod tests {
         let legs = SensorSet::builtin("lower-body").unwrap();
         let mut est = SensedEstimator::new(&legs, body(), 60.0).unwrap();
         let mut fk = FkData::new();
-        let mut ankles = Vec::new();
+        let mut points = Vec::new();
         let mut velocities = Vec::new();
         for (t, hip) in [-0.20f64, -0.18].into_iter().enumerate() {
             // The right leg straight and swung by `hip` about x (a negative angle: forward), the
-            // left leg bent and lifted.
+            // left leg bent and lifted high.
             let mut pose = [Rotation3::identity(); NUM_JOINTS];
             pose[JointId::RIGHT_HIP.index()] = Axis::X.rotation(hip);
-            pose[JointId::LEFT_HIP.index()] = Axis::X.rotation(-0.6);
-            pose[JointId::LEFT_KNEE.index()] = Axis::X.rotation(1.0);
+            pose[JointId::LEFT_HIP.index()] = Axis::X.rotation(-1.0);
+            pose[JointId::LEFT_KNEE.index()] = Axis::X.rotation(1.8);
             let p = Pose {
                 parent_from_joint: pose,
                 root_in_world_m: Vector3::zeros(),
             };
             forward_kinematics(&body().skeleton, &p, &mut fk);
-            ankles.push(*fk.position(JointId::RIGHT_ANKLE));
+            // The right foot touches with its lower point: the ankle or the ball of the foot.
+            let (ankle, ball) = (
+                *fk.position(JointId::RIGHT_ANKLE),
+                *fk.position(JointId::RIGHT_FOOT),
+            );
+            points.push(if ball.y < ankle.y {
+                (ball, "ball")
+            } else {
+                (ankle, "ankle")
+            });
             let e = est.step(&frame_of(&legs, &fk.world_from_joint));
             assert_eq!(e.foot_contact[1], 1.0, "frame {t}");
             velocities.push(e.root_velocity);
         }
-        // A finite difference of the ankle, by hand: the root moves by its opposite (to the f32
+        // A finite difference of that point, by hand: the root moves by its opposite (to the f32
         // quaternions' rounding). The foot went back under the body: the root went forward.
-        let expected = -(ankles[1] - ankles[0]) * 60.0;
+        assert_eq!(points[0].1, points[1].1);
+        let expected = -(points[1].0 - points[0].0) * 60.0;
         assert!(
             (velocities[1] - expected).norm() < 1e-4,
             "{:?} against {expected:?}",
