@@ -114,13 +114,24 @@ pub fn bundle(
     time_s: f32,
     capture_ns: Option<u64>,
 ) -> OscPacket {
+    bundle_of(bones, &[true; NUM_BONES], time_s, capture_ns)
+}
+
+/// [`bundle`] with only the bones whose `sent` entry is true (a sensor set that does not observe
+/// every joint: the avatar keeps its own pose for the others).
+pub fn bundle_of(
+    bones: &[BoneTransform; NUM_BONES],
+    sent: &[bool; NUM_BONES],
+    time_s: f32,
+    capture_ns: Option<u64>,
+) -> OscPacket {
     let identity = BoneTransform {
         position_m: [0.0; 3],
         rotation_xyzw: [0.0, 0.0, 0.0, 1.0],
     };
     let mut content = Vec::with_capacity(NUM_BONES + 4);
     content.push(transform_message(ROOT_ADDRESS, "root", &identity));
-    for ((_, name), bone) in BONES.iter().zip(bones) {
+    for (((_, name), bone), _) in BONES.iter().zip(bones).zip(sent).filter(|(_, s)| **s) {
         content.push(transform_message(BONE_ADDRESS, name, bone));
     }
     content.push(message(OK_ADDRESS, vec![OscType::Int(1)]));
@@ -266,6 +277,34 @@ mod tests {
         assert_eq!(messages[23].args, [OscType::Int(1)]);
         assert_eq!(messages[24].addr, "/VMC/Ext/T");
         assert_eq!(messages[24].args, [OscType::Float(2.5)]);
+    }
+
+    #[test]
+    fn a_lower_body_sends_the_bones_it_observes() {
+        let bones = bone_transforms(&frame(), &offsets()).unwrap();
+        let legs = imuflow_body::SensorSet::builtin("lower-body").unwrap();
+        let observed = legs.observed_joints();
+        let sent = BONES.map(|(j, _)| observed & (1 << j.index()) != 0);
+        let mut bytes = Vec::new();
+        encode(&bundle_of(&bones, &sent, 1.0, None), &mut bytes);
+        let names: Vec<String> = decode(&bytes)
+            .iter()
+            .filter(|m| m.addr == BONE_ADDRESS)
+            .map(|m| match &m.args[0] {
+                OscType::String(s) => s.clone(),
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        assert_eq!(
+            names,
+            [
+                "Hips",
+                "LeftUpperLeg",
+                "RightUpperLeg",
+                "LeftLowerLeg",
+                "RightLowerLeg"
+            ]
+        );
     }
 
     #[test]

@@ -7,8 +7,8 @@ use imuflow_graph::params::StageParams;
 use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::{FrameType, StageContext, Step};
 
-use crate::bones::{NUM_BONES, unity_offsets_m};
-use crate::bundle::{bone_transforms, bundle, encode};
+use crate::bones::{BONES, NUM_BONES, unity_offsets_m};
+use crate::bundle::{bone_transforms, bundle_of, encode};
 use crate::sender::Sender;
 
 imuflow_graph::stage_params! {
@@ -51,8 +51,11 @@ pub fn run() -> anyhow::Result<()> {
     let mut sender = Sender::new(&stage, &params.host, params.port)?;
     let motion = ctx.input::<MotionFrame>("motion")?;
     if ctx.ready()? {
+        let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
+            .with_context(|| format!("stage {stage}: the graph's `sensors`"))?;
         let mut stream = Stream::new(&stage, unity_offsets_m(&body.skeleton), params.send_every)
-            .with_capture_time(params.capture_time);
+            .with_capture_time(params.capture_time)
+            .for_set(&sensors);
         while let Some(step) = ctx.next()? {
             let Some(datagram) = stream.frame(&step, ctx.get(&motion)) else {
                 continue;
@@ -71,6 +74,9 @@ pub fn run() -> anyhow::Result<()> {
 pub struct Stream {
     stage: String,
     offsets_m: [[f32; 3]; NUM_BONES],
+    /// Which bones go out: every one for the six-site set (its networks estimate the whole
+    /// body), the joints another set observes for it.
+    sent: [bool; NUM_BONES],
     send_every: u64,
     /// Whether bundles carry `/imuflow/CaptureTime`.
     capture_time: bool,
@@ -92,6 +98,7 @@ impl Stream {
         Stream {
             stage: stage.to_owned(),
             offsets_m,
+            sent: [true; NUM_BONES],
             send_every: send_every.max(1),
             capture_time: false,
             first_capture_ns: None,
@@ -101,6 +108,16 @@ impl Stream {
             unusable: 0,
             thinned: 0,
         }
+    }
+
+    /// Sends only the bones of the joints `set` observes, unless it is the six-site set (whose
+    /// networks estimate every joint): the avatar keeps its own pose for the rest.
+    pub fn for_set(mut self, set: &imuflow_body::SensorSet) -> Stream {
+        if !set.is_six() {
+            let observed = set.observed_joints();
+            self.sent = BONES.map(|(j, _)| observed & (1 << j.index()) != 0);
+        }
+        self
     }
 
     /// Bundles carry `/imuflow/CaptureTime` (the frame's `capture_ns`) when `on`.
@@ -136,7 +153,10 @@ impl Stream {
         };
         let time_s = (step.capture_ns.saturating_sub(first) as f64 * 1e-9) as f32;
         let capture_ns = self.capture_time.then_some(step.capture_ns);
-        encode(&bundle(&bones, time_s, capture_ns), &mut self.datagram);
+        encode(
+            &bundle_of(&bones, &self.sent, time_s, capture_ns),
+            &mut self.datagram,
+        );
         self.bundled += 1;
         Some(&self.datagram)
     }
