@@ -248,38 +248,32 @@ fn quat_angle_deg(a: [f32; 4], b: [f32; 4]) -> f64 {
 
 #[test]
 fn a_lower_body_set_is_estimated_from_its_sensed_bones_against_the_truth() {
+    // configs/examples/lower-body.toml: the sample's walk synthesized on the lower body (random
+    // mountings, reference noise, heading offsets), its natural start, `sensed`, `integrate`.
     let sb = Sandbox::new("sets-sensed");
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let graph = sb.graph(
-        "legs.toml",
-        &format!(
-            r#"
-name = "legs-sensed"
-sensors = "lower-body"
-[stages.source]
-kind = "imu-source"
-params = {{ mode = "synthesize", path = "{}", prelude = "stand", prelude_stand_s = 1.0, mounting = "random", frame = "z-up", frame_heading_deg = 30.0, heading_offset_deg = 20.0, augment = true, seed = 3 }}
-[stages.calib]
-kind = "calibration"
-inputs = {{ imu = "source.imu" }}
-params = {{ method = "walking", frame = "z-up" }}
-[stages.kin]
-kind = "kinematics"
-inputs = {{ imu = "calib.body_imu" }}
-params = {{ net = "sensed" }}
-[stages.opt]
-kind = "optimizer"
-inputs = {{ kin = "kin.kinematics" }}
-params = {{ method = "integrate" }}
-[stages.record]
-kind = "recorder"
-inputs = {{ motion = "opt.motion", truth = "source.truth" }}
-params = {{ path = "{{dir}}/legs.mcap" }}
-"#,
-            root.join("models/sample/walk.mcap").display()
+    let graph = root.join("configs/examples/lower-body.toml");
+    let sets = [
+        format!(
+            "stages.record.params.path={}",
+            sb.path("legs.mcap").display()
         ),
-    );
-    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+        format!("stages.viz.params.path={}", sb.path("legs.rrd").display()),
+    ];
+    let out = sb
+        .command(&[
+            "run",
+            graph.to_str().expect("utf8"),
+            "--no-progress",
+            "--set",
+            &sets[0],
+            "--set",
+            &sets[1],
+        ])
+        // The example's paths are relative to the workspace root.
+        .current_dir(root)
+        .output()
+        .expect("run imuflow");
     assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
     let recording = sb.path("legs.mcap");
     let motion: Vec<MotionFrame> = frames_of(&recording, "opt.motion");

@@ -8,7 +8,7 @@
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
 use crate::body_model::BodyModel;
-use crate::skeleton::{Imu, JointId, MAX_SITES, NUM_JOINTS, Skeleton};
+use crate::skeleton::{Imu, JointId, NUM_IMUS, NUM_JOINTS, Skeleton};
 
 /// `S·R·S` with S the reflection x → −x: the rotation `r` seen in a mirror across the x = 0
 /// plane (a rotation again: S is its own inverse and det S² = 1). Global rotations of a pose
@@ -195,10 +195,9 @@ pub fn global_to_local_rotations(
     }
 }
 
-/// Every catalogue site's sensor position in the world (m, frame M) from an FK result, in wire
-/// slot order.
-pub fn imu_positions_in_world(body: &BodyModel, fk: &FkData, out: &mut [Vector3<f64>; MAX_SITES]) {
-    for imu in Imu::CATALOGUE {
+/// IMU positions in the world (m, frame M) from an FK result, in IMU order.
+pub fn imu_positions_in_world(body: &BodyModel, fk: &FkData, out: &mut [Vector3<f64>; NUM_IMUS]) {
+    for imu in Imu::SIX {
         let j = imu.joint();
         out[imu.index()] =
             fk.position(j) + fk.world_from(j) * body.imu_offsets_in_joint_m[imu.index()];
@@ -324,7 +323,7 @@ mod tests {
         pose.parent_from_joint[JointId::LEFT_ELBOW.index()] = Axis::Y.rotation(-FRAC_PI_2);
         let mut fk = FkData::new();
         forward_kinematics(&body.skeleton, &pose, &mut fk);
-        let mut imus = [Vector3::zeros(); MAX_SITES];
+        let mut imus = [Vector3::zeros(); NUM_IMUS];
         imu_positions_in_world(&body, &fk, &mut imus);
         let elbow = fk.position(JointId::LEFT_ELBOW);
         let o = body.imu_offsets_in_joint_m[Imu::LeftForearm.index()];

@@ -12,13 +12,19 @@ use std::path::Path;
 
 use serde::Deserialize;
 
-use crate::skeleton::{Imu, JointId, MAX_SITES, NUM_JOINTS};
+use crate::skeleton::{Imu, JointId, MAX_SITES};
 
 /// The shipped sensor sets (`models/sensor-sets.toml`), embedded at compile time.
 pub const BUILTIN_SENSOR_SETS_TOML: &str = include_str!("../../../models/sensor-sets.toml");
 
 /// The set a graph uses when it names none: PIP's and GlobalPose's six.
 pub const DEFAULT_SENSOR_SET: &str = "six";
+
+/// The six-site set's site names ([`SensorSet::site_names`]): what weights and shards written
+/// before sensor sets mean (their serde default).
+pub fn six_site_names() -> Vec<String> {
+    SensorSet::six().site_names()
+}
 
 /// A set of catalogue sites as a bit mask over wire slots (bit i: [`Imu::index`] i), the form the
 /// frames' `valid_mask` has.
@@ -169,15 +175,23 @@ impl SensorSet {
                 joint = j.parent();
             }
         }
-        mask & ((1u64 << NUM_JOINTS) - 1) as u32
+        mask
+    }
+
+    /// Whether the set's sensors observe `joint` ([`SensorSet::observed_joints`]).
+    pub fn observes(&self, joint: JointId) -> bool {
+        self.observed_joints() & (1 << joint.index()) != 0
     }
 
     /// The joints [`SensorSet::observed_joints`] leaves out, in joint order.
     pub fn unobserved_joints(&self) -> Vec<JointId> {
-        let observed = self.observed_joints();
-        JointId::all()
-            .filter(|j| observed & (1 << j.index()) == 0)
-            .collect()
+        JointId::all().filter(|j| !self.observes(*j)).collect()
+    }
+
+    /// The sites' names in wire slot order: what weights and training shards record as the set
+    /// they were made for.
+    pub fn site_names(&self) -> Vec<String> {
+        self.sites().map(|s| s.name().to_owned()).collect()
     }
 
     /// Whether this is the six-site set of PIP and GlobalPose (whatever its name).
@@ -411,7 +425,7 @@ mod tests {
         assert_eq!(names(&six), ignored);
         let legs = SensorSet::builtin("lower-body").unwrap();
         let observed: Vec<&str> = JointId::all()
-            .filter(|j| legs.observed_joints() & (1 << j.index()) != 0)
+            .filter(|j| legs.observes(*j))
             .map(|j| j.name())
             .collect();
         assert_eq!(

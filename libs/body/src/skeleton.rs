@@ -331,6 +331,12 @@ impl Imu {
     }
 }
 
+/// The name of the site in wire slot `slot` ([`Imu::name`]), or "unknown" past the catalogue: for
+/// logs and messages that name a slot.
+pub fn site_name(slot: usize) -> &'static str {
+    Imu::from_index(slot).map_or("unknown", Imu::name)
+}
+
 impl fmt::Display for Imu {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())

@@ -9,7 +9,7 @@ use imuflow_body::kinematics::{
     FkData, Pose, forward_kinematics, global_to_local_rotations, imu_positions_in_world,
 };
 use imuflow_body::rotation::{Axis, rotation_from_r6d};
-use imuflow_body::{BodyModel, BodyParams, JointId, MAX_SITES, NUM_JOINTS};
+use imuflow_body::{BodyModel, BodyParams, JointId, NUM_IMUS, NUM_JOINTS};
 use nalgebra::{Rotation3, Vector3};
 
 #[global_allocator]
@@ -20,7 +20,7 @@ fn per_frame_kinematics_allocates_nothing() {
     let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.8, 80.0).unwrap();
     let mut fk = FkData::new();
     let mut local = [Rotation3::identity(); NUM_JOINTS];
-    let mut imus = [Vector3::zeros(); MAX_SITES];
+    let mut imus = [Vector3::zeros(); NUM_IMUS];
     let mut pose = Pose::t_pose(Vector3::new(0.0, 1.0, 0.0));
     let before = allocations();
     let mut checksum = 0.0;

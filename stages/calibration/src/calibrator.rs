@@ -358,7 +358,7 @@ impl Calibrator {
     /// happened, if anything.
     pub fn push(&mut self, frame: &ImuFrame, out: &mut BodyImuFrame) -> Option<Event> {
         let time_s = self.clock.time_s(frame.header.capture_ns);
-        let sample = Sample::from_frame_of(frame, time_s, self.config.sites);
+        let sample = Sample::from_frame(frame, time_s, self.config.sites);
         self.count_invalid(&sample);
         let still = self.detector.push(&sample);
         let index = self.frames;
@@ -382,7 +382,7 @@ impl Calibrator {
     /// when there is none), without taking the frame into the session: offline, the frames held
     /// while calibrating are released calibrated by the calibration accepted after them.
     pub fn calibrate_held(&self, frame: &ImuFrame, out: &mut BodyImuFrame) {
-        let sample = Sample::from_frame_of(frame, 0.0, self.config.sites);
+        let sample = Sample::from_frame(frame, 0.0, self.config.sites);
         self.write_output(frame, &sample, out);
     }
 

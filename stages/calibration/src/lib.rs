@@ -44,6 +44,4 @@ pub const PELVIS: usize = imuflow_body::Imu::Pelvis.index();
 
 /// The name of the site in wire slot `k` (`left_forearm`, ...), as in models/body.toml and
 /// calibration files.
-pub fn sensor_name(k: usize) -> &'static str {
-    imuflow_body::Imu::from_index(k).map_or("unknown", |imu| imu.name())
-}
+pub use imuflow_body::skeleton::site_name as sensor_name;

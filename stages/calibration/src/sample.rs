@@ -5,11 +5,6 @@ use imuflow_body::{Imu, MAX_SITES, SiteMask};
 use imuflow_graph::frames::ImuFrame;
 use nalgebra::{Rotation3, Vector3};
 
-use crate::NUM_IMUS;
-
-/// Every sensor's bit in a valid mask, for the six-site set.
-pub const ALL_VALID: u32 = (1 << NUM_IMUS) - 1;
-
 /// One sensor's reading.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorSample {
@@ -56,13 +51,8 @@ pub struct Sample {
 }
 
 impl Sample {
-    /// Converts and checks a wire frame of the six-site set.
-    pub fn from_frame(frame: &ImuFrame, time_s: f64) -> Sample {
-        Sample::from_frame_of(frame, time_s, SiteMask::of(Imu::SIX))
-    }
-
     /// Converts and checks the sensors of `sites` in a wire frame.
-    pub fn from_frame_of(frame: &ImuFrame, time_s: f64, sites: SiteMask) -> Sample {
+    pub fn from_frame(frame: &ImuFrame, time_s: f64, sites: SiteMask) -> Sample {
         let mut s = Sample {
             seq: frame.header.seq,
             time_s,
@@ -111,6 +101,13 @@ fn sensor_reading(frame: &ImuFrame, i: usize) -> Option<SensorSample> {
 mod tests {
     use super::*;
 
+    /// Every sensor of the six-site set valid.
+    const ALL_VALID: u32 = 0b11_1111;
+
+    fn six(f: &ImuFrame) -> Sample {
+        Sample::from_frame(f, 0.0, SiteMask::of(Imu::SIX))
+    }
+
     fn frame() -> ImuFrame {
         let mut f = ImuFrame {
             valid_mask: ALL_VALID,
@@ -125,12 +122,12 @@ mod tests {
     #[test]
     fn bad_numbers_and_cleared_bits_make_a_sensor_unusable() {
         let mut f = frame();
-        assert!(Sample::from_frame(&f, 0.0).all_valid());
+        assert!(six(&f).all_valid());
         f.specific_force_mps2[1][2] = f32::NAN;
         f.orientation_wxyz[2] = [0.0; 4];
         f.angular_rate_radps[3][0] = f32::INFINITY;
         f.valid_mask &= !(1 << 4);
-        let s = Sample::from_frame(&f, 0.0);
+        let s = six(&f);
         assert_eq!(s.valid_mask, 0b100001);
         assert!(!s.all_valid());
         assert_eq!(s.sensors[1].specific_force_mps2, Vector3::zeros());

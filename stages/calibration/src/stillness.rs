@@ -170,7 +170,7 @@ mod tests {
             f.specific_force_mps2[k] = [accel_x, 9.81, 0.0];
             f.angular_rate_radps[k] = [0.0, 0.0, gyro];
         }
-        Sample::from_frame(&f, 0.0)
+        Sample::from_frame(&f, 0.0, SiteMask::of(imuflow_body::Imu::SIX))
     }
 
     fn detector() -> StillnessDetector {
@@ -224,7 +224,7 @@ mod tests {
                     ];
                     f.angular_rate_radps[k] = [0.0, 0.0, moving * 2.0 * t + wobble(k + 2) * 0.1];
                 }
-                Sample::from_frame(&f, i as f64 / 60.0)
+                Sample::from_frame(&f, i as f64 / 60.0, SiteMask::of(imuflow_body::Imu::SIX))
             })
             .collect()
     }

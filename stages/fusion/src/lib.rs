@@ -30,17 +30,8 @@ pub use filter::{OrientationFilter, VqfParams};
 pub use sensor::{MagnetometerUse, OrientationSource, SensorSettings};
 pub use stage::{SPEC, run};
 
-/// Number of IMUs (IMU order: left forearm, right forearm, left lower leg, right lower leg, head,
-/// pelvis).
-pub const NUM_IMUS: usize = imuflow_body::NUM_IMUS;
-
-/// The sites' names in wire slot order (as in models/body.toml and calibration files).
-pub const SENSOR_NAMES: [&str; imuflow_body::MAX_SITES] = imuflow_body::Imu::NAMES;
-
-/// The name of the site in wire slot `i`.
-pub fn sensor_name(i: usize) -> &'static str {
-    SENSOR_NAMES.get(i).copied().unwrap_or("unknown")
-}
+/// The name of the site in wire slot `i` (as in models/body.toml and calibration files).
+pub use imuflow_body::skeleton::site_name as sensor_name;
 
 /// Input the stage cannot go on with.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -503,7 +503,7 @@ impl Streamer {
             Method::GlobalPose => {
                 pose.parent_from_joint[0] = *root_orientation;
                 forward_kinematics(&self.body.skeleton, &pose, &mut self.fk);
-                let mut imu = [Vector3::zeros(); imuflow_body::MAX_SITES];
+                let mut imu = [Vector3::zeros(); 6];
                 imu_positions_in_world(&self.body, &self.fk, &mut imu);
                 let root_t = root_orientation.transpose();
                 let mut pl: Vec<f32> = (0..5)

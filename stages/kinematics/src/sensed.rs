@@ -56,9 +56,7 @@ pub struct SensedEstimator {
     sources: [Source; NUM_JOINTS],
     dt_s: f64,
     fk: FkData,
-    /// Both ankles relative to the root (M axes) in the last frame.
-    last_feet: Option<[Vector3<f64>; 2]>,
-    /// Every joint relative to the root in the last frame.
+    /// Every joint relative to the root (M axes) in the last frame.
     last_positions: Option<[Vector3<f64>; NUM_JOINTS]>,
     /// The root's velocity in the last frame, M (m/s).
     last_root: Vector3<f64>,
@@ -79,8 +77,7 @@ impl SensedEstimator {
                 missing.join(", ")
             ));
         }
-        let observed = set.observed_joints();
-        let is_observed = |j: JointId| observed & (1 << j.index()) != 0;
+        let is_observed = |j: JointId| set.observes(j);
         let mut sources = [Source::Rest; NUM_JOINTS];
         for site in set.sites() {
             sources[site.joint().index()] = Source::Sensor(site.index());
@@ -121,7 +118,6 @@ impl SensedEstimator {
             sources,
             dt_s: 1.0 / rate_hz,
             fk: FkData::new(),
-            last_feet: None,
             last_positions: None,
             last_root: Vector3::zeros(),
         })
@@ -129,7 +125,6 @@ impl SensedEstimator {
 
     /// Forgets the motion so far (the next frame starts standing where it is).
     pub fn reset(&mut self) {
-        self.last_feet = None;
         self.last_positions = None;
         self.last_root = Vector3::zeros();
     }
@@ -156,9 +151,9 @@ impl SensedEstimator {
                     parent * Rotation3::new(share)
                 }
             };
+            // The root's parent is M: its local rotation is its global one.
             local[j.index()] = parent.transpose() * global[j.index()];
         }
-        local[0] = global[0];
         forward_kinematics(
             &self.body.skeleton,
             &Pose {
@@ -167,8 +162,7 @@ impl SensedEstimator {
             },
             &mut self.fk,
         );
-        let positions: [Vector3<f64>; NUM_JOINTS] =
-            std::array::from_fn(|j| self.fk.joint_in_world_m[j]);
+        let positions = self.fk.joint_in_world_m;
         // Each foot touches with its lower point: the ankle, or the ball of the foot as it rolls.
         let point = |side: usize| {
             let (ankle, ball) = [
@@ -211,7 +205,6 @@ impl SensedEstimator {
             }
             None => [Vector3::zeros(); NUM_JOINTS],
         };
-        self.last_feet = Some(feet);
         self.last_positions = Some(positions);
         Estimate {
             pose: local,

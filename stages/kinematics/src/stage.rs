@@ -100,8 +100,10 @@ pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
     let params = KinematicsParams::from_params(ctx.params());
+    let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
+        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
     if params.net == "sensed" {
-        return run_sensed(ctx, &stage);
+        return run_sensed(ctx, &stage, &sensors);
     }
     let method_name = params.net.as_str();
     let Some(method) = Method::parse(method_name) else {
@@ -132,8 +134,6 @@ pub fn run() -> anyhow::Result<()> {
             weights_path.display()
         )
     })?;
-    let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
-        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
     weights
         .metadata
         .check_sensors(&sensors)
@@ -217,11 +217,13 @@ pub fn run() -> anyhow::Result<()> {
 /// `net = "sensed"`: the pose of the graph's sensor set from its sensed bones, no networks
 /// ([`SensedEstimator`]). A frame still calibrating, or without every sensor of the set, goes out
 /// as the rest pose flagged INVALID, and the next whole frame starts standing where it is.
-fn run_sensed(mut ctx: StageContext, stage: &str) -> anyhow::Result<()> {
-    let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
-        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
+fn run_sensed(
+    mut ctx: StageContext,
+    stage: &str,
+    sensors: &imuflow_body::SensorSet,
+) -> anyhow::Result<()> {
     let body = imuflow_body::BodyModel::new(&imuflow_body::BodyParams::builtin()?, 1.75, 70.0)?;
-    let mut estimator = SensedEstimator::new(&sensors, body, ctx.graph().rate_hz)
+    let mut estimator = SensedEstimator::new(sensors, body, ctx.graph().rate_hz)
         .map_err(|e| anyhow::anyhow!("stage '{stage}': {e}"))?;
     let input = ctx.input::<BodyImuFrame>("imu")?;
     let mut output = ctx.output::<KinematicsFrame>("kinematics")?;

@@ -28,16 +28,8 @@ pub struct WeightsMetadata {
     pub licence: String,
     /// The sites the nets were trained for, in wire slot order (a sensor set's sites; files
     /// written before sensor sets have none: the six-site set's).
-    #[serde(default = "six_site_names")]
+    #[serde(default = "imuflow_body::sensor_set::six_site_names")]
     pub sensors: Vec<String>,
-}
-
-/// The six-site set's site names, in wire slot order.
-pub fn six_site_names() -> Vec<String> {
-    imuflow_body::Imu::SIX
-        .iter()
-        .map(|s| s.name().to_owned())
-        .collect()
 }
 
 impl WeightsMetadata {
@@ -107,7 +99,7 @@ impl Weights {
             normalization: normalization(method).to_owned(),
             provenance: serde_json::json!("no metadata in the file"),
             licence: "unknown".to_owned(),
-            sensors: six_site_names(),
+            sensors: imuflow_body::sensor_set::six_site_names(),
         });
         Ok(Weights { metadata, nets })
     }
@@ -348,7 +340,7 @@ mod sensor_tests {
         let bytes = std::fs::read(&path).expect("shipped weights");
         let meta = read_metadata(&bytes).unwrap().expect("metadata");
         // Written before sensor sets: no `sensors` key, so the six.
-        assert_eq!(meta.sensors, six_site_names());
+        assert_eq!(meta.sensors, imuflow_body::sensor_set::six_site_names());
         meta.check_sensors(&SensorSet::six()).unwrap();
         let legs = SensorSet::builtin("lower-body").unwrap();
         let err = meta.check_sensors(&legs).unwrap_err().to_string();

@@ -59,5 +59,4 @@ mod plots;
 mod skeleton;
 mod stage;
 
-pub use skeleton::SENSOR_NAMES;
 pub use stage::{APPLICATION_ID, SPEC, run};

@@ -11,8 +11,6 @@ use imuflow_graph::frames::{ContactFrame, FrameType, MAX_SITES, MotionFrame};
 use crate::columns::{FrameTime, Log};
 use crate::plots::{ErrorSeries, Plots, Posed, TRUTH_FRAMES_KEPT, group_of};
 
-/// Site names in wire slot order (docs/architecture.md).
-pub const SENSOR_NAMES: [&str; MAX_SITES] = imuflow_body::Imu::NAMES;
 /// Spacing of the sensors' display positions along x, m.
 const SENSOR_SPACING_M: f32 = 0.3;
 /// Length of the drawn axes, m.

@@ -283,8 +283,7 @@ mod tests {
     fn a_lower_body_sends_the_bones_it_observes() {
         let bones = bone_transforms(&frame(), &offsets()).unwrap();
         let legs = imuflow_body::SensorSet::builtin("lower-body").unwrap();
-        let observed = legs.observed_joints();
-        let sent = BONES.map(|(j, _)| observed & (1 << j.index()) != 0);
+        let sent = BONES.map(|(j, _)| legs.observes(j));
         let mut bytes = Vec::new();
         encode(&bundle_of(&bones, &sent, 1.0, None), &mut bytes);
         let names: Vec<String> = decode(&bytes)

@@ -114,8 +114,7 @@ impl Stream {
     /// networks estimate every joint): the avatar keeps its own pose for the rest.
     pub fn for_set(mut self, set: &imuflow_body::SensorSet) -> Stream {
         if !set.is_six() {
-            let observed = set.observed_joints();
-            self.sent = BONES.map(|(j, _)| observed & (1 << j.index()) != 0);
+            self.sent = BONES.map(|(j, _)| set.observes(j));
         }
         self
     }

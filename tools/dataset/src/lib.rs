@@ -36,7 +36,7 @@ use serde::Serialize;
 
 pub use shard::{
     BYTES_PER_FRAME, BodyModelInfo, FRAME_TENSORS, METADATA_KEY, OFFSETS_TENSOR, SequenceInfo,
-    ShardFile, ShardMetadata, SynthesisInfo, frame_tensors, six_site_names,
+    ShardFile, ShardMetadata, SynthesisInfo, frame_tensors,
 };
 pub use split::{
     HELD_OUT_CONTENTS, Split, SplitRule, augmentation_seed, clip_key, content_of, fnv1a64,
@@ -395,11 +395,7 @@ pub fn build(options: &BuildOptions) -> Result<Summary, DatasetError> {
                 .into(),
             base_seed: options.seed,
         },
-        sensors: options
-            .sensors
-            .sites()
-            .map(|s| s.name().to_owned())
-            .collect(),
+        sensors: options.sensors.site_names(),
         sequences: Vec::new(),
     };
     let mut acc: Vec<ShardAccumulator> = Split::ALL

@@ -41,15 +41,6 @@ pub fn frame_tensors(sites: usize) -> [(&'static str, Vec<usize>); 6] {
     })
 }
 
-/// The six-site set's site names, in wire slot order: the `sensors` of shards written before
-/// sensor sets.
-pub fn six_site_names() -> Vec<String> {
-    imuflow_body::Imu::SIX
-        .iter()
-        .map(|s| s.name().to_owned())
-        .collect()
-}
-
 /// One sequence (a clip's ideal synthesis or one augmented copy) in a shard.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SequenceInfo {
@@ -90,7 +81,7 @@ pub struct ShardMetadata {
     pub synthesis: SynthesisInfo,
     /// The sensor sites synthesized, in wire slot order (the IMU tensors' sensor axis; shards
     /// written before sensor sets have none: the six-site set's).
-    #[serde(default = "six_site_names")]
+    #[serde(default = "imuflow_body::sensor_set::six_site_names")]
     pub sensors: Vec<String>,
     /// One entry per sequence, in `clip_offsets` order.
     pub sequences: Vec<SequenceInfo>,

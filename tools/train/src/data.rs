@@ -275,7 +275,7 @@ impl<'a> Shard<'a> {
             .as_ref()
             .and_then(|m: &serde_json::Value| m.get("sensors"))
         {
-            let six = serde_json::json!(imuflow_kinematics::weights::six_site_names());
+            let six = serde_json::json!(imuflow_body::sensor_set::six_site_names());
             if *sensors != six {
                 bail!(
                     "the shard was built for the sensors {sensors}; `imuflow train` trains the \
@@ -491,7 +491,7 @@ impl Builder {
     ) -> anyhow::Result<()> {
         self.use_body(stature_m)?;
         let mut fk = FkData::new();
-        let mut imu_pos = [Vector3::zeros(); imuflow_body::MAX_SITES];
+        let mut imu_pos = [Vector3::zeros(); 6];
         for f in start..end {
             let g = shard.globals(f);
             let root = g[0];

@@ -56,7 +56,7 @@ pub fn import_checkpoint(method: Method, input: &Path, output: &Path) -> anyhow:
             "converter": "imuflow import-checkpoint",
         }),
         licence: "that of the imported checkpoint (see its source)".to_owned(),
-        sensors: imuflow_kinematics::weights::six_site_names(),
+        sensors: imuflow_body::sensor_set::six_site_names(),
     };
     weights::save(output, &named, &metadata)
 }

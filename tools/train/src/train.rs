@@ -975,7 +975,7 @@ fn export(
         licence:
             "CC BY-NC 4.0, inherited from the Bandai-Namco-Research-Motiondataset it was trained on"
                 .to_owned(),
-        sensors: imuflow_kinematics::weights::six_site_names(),
+        sensors: imuflow_body::sensor_set::six_site_names(),
     };
     weights::save(&options.out, &tensors, &metadata)
 }
