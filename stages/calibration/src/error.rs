@@ -11,6 +11,18 @@ pub enum Rejection {
     )]
     NoSamples { phase: &'static str },
     #[error(
+        "sensor {sensor} had no usable sample in {frames} of the {phase}'s {of} frames (the first \
+         {from_s:.2} s into it): lost for longer than the fusion fills (its `max_gap_ms`), NaN, \
+         infinite or a zero quaternion; every sample of the {phase} is needed, so do it again"
+    )]
+    Unusable {
+        phase: &'static str,
+        sensor: &'static str,
+        frames: usize,
+        of: usize,
+        from_s: f64,
+    },
+    #[error(
         "sensor {sensor}: gravity is {angle_deg:.0}° away from the up axis of `frame = \"{frame}\"` \
          (max_gravity_deg = {max_deg}°): is the inertial-frame convention right?"
     )]

@@ -3,6 +3,8 @@
 use imuflow_body::rotation::rotation_from_quat_wxyz;
 use imuflow_body::{Imu, MAX_SITES, SiteMask};
 use imuflow_graph::frames::ImuFrame;
+
+use crate::error::Rejection;
 use nalgebra::{Rotation3, Vector3};
 
 /// One sensor's reading.
@@ -70,6 +72,30 @@ impl Sample {
             }
         }
         s
+    }
+
+    /// Every sensor of the set usable in every sample of `window` (not empty), or the first
+    /// sensor (in slot order) that was not, with how often and from when.
+    pub fn check_usable(window: &[Sample], phase: &'static str) -> Result<(), Rejection> {
+        let Some(first) = window.first() else {
+            return Err(Rejection::NoSamples { phase });
+        };
+        for k in first.slots() {
+            let unusable: Vec<&Sample> = window
+                .iter()
+                .filter(|s| s.valid_mask & (1 << k) == 0)
+                .collect();
+            if let Some(at) = unusable.first() {
+                return Err(Rejection::Unusable {
+                    phase,
+                    sensor: crate::sensor_name(k),
+                    frames: unusable.len(),
+                    of: window.len(),
+                    from_s: at.time_s - first.time_s,
+                });
+            }
+        }
+        Ok(())
     }
 
     /// Whether every sensor of the set is usable.

@@ -36,9 +36,7 @@ pub struct TposeConfig {
 
 /// Calibrates from `window`, the still samples of the held pose.
 pub fn calibrate_tpose(window: &[Sample], config: &TposeConfig) -> Result<Calibration, Rejection> {
-    if window.is_empty() || !window.iter().all(Sample::all_valid) {
-        return Err(Rejection::NoSamples { phase: "hold" });
-    }
+    Sample::check_usable(window, "hold")?;
     check_gravity(window, config.frame, config.max_gravity_deg)?;
     let model_from_inertial = config.frame.model_from_inertial(config.heading_rad);
     let reference = config.pose.bone_orientations();

@@ -285,9 +285,7 @@ pub fn measure_step(
 }
 
 fn valid<'a>(samples: &'a [Sample], phase: &'static str) -> Result<&'a [Sample], Rejection> {
-    if samples.is_empty() || !samples.iter().all(Sample::all_valid) {
-        return Err(Rejection::NoSamples { phase });
-    }
+    Sample::check_usable(samples, phase)?;
     Ok(samples)
 }
 

@@ -214,7 +214,9 @@ fn a_sensor_dropping_out_during_the_step_asks_for_a_redo() {
     assert_eq!(session.rejections().len(), 1, "{:?}", session.events);
     let msg = failure(&session);
     assert!(
-        msg.contains("unusable") && msg.contains("during the step: do it again"),
+        msg.contains("sensor right_forearm had no usable sample in 1 of the step's")
+            && msg.contains("`max_gap_ms`")
+            && msg.contains("so do it again"),
         "{msg}"
     );
 }

@@ -46,7 +46,7 @@ imuflow_graph::stage_params! {
         sensor_rate_hz: f64 = 0, float(0.0, 100000.0);
         /// a sensor without a sample for longer than this is missing (its frames INVALID);
         /// shorter gaps are interpolated, ms
-        max_gap_ms: f64 = 50, float(0.1, 600000.0);
+        max_gap_ms: Option<f64> = computed("50 live, 100 offline"), float(0.1, 600000.0);
         /// an output frame waits at most this long (source time) for a late sensor, ms (latency
         /// smooth; offline at least max_gap_ms, so a lost packet's gap is interpolated over
         /// instead of the frame going out without the sensor)
@@ -58,6 +58,10 @@ imuflow_graph::stage_params! {
         latency: String = "auto", choice(&["auto", "low", "smooth"]);
     }
 }
+
+/// `max_gap_ms` when a graph leaves it unset.
+pub const LIVE_MAX_GAP_MS: f64 = 50.0;
+pub const OFFLINE_MAX_GAP_MS: f64 = 100.0;
 
 impl FusionParams {
     /// The stage's configuration at the graph's rate (> 0) and mode.
@@ -81,6 +85,15 @@ impl FusionParams {
             ("smooth", _) | ("auto", Mode::Offline) => Latency::Smooth,
             (other, _) => bail!("params.latency: unknown '{other}' (auto, low, smooth)"),
         };
+        let max_gap_ms = self.max_gap_ms.unwrap_or(match mode {
+            // Live, a sensor that long without a sample is shown missing rather than held.
+            Mode::Live => LIVE_MAX_GAP_MS,
+            // Offline nobody waits, and a gap is better filled than left out: wireless sensors
+            // lose packets in runs (a Movella DOT export: runs of 3-4 at 60 Hz, gaps of 67-83
+            // ms; an x-IMU3 at 50 Hz: 60 ms), and each frame left without a sensor is INVALID
+            // and breaks a natural start's walk (journal 2026-11-29-lost-packets-offline).
+            Mode::Offline => OFFLINE_MAX_GAP_MS,
+        });
         Ok(Settings {
             sensor: SensorSettings {
                 vqf: VqfParams {
@@ -94,7 +107,7 @@ impl FusionParams {
                 orientation,
                 magnetometer,
                 sensor_rate_hz: (self.sensor_rate_hz > 0.0).then_some(self.sensor_rate_hz),
-                max_gap_s: self.max_gap_ms * 1e-3,
+                max_gap_s: max_gap_ms * 1e-3,
                 output_rate_hz: rate_hz,
                 latency,
             },
@@ -103,7 +116,7 @@ impl FusionParams {
             // the frame went out without that sensor, and a natural start with it).
             max_latency_s: match mode {
                 Mode::Live => self.max_latency_ms,
-                Mode::Offline => self.max_latency_ms.max(self.max_gap_ms),
+                Mode::Offline => self.max_latency_ms.max(max_gap_ms),
             } * 1e-3,
             origin: match mode {
                 Mode::Live => Origin::FirstCapture,

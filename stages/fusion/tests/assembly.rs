@@ -388,5 +388,44 @@ fn offline_a_lost_packets_gap_is_waited_for_and_filled_not_left_out() {
     // for its next sample and the gap is interpolated over.
     assert!(after_start(&run(live_deadline, &raw).1) > 0);
     assert_eq!(after_start(&run(offline, &raw).1), 0);
-    assert_eq!(offline.max_latency_s, 0.05);
+    // Offline a frame waits as long as the gap it fills: the offline max_gap_ms.
+    assert_eq!(
+        offline.max_latency_s,
+        imuflow_fusion::stage::OFFLINE_MAX_GAP_MS * 1e-3
+    );
+}
+
+#[test]
+fn offline_runs_of_lost_packets_are_filled_live_they_leave_the_sensor_out() {
+    // Samples of sensor 2 lost at 100 Hz: three in a row (a 40 ms gap), then seven at 1.5 s (an
+    // 80 ms gap; a Movella DOT export loses runs of 3-4 packets at 60 Hz: gaps up to 83 ms).
+    let raw = frames(0.0, 2.0, |f, t| {
+        if (1.0..1.025).contains(&t) || (1.5..1.565).contains(&t) {
+            f.valid_mask &= !(1 << 2);
+            f.magnetometer_mask &= !(1 << 2);
+        }
+    });
+    let defaults = imuflow_fusion::stage::FusionParams::default();
+    let settings = |mode| defaults.settings(60.0, mode).unwrap();
+    let without_sensor_2 = |out: &[ImuFrame]| {
+        out.iter()
+            .filter(|f| f.header.capture_ns > 500_000_000 && f.valid_mask & (1 << 2) == 0)
+            .count()
+    };
+    let offline = run(settings(imuflow_graph::Mode::Offline), &raw).1;
+    assert_eq!(without_sensor_2(&offline), 0);
+    // With the live default (50 ms) the 80 ms gap is left out: its frames (at 60 Hz, the four or
+    // five between 1.49 and 1.57 s) are without the sensor; the 40 ms gap is filled.
+    let offline_settings = settings(imuflow_graph::Mode::Offline);
+    let live_gap = imuflow_fusion::stage::LIVE_MAX_GAP_MS * 1e-3;
+    let live_gaps = Settings {
+        sensor: imuflow_fusion::SensorSettings {
+            max_gap_s: live_gap,
+            ..offline_settings.sensor
+        },
+        max_latency_s: live_gap,
+        ..offline_settings
+    };
+    let n = without_sensor_2(&run(live_gaps, &raw).1);
+    assert!((4..=5).contains(&n), "{n} frames without sensor 2");
 }
