@@ -270,7 +270,12 @@ params = { path = "{dir}/dot.mcap" }
         .iter()
         .filter(|f| !f.header.has(flags::INVALID))
         .collect();
-    assert!(estimated.len() >= motion.len() - 36, "{} of {}", estimated.len(), motion.len());
+    assert!(
+        estimated.len() >= motion.len() - 36,
+        "{} of {}",
+        estimated.len(),
+        motion.len()
+    );
     let start = estimated[0].root_position_m;
     for f in &estimated {
         let p = f.root_position_m;
@@ -278,6 +283,114 @@ params = { path = "{dir}/dot.mcap" }
         let away = ((p[0] - start[0]).powi(2) + (p[2] - start[2]).powi(2)).sqrt();
         assert!(away < 0.5, "{p:?} is {away} m from {start:?}");
     }
+    assert_clean(&sb);
+}
+
+#[test]
+fn a_lower_body_graph_runs_pip_networks_trained_for_its_set() {
+    let sb = Sandbox::new("sets-pip");
+    // Two copies of the walk whose split hashes put one in train and one in validation
+    // (tools/train/tests/train_smoke.rs), a lower-body dataset of them, small nets for a minute.
+    for name in ["set-a/walk_01.bvh", "set-a/walk_02.bvh"] {
+        let to = sb.path("bvh").join(name);
+        std::fs::create_dir_all(to.parent().expect("a folder")).expect("mkdir");
+        std::fs::copy(fixture(), &to).expect("copy the fixture");
+    }
+    let (bvh, data, weights) = (sb.path("bvh"), sb.path("data"), sb.path("legs.safetensors"));
+    let path = |p: &Path| p.to_str().expect("utf8").to_owned();
+    let built = sb.run(&[
+        "dataset",
+        "build",
+        "--bvh-dir",
+        &path(&bvh),
+        "--out",
+        &path(&data),
+        "--sensors",
+        "lower-body",
+        "--no-progress",
+    ]);
+    assert!(built.status.success(), "{}", text(&built.stderr));
+    let trained = sb.run(&[
+        "train",
+        "--method",
+        "pip",
+        "--data",
+        &path(&data),
+        "--out",
+        &path(&weights),
+        "--checkpoint-dir",
+        &path(&sb.path("ckpt")),
+        "--hidden",
+        "16",
+        "--layers",
+        "1",
+        "--epochs",
+        "2",
+        "--batch",
+        "4",
+        "--chunk",
+        "30",
+        "--lr",
+        "0.01",
+        "--no-progress",
+    ]);
+    assert!(trained.status.success(), "{}", text(&trained.stderr));
+
+    let graph = sb.graph(
+        "legs.toml",
+        &format!(
+            r#"
+name = "legs-pip"
+sensors = "lower-body"
+[stages.source]
+kind = "imu-source"
+params = {{ mode = "synthesize", path = "{}", prelude = "stand", prelude_stand_s = 1.0 }}
+[stages.calib]
+kind = "calibration"
+inputs = {{ imu = "source.imu" }}
+params = {{ method = "walking", walk_s = 2.0 }}
+[stages.kin]
+kind = "kinematics"
+inputs = {{ imu = "calib.body_imu" }}
+params = {{ net = "pip", weights = "{}" }}
+[stages.record]
+kind = "recorder"
+inputs = {{ kinematics = "kin.kinematics" }}
+params = {{ path = "{{dir}}/legs.mcap" }}
+"#,
+            fixture().display(),
+            weights.display()
+        ),
+    );
+    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    assert!(out.status.success(), "stderr:\n{}", text(&out.stderr));
+    let frames: Vec<imuflow_graph::frames::KinematicsFrame> =
+        frames_of(&sb.path("legs.mcap"), "kin.kinematics");
+    let estimated: Vec<_> = frames
+        .iter()
+        .filter(|f| !f.header.has(flags::INVALID))
+        .collect();
+    // Every frame of the walk estimated (the synthesized stand before it is the calibration's
+    // prelude, not the recording's).
+    let first = frames
+        .iter()
+        .position(|f| !f.header.has(flags::INVALID))
+        .expect("estimated frames");
+    assert_eq!(estimated.len(), frames.len() - first);
+    assert!(estimated.len() >= 90, "{} estimated", estimated.len());
+    let legs = imuflow_body::SensorSet::builtin("lower-body").expect("shipped");
+    let turned = |q: [f32; 4]| q[0].abs() < 1.0 - 1e-6;
+    for j in imuflow_body::JointId::all() {
+        let moved = estimated
+            .iter()
+            .any(|f| turned(f.local_pose_wxyz[j.index()]));
+        if !legs.observes(j) {
+            assert!(!moved, "{} is not observed but turned", j.name());
+        }
+    }
+    // The knees, which the set observes, bend (small untrained nets, measured sensors' bones).
+    let knee = imuflow_body::JointId::LEFT_KNEE.index();
+    assert!(estimated.iter().any(|f| turned(f.local_pose_wxyz[knee])));
     assert_clean(&sb);
 }
 

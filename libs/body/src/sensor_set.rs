@@ -69,6 +69,20 @@ impl SiteMask {
         SiteMask(self.0 & !other.0)
     }
 
+    /// The joints whose local rotation sensors on these sites observe, as a mask over joint
+    /// indices ([`SensorSet::observed_joints`]).
+    pub fn observed_joints(self) -> u32 {
+        let mut mask = 0u32;
+        for site in self.sites() {
+            let mut joint = Some(site.joint());
+            while let Some(j) = joint {
+                mask |= 1 << j.index();
+                joint = j.parent();
+            }
+        }
+        mask
+    }
+
     /// The sites' names, comma-separated (for messages).
     pub fn names(self) -> String {
         let names: Vec<&str> = self.sites().map(Imu::name).collect();
@@ -167,15 +181,7 @@ impl SensorSet {
     /// set the unobserved joints are exactly the ones PIP and GlobalPose do not estimate
     /// (reference §1, "ignored": ankles, feet, wrists, hands).
     pub fn observed_joints(&self) -> u32 {
-        let mut mask = 0u32;
-        for site in self.sites() {
-            let mut joint = Some(site.joint());
-            while let Some(j) = joint {
-                mask |= 1 << j.index();
-                joint = j.parent();
-            }
-        }
-        mask
+        self.sites.observed_joints()
     }
 
     /// Whether the set's sensors observe `joint` ([`SensorSet::observed_joints`]).

@@ -23,6 +23,12 @@ pub enum WeightsError {
         "the weights were trained for the sensors {weights}; the graph's sensors are {graph} (train weights for that set with `imuflow train`, or set the graph's `sensors`)"
     )]
     WrongSensors { weights: String, graph: String },
+    #[error("{method}'s networks cannot be sized for the sensors ({sensors}): {why}")]
+    UnsupportedSet {
+        method: String,
+        sensors: String,
+        why: String,
+    },
     #[error("the weights' sensors name '{site}', not a site of the body model")]
     UnknownSite { site: String },
     #[error("{path}: {message}")]

@@ -10,16 +10,14 @@ use candle_core::{Device, Tensor};
 use imuflow_body::kinematics::{FkData, forward_kinematics, imu_positions_in_world};
 use imuflow_body::limb_joints::{flex_toward_positions, limit_hyperextension, project_limb_joints};
 use imuflow_body::rotation::{from_to, rotation_from_r6d};
-use imuflow_body::skeleton::{
-    CONTACT_JOINTS, FULL_JOINTS, IMU_JOINTS, LEAF_JOINTS, REDUCED_JOINTS,
-};
-use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
+use imuflow_body::skeleton::{CONTACT_JOINTS, FULL_JOINTS, REDUCED_JOINTS};
+use imuflow_body::{BodyModel, BodyParams, Imu, JointId, NUM_JOINTS, Pose};
 use imuflow_graph::params::Param;
 use nalgebra::{Matrix3, Rotation3, Unit, UnitQuaternion, Vector3};
 
 use crate::features::{FPS, PIP_VELOCITY_SCALE};
 use crate::features::{
-    GLOBALPOSE_INPUT, ImuInput, PIP_INPUT, ROOT_IMU, globalpose_input, pip_input,
+    GLOBALPOSE_INPUT, ImuInput, InputOrder, ROOT_IMU, globalpose_input, pip_input, pip_input_len,
 };
 use crate::lean::LeanRnn;
 use crate::method::Method;
@@ -81,15 +79,23 @@ impl StartPose {
     /// (end to end on 40 clips of the validation split: PIP's networks 6.98° SIP after a T-pose
     /// calibration, 10.56° after a walking one when both started from the T-pose; GlobalPose's
     /// networks 6.20° after walking, 8.37° after a T-pose when both started from the N-pose).
+    /// A set without forearm sensors shows neither: the N-pose (arms down, as people stand).
     pub fn shown_by(imu: &ImuInput) -> StartPose {
-        let pelvis = sensor_rotation(&imu.orientation[ROOT_IMU]);
+        let pelvis = sensor_rotation(imu.root_orientation());
+        let forearms: Vec<usize> = [Imu::LeftForearm, Imu::RightForearm]
+            .into_iter()
+            .filter_map(|site| imu.order.index_of(site))
+            .collect();
+        if forearms.is_empty() {
+            return StartPose::NPose;
+        }
         let mismatch = |start: StartPose| -> f64 {
             // The start poses' root is at identity: their global rotations are relative to it.
             let expected = global_rotations(&start.pose().parent_from_joint);
-            IMU_JOINTS[..2]
+            forearms
                 .iter()
-                .enumerate()
-                .map(|(sensor, joint)| {
+                .map(|&sensor| {
+                    let joint = imu.order.site(sensor).joint();
                     let measured = pelvis.transpose() * sensor_rotation(&imu.orientation[sensor]);
                     (measured * expected[joint.index()].transpose()).angle()
                 })
@@ -240,6 +246,8 @@ pub enum Backend {
 /// One method's nets with their streaming state.
 pub struct Streamer {
     method: Method,
+    /// The sensors the nets take, in their order (the weights' set).
+    order: InputOrder,
     sensor_bones: SensorBones,
     /// What the knees and elbows may do.
     limb_joints: LimbJoints,
@@ -324,8 +332,11 @@ impl Streamer {
             .iter()
             .map(LeanRnn::new)
             .collect::<candle_core::Result<_>>()?;
+        let method = weights.metadata.method;
+        let order = crate::weights::input_order(method, weights.metadata.sites()?)?;
         Ok(Streamer {
-            method: weights.metadata.method,
+            method,
+            order,
             sensor_bones: SensorBones::default(),
             limb_joints: LimbJoints::default(),
             backend: Backend::default(),
@@ -350,6 +361,7 @@ impl Streamer {
         self.mirrored = on.then(|| {
             Box::new(Streamer {
                 method: self.method,
+                order: self.order,
                 sensor_bones: self.sensor_bones,
                 limb_joints: self.limb_joints,
                 backend: self.backend,
@@ -493,7 +505,8 @@ impl Streamer {
         match self.method {
             Method::Pip => {
                 inits[0] = Some(
-                    LEAF_JOINTS
+                    self.order
+                        .leaf_joints()
                         .iter()
                         .flat_map(|&j| rel(&self.fk, j).data.0[0])
                         .collect(),
@@ -553,8 +566,24 @@ impl Streamer {
                 .all(|companion| companion.warm_nets(stop))
     }
 
-    /// One frame.
+    /// One frame. For a set other than the six, the joints its sensors do not observe
+    /// ([`imuflow_body::SiteMask::observed_joints`]) are at rest, whatever the nets say, and the
+    /// joint positions follow that pose.
     pub fn step(&mut self, imu: &ImuInput) -> anyhow::Result<Estimate> {
+        let mut estimate = self.step_ensemble(imu)?;
+        if !self.order.is_six() {
+            let observed = self.order.mask().observed_joints();
+            for j in (0..NUM_JOINTS).filter(|j| observed & (1 << j) == 0) {
+                estimate.pose[j] = Rotation3::identity();
+            }
+            let positions = self.positions_in_root_frame(&estimate.pose);
+            estimate.joint_position = world_positions(&positions, &estimate.pose[0]);
+        }
+        Ok(estimate)
+    }
+
+    /// One frame of the nets, their mirror twin and their partner.
+    fn step_ensemble(&mut self, imu: &ImuInput) -> anyhow::Result<Estimate> {
         let mut estimate = self.step_own(imu)?;
         if self.mirrored.is_none() && self.partner.is_none() {
             return Ok(estimate);
@@ -578,7 +607,14 @@ impl Streamer {
 
     /// One frame of this stream's own nets.
     fn step_own(&mut self, imu: &ImuInput) -> anyhow::Result<Estimate> {
-        let root = sensor_rotation(&imu.orientation[ROOT_IMU]);
+        if imu.order != self.order {
+            anyhow::bail!(
+                "the input holds the sensors ({}), the nets take ({})",
+                imu.order.mask().names(),
+                self.order.mask().names()
+            );
+        }
+        let root = sensor_rotation(imu.root_orientation());
         if !self.started {
             self.initialize(&root)?;
         }
@@ -602,7 +638,7 @@ impl Streamer {
     }
 
     fn step_pip(&mut self, imu: &ImuInput, root: &Rotation3<f64>) -> anyhow::Result<Estimate> {
-        let mut x = [0.0; PIP_INPUT];
+        let mut x = vec![0.0; pip_input_len(imu.order.len())];
         pip_input(imu, &mut x);
         let leaf = self.run(0, &x)?;
         let full = self.run(1, &[leaf.as_slice(), &x].concat())?;
@@ -795,7 +831,8 @@ pub fn impose_measured_bones(
     tolerance_rad: f64,
 ) {
     let global = global_rotations(pose);
-    for (sensor, joint) in IMU_JOINTS.iter().enumerate() {
+    for (sensor, site) in imu.order.sites().enumerate() {
+        let joint = site.joint();
         let Some(parent) = joint.parent() else {
             continue; // the root: each method sets its own
         };
@@ -845,6 +882,7 @@ pub fn pose_from_reduced_r6d(r6d: &[f32], root: &Rotation3<f64>) -> [Rotation3<f
 pub(crate) mod tests {
     use super::*;
     use imuflow_body::Imu;
+    use imuflow_body::skeleton::{IMU_JOINTS, LEAF_JOINTS};
 
     /// python/examples/pip_numpy.py starts PIP's rnn1 from these positions written out (numpy
     /// has no body model): they must be this body's T-pose leaf joints, relative to the root.

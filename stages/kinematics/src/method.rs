@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::features::{GLOBALPOSE_INPUT, PIP_INPUT};
+use crate::features::{GLOBALPOSE_INPUT, pip_input_len};
 use crate::net::RnnSpec;
 
 /// Which paper's networks.
@@ -40,15 +40,33 @@ impl Method {
         }
     }
 
-    /// `(input, output, init_input, input_linear)` of each net, the sizes the method's data flow fixes.
-    pub fn net_io(self, name: &str) -> Option<(usize, usize, Option<usize>, bool)> {
+    /// Whether the method's networks can be sized for a set of `sites` sensors: PIP's for any set
+    /// with the pelvis (its inputs and its first net's leaf joints follow the set), GlobalPose's
+    /// for the six-site set only (its nets' inputs hold the six's sensor positions and
+    /// orientations in fixed blocks).
+    pub fn takes_sites(self, sites: usize) -> bool {
+        match self {
+            Method::Pip => sites >= 1,
+            Method::GlobalPose => sites == 6,
+        }
+    }
+
+    /// `(input, output, init_input, input_linear)` of each net for a set of `sites` sensors (6:
+    /// PIP's and GlobalPose's own), the sizes the method's data flow fixes; `None` for a net the
+    /// method lacks or a set it cannot take ([`Method::takes_sites`]).
+    pub fn net_io(self, name: &str, sites: usize) -> Option<(usize, usize, Option<usize>, bool)> {
+        if !self.takes_sites(sites) {
+            return None;
+        }
+        // PIP's inputs (72 for the six) and leaf joints (one per non-root sensor: 15 for the six).
+        let (x, leaf) = (pip_input_len(sites), 3 * (sites - 1));
         let io = match (self, name) {
             // PIP (reference §2.2): unidirectional, input linear layer, 2 layers.
-            (Method::Pip, "rnn1") => (PIP_INPUT, 15, Some(15), true),
-            (Method::Pip, "rnn2") => (15 + PIP_INPUT, 69, None, true),
-            (Method::Pip, "rnn3") => (69 + PIP_INPUT, 90, None, true),
-            (Method::Pip, "rnn4") => (69 + PIP_INPUT, 72, Some(72), true),
-            (Method::Pip, "rnn5") => (69 + PIP_INPUT, 2, None, true),
+            (Method::Pip, "rnn1") => (x, leaf, Some(leaf), true),
+            (Method::Pip, "rnn2") => (leaf + x, 69, None, true),
+            (Method::Pip, "rnn3") => (69 + x, 90, None, true),
+            (Method::Pip, "rnn4") => (69 + x, 72, Some(72), true),
+            (Method::Pip, "rnn5") => (69 + x, 2, None, true),
             // GlobalPose (reference §2.4): no input linear layer.
             (Method::GlobalPose, "plnet") => (GLOBALPOSE_INPUT, 18, Some(18), false),
             (Method::GlobalPose, "iknet.net1") => (45 + 3 + 15, 72, None, false),
@@ -68,14 +86,14 @@ impl Method {
         }
     }
 
-    /// Specs with hidden size `hidden` and `layers` layers for every net (PIP's contact net keeps
-    /// a quarter of the hidden size, as in the paper: 64 of 256).
-    pub fn specs(self, hidden: usize, layers: usize) -> Vec<RnnSpec> {
+    /// Specs with hidden size `hidden` and `layers` layers for every net, for a set of `sites`
+    /// sensors (PIP's contact net keeps a quarter of the hidden size, as in the paper: 64 of 256).
+    pub fn specs(self, hidden: usize, layers: usize, sites: usize) -> Vec<RnnSpec> {
         self.net_names()
             .iter()
             .map(|&name| {
                 let (input, output, init_input, input_linear) =
-                    self.net_io(name).unwrap_or((0, 0, None, false));
+                    self.net_io(name, sites).unwrap_or((0, 0, None, false));
                 let hidden = if self == Method::Pip && name == "rnn5" {
                     (hidden / 4).max(16)
                 } else {

@@ -14,7 +14,7 @@
 //! which is how `dataset build --mirror` makes it (tested against it).
 
 use imuflow_body::kinematics::{mirror_rotation, mirror_vector};
-use imuflow_body::{Imu, JointId, NUM_JOINTS};
+use imuflow_body::{JointId, NUM_JOINTS};
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 
 use crate::features::{ImuInput, Mat3};
@@ -31,10 +31,13 @@ fn mirror_matrix(m: &Mat3) -> Mat3 {
 
 /// The IMU frame of the motion reflected across the x = 0 plane of M: each sensor takes its
 /// mirror sensor's reading, orientation `S·R·S`, free acceleration `S·a`, angular velocity `−S·ω`.
+/// A sensor whose mirror site the set lacks ([`crate::features::InputOrder::is_symmetric`]; the
+/// stage refuses mirroring for such a set) keeps its own reading, reflected.
 pub fn mirrored_input(imu: &ImuInput) -> ImuInput {
-    let mut out = ImuInput::default();
-    for sensor in Imu::SIX {
-        let (i, from) = (sensor.index(), sensor.mirror().index());
+    let order = imu.order;
+    let mut out = ImuInput::of(order);
+    for (i, sensor) in order.sites().enumerate() {
+        let from = order.index_of(sensor.mirror()).unwrap_or(i);
         out.orientation[i] = mirror_matrix(&imu.orientation[from]);
         let [x, y, z] = imu.acceleration[from];
         out.acceleration[i] = [-x, y, z];

@@ -19,13 +19,12 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, bail};
-use imuflow_body::NUM_IMUS;
 use imuflow_graph::frames::{BodyImuFrame, KinematicsFrame, flags};
 use imuflow_graph::spec::{InputsSpec, PortSpec, Role, StageSpec};
 use imuflow_graph::{FrameType, StageContext};
 use nalgebra::{Rotation3, UnitQuaternion};
 
-use crate::features::{HeldSamples, ImuInput, ROOT_IMU};
+use crate::features::{HeldSamples, ImuInput};
 use crate::infer::{
     Estimate, LIMB_JOINTS, LimbJoints, SENSOR_BONE_TOLERANCE_PARAM, SensorBones, StartPose,
     Streamer, impose_measured_bones, sensor_rotation,
@@ -150,6 +149,14 @@ pub fn run() -> anyhow::Result<()> {
             LIMB_JOINTS.join(", ")
         );
     };
+    let order = crate::weights::input_order(method, sensors.mask())
+        .with_context(|| format!("stage '{stage}': the graph's sensors"))?;
+    if params.mirror_ensemble && !order.is_symmetric() {
+        bail!(
+            "stage '{stage}': mirror_ensemble needs every sensor's mirror site in the set; {sensors} has ({}) ",
+            order.mask().names()
+        );
+    }
     let warm_weights = params.warm_weights;
     let mut streamer = Streamer::new(weights, start.pose())?;
     streamer.set_sensor_bones(sensor_bones);
@@ -175,7 +182,8 @@ pub fn run() -> anyhow::Result<()> {
     if !ctx.ready()? {
         return Ok(());
     }
-    let mut held = HeldSamples::default();
+    let mut held = HeldSamples::of(order);
+    let whole = order.mask().0;
     let mut resume_from_sensors = ctx.restarts() > 0;
     while let Some(step) = ctx.next_warming(&mut |stop| {
         if warm_weights {
@@ -201,7 +209,7 @@ pub fn run() -> anyhow::Result<()> {
             if std::mem::take(&mut resume_from_sensors) {
                 streamer.set_start(pose_from_sensors(start, &held.input));
             }
-            if frame.valid_mask != (1 << NUM_IMUS) - 1 {
+            if frame.valid_mask & whole != whole {
                 header.flags |= flags::INVALID;
             }
             streamer
@@ -255,7 +263,7 @@ fn run_sensed(
 /// of it as the sensors measure.
 pub fn pose_from_sensors(start: StartPose, imu: &ImuInput) -> imuflow_body::Pose {
     let mut pose = start.pose();
-    pose.parent_from_joint[0] = sensor_rotation(&imu.orientation[ROOT_IMU]);
+    pose.parent_from_joint[0] = sensor_rotation(imu.root_orientation());
     impose_measured_bones(&mut pose.parent_from_joint, imu, 0.0);
     pose
 }
@@ -296,6 +304,7 @@ mod tests {
     use super::*;
     use crate::infer::global_rotations;
     use imuflow_body::JointId;
+    use imuflow_body::NUM_IMUS;
     use imuflow_body::skeleton::IMU_JOINTS;
     use nalgebra::{Unit, Vector3};
 

@@ -8,8 +8,10 @@ use candle_core::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
 use crate::error::WeightsError;
+use crate::features::InputOrder;
 use crate::method::Method;
 use crate::net::{Rnn, RnnSpec};
+use imuflow_body::SiteMask;
 
 /// Format tag in the metadata.
 pub const FORMAT: &str = "imuflow-kinematics/1";
@@ -57,6 +59,25 @@ impl WeightsMetadata {
     }
 }
 
+/// The networks' sensor order for a set's `sites`, or why `method`'s networks cannot take them
+/// (no pelvis, the networks' root; GlobalPose's for the six-site set only).
+pub fn input_order(method: Method, sites: SiteMask) -> Result<InputOrder, WeightsError> {
+    let unsupported = |why: &str| WeightsError::UnsupportedSet {
+        method: method.name().to_owned(),
+        sensors: sites.names(),
+        why: why.to_owned(),
+    };
+    let order = InputOrder::of(sites)
+        .ok_or_else(|| unsupported("the pelvis, their root, is not among them"))?;
+    if !method.takes_sites(order.len()) {
+        return Err(unsupported(
+            "GlobalPose's networks take the six-site set only (its inputs hold the six's \
+             sensors in fixed blocks); PIP's can be trained for any set with the pelvis",
+        ));
+    }
+    Ok(order)
+}
+
 /// A method's nets, ready to run.
 pub struct Weights {
     pub metadata: WeightsMetadata,
@@ -91,7 +112,11 @@ impl Weights {
         }
         let tensors = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)
             .map_err(|e| file_err(format!("reading tensors: {e}")))?;
-        let nets = nets_from_tensors(method, &tensors)?;
+        let order = match &metadata {
+            Some(meta) => input_order(method, meta.sites()?)?,
+            None => InputOrder::six(),
+        };
+        let nets = nets_from_tensors(method, &tensors, order.len())?;
         let metadata = metadata.unwrap_or_else(|| WeightsMetadata {
             format: FORMAT.to_owned(),
             method,
@@ -120,10 +145,11 @@ pub fn read_metadata(bytes: &[u8]) -> Result<Option<WeightsMetadata>, String> {
 }
 
 /// Build `method`'s nets from named tensors, with sizes read from the tensors and checked against
-/// what the method's data flow needs.
+/// what the method's data flow needs for a set of `sites` sensors (6: the six-site set).
 pub fn nets_from_tensors(
     method: Method,
     tensors: &HashMap<String, Tensor>,
+    sites: usize,
 ) -> Result<Vec<Rnn>, WeightsError> {
     let names = method.net_names();
     if let Some(stray) = tensors
@@ -140,7 +166,7 @@ pub fn nets_from_tensors(
         .map(|&name| {
             let spec = RnnSpec::infer(name, tensors)?;
             let (input, output, init, input_linear) =
-                method.net_io(name).unwrap_or((0, 0, None, false));
+                method.net_io(name, sites).unwrap_or((0, 0, None, false));
             let check = |what: &str, found: usize, want: usize| {
                 if found == want {
                     Ok(())
@@ -185,7 +211,11 @@ pub fn nets_from_tensors(
         .collect()
 }
 
-/// The input normalization of each method, as written in the metadata.
+/// The input normalization of PIP's networks for a set other than the six, as written in the
+/// metadata ([`normalization`] is the six-site set's).
+pub const PIP_SET_NORMALIZATION: &str = "PIP (reference §2.2) sized by the sensor set: x = [R_rootᵀ(a_i − a_root) for the non-root sensors, R_rootᵀa_root, R_rootᵀR_i for the non-root sensors, R_root], the sensors in the set's wire slot order with the pelvis (root) last; rnn1 predicts one leaf joint per non-root sensor (its bone's far end); accelerations in m/s² unscaled, matrices row-major; joint velocities predicted in the root frame divided by 3";
+
+/// The input normalization of each method for the six-site set, as written in the metadata.
 pub fn normalization(method: Method) -> &'static str {
     match method {
         Method::Pip => {

@@ -67,12 +67,22 @@ pub fn sip_error_deg(predicted: &FkData, truth: &FkData) -> f64 {
 /// inputs; it cannot be below the calibration error on real sensors, and has no reason to be above
 /// it. `estimate` is the FK of the pose as output (root orientation included).
 pub fn sensor_bone_error_deg(estimate: &FkData, measured: &[Rotation3<f64>; NUM_IMUS]) -> f64 {
-    let sum: f64 = IMU_JOINTS
-        .iter()
-        .zip(measured)
-        .map(|(j, r)| angle_between(estimate.world_from(*j), r))
-        .sum();
-    (sum / NUM_IMUS as f64).to_degrees()
+    sensed_bone_error_deg(
+        estimate,
+        IMU_JOINTS.iter().copied().zip(measured.iter().copied()),
+    )
+}
+
+/// [`sensor_bone_error_deg`] over any sensors: each the joint whose bone it sits on and its
+/// calibrated measurement `R_MB` (a sensor set's sensors).
+pub fn sensed_bone_error_deg(
+    estimate: &FkData,
+    sensors: impl IntoIterator<Item = (JointId, Rotation3<f64>)>,
+) -> f64 {
+    let (sum, n) = sensors.into_iter().fold((0.0, 0usize), |(sum, n), (j, r)| {
+        (sum + angle_between(estimate.world_from(j), &r), n + 1)
+    });
+    (sum / n.max(1) as f64).to_degrees()
 }
 
 /// Global angle error (degrees): mean over all 24 joints of the angle between global rotations.

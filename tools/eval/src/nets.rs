@@ -13,7 +13,6 @@ use std::time::Instant;
 
 use anyhow::Context;
 use imuflow_body::kinematics::{FkData, forward_kinematics};
-use imuflow_body::skeleton::NUM_IMUS;
 use imuflow_body::{BodyModel, BodyParams, NUM_JOINTS, Pose};
 use imuflow_dataset::Split;
 use imuflow_kinematics::Method;
@@ -27,7 +26,7 @@ use nalgebra::{Rotation3, Vector3};
 use crate::limbs::{self, LimbErrors};
 use crate::metrics::{
     IGNORED_JOINTS, apply_ignored_joints, global_angle_error_deg, jitter_km_per_s3,
-    joint_position_error_m, sensor_bone_error_deg, sip_error_deg,
+    joint_position_error_m, sensed_bone_error_deg, sip_error_deg,
 };
 use crate::test_split::{Copies, for_each_test_sequence, sequence_bar};
 
@@ -137,7 +136,7 @@ pub struct Scores {
     pub jitter_km_s3: f64,
     pub truth_jitter_km_s3: f64,
     /// Mean angle between the output pose's instrumented bones and their calibrated sensors
-    /// ([`sensor_bone_error_deg`]; on the pose as output, before the protocol's ignored joints).
+    /// ([`sensed_bone_error_deg`]; on the pose as output, before the protocol's ignored joints).
     pub sensor_bone_deg: f64,
     pub us_per_frame: f64,
     /// The knees' and elbows' errors ([`crate::limbs`]), on the protocol's poses.
@@ -183,7 +182,7 @@ pub fn evaluate(method: Method, weights: &Path, options: &NetsEval) -> anyhow::R
             let mut pred = Pose::t_pose(Vector3::zeros());
             pred.parent_from_joint = est.pose;
             forward_kinematics(&body.skeleton, &pred, &mut fk_pred);
-            totals.sensor_bone_deg += sensor_bone_error_deg(&fk_pred, &measured_bones(&imu));
+            totals.sensor_bone_deg += sensed_bone_error_deg(&fk_pred, measured_bones(&imu));
             let mut truth = pose_of(shard, f);
             truth.root_in_world_m = Vector3::zeros();
             apply_ignored_joints(&mut pred, &IGNORED_JOINTS);
@@ -218,10 +217,14 @@ pub fn evaluate(method: Method, weights: &Path, options: &NetsEval) -> anyhow::R
     })
 }
 
-/// The calibrated sensor orientations `R_MB` of one frame's network input, read as the kinematics
-/// stage reads them.
-fn measured_bones(imu: &ImuInput) -> [Rotation3<f64>; NUM_IMUS] {
-    imu.orientation.map(|m| sensor_rotation(&m))
+/// The calibrated sensor orientations `R_MB` of one frame's network input with the joints whose
+/// bones they sit on, read as the kinematics stage reads them.
+fn measured_bones(imu: &ImuInput) -> Vec<(imuflow_body::JointId, Rotation3<f64>)> {
+    imu.order
+        .sites()
+        .zip(&imu.orientation)
+        .map(|(site, m)| (site.joint(), sensor_rotation(m)))
+        .collect()
 }
 
 fn positions(fk: &FkData) -> [Vector3<f64>; NUM_JOINTS] {

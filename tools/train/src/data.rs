@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use imuflow_body::kinematics::{FkData, forward_kinematics, imu_positions_in_world};
-use imuflow_body::skeleton::{CONTACT_JOINTS, FULL_JOINTS, LEAF_JOINTS, REDUCED_JOINTS};
+use imuflow_body::skeleton::{CONTACT_JOINTS, FULL_JOINTS, REDUCED_JOINTS};
 use imuflow_body::{BodyModel, BodyParams, JointId, NUM_JOINTS, Pose};
 use nalgebra::{Rotation3, Vector3};
 use safetensors::SafeTensors;
@@ -18,8 +18,8 @@ use safetensors::tensor::TensorView;
 
 pub use imuflow_kinematics::features::{FPS, PIP_VELOCITY_SCALE};
 use imuflow_kinematics::features::{
-    GLOBALPOSE_INPUT, ImuInput, Mat3, PIP_INPUT, ROOT_IMU, globalpose_input, mul, pip_input,
-    rt_mul, rt_mul_vec,
+    GLOBALPOSE_INPUT, ImuInput, InputOrder, Mat3, ROOT_IMU, globalpose_input, mul, pip_input,
+    pip_input_len, rt_mul, rt_mul_vec,
 };
 use imuflow_kinematics::method::Method;
 
@@ -56,6 +56,8 @@ pub struct TrainSet {
     pub arrays: BTreeMap<&'static str, Array>,
     /// The shards' metadata (`imuflow` key), for the weights' provenance.
     pub shard_metadata: Vec<serde_json::Value>,
+    /// The shards' sensor set, in the networks' order (every shard of a split has the same).
+    pub order: InputOrder,
 }
 
 impl TrainSet {
@@ -133,8 +135,7 @@ pub fn load_split(
         .sum();
 
     let mut set = TrainSet::default();
-    let mut builder = Builder::new(method)?;
-    builder.reserve(frames);
+    let mut builder: Option<Builder> = None;
     for (i, file) in files.iter().enumerate() {
         progress(i, files.len());
         if !chosen[i].contains(&true) {
@@ -145,6 +146,22 @@ pub fn load_split(
         if shard.offsets != indexes[i].offsets {
             bail!("shard {} changed while loading", file.display());
         }
+        let builder = match &mut builder {
+            Some(b) if b.order != shard.order => bail!(
+                "shard {} holds the sensors ({}), the split's earlier shards ({}): a split is one \
+                 sensor set",
+                file.display(),
+                shard.order.mask().names(),
+                b.order.mask().names()
+            ),
+            Some(b) => b,
+            None => {
+                let mut b = Builder::new(method, shard.order)
+                    .with_context(|| format!("shard {}", file.display()))?;
+                b.reserve(frames);
+                builder.insert(b)
+            }
+        };
         if let Some(meta) = shard.metadata.clone() {
             set.shard_metadata.push(meta);
         }
@@ -161,6 +178,12 @@ pub fn load_split(
         }
     }
     progress(files.len(), files.len());
+    let builder = match builder {
+        Some(b) => b,
+        // Nothing chosen (every sequence too short): empty arrays of the six-site sizes.
+        None => Builder::new(method, InputOrder::six())?,
+    };
+    set.order = builder.order;
     set.arrays = builder.arrays;
     Ok(set)
 }
@@ -241,6 +264,10 @@ pub struct Shard<'a> {
     orientation: Vec<f32>,
     accel: Vec<f32>,
     gyro: Vec<f32>,
+    /// The shard's sensors in the networks' order.
+    pub order: InputOrder,
+    /// Per input index, the sensor's index along the shard's sensor axis (wire slot order).
+    column: [usize; imuflow_body::MAX_SITES],
     pose: Vec<f32>,
     root: Vec<f32>,
     joints: Vec<f32>,
@@ -270,19 +297,36 @@ impl<'a> Shard<'a> {
             .as_ref()
             .and_then(|m| m.get("imuflow"))
             .and_then(|s| serde_json::from_str(s).ok());
-        // Shards of another sensor set hold other IMU tensors; say so before their shapes do.
-        if let Some(sensors) = metadata
+        // The sites the IMU tensors hold, in wire slot order (shards written before sensor sets
+        // have no `sensors`: the six).
+        let names: Vec<String> = match metadata
             .as_ref()
             .and_then(|m: &serde_json::Value| m.get("sensors"))
         {
-            let six = serde_json::json!(imuflow_body::sensor_set::six_site_names());
-            if *sensors != six {
-                bail!(
-                    "the shard was built for the sensors {sensors}; `imuflow train` trains the \
-                     six-site set's networks ({six}) only, so far"
-                );
-            }
+            Some(sensors) => serde_json::from_value(sensors.clone())
+                .with_context(|| format!("metadata `sensors` {sensors} is not a list of sites"))?,
+            None => imuflow_body::sensor_set::six_site_names(),
+        };
+        let sites = names
+            .iter()
+            .map(|n| {
+                imuflow_body::Imu::from_name(n)
+                    .with_context(|| format!("metadata `sensors` names '{n}', not a site"))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let order = InputOrder::of(imuflow_body::SiteMask::of(sites.iter().copied()))
+            .with_context(|| {
+                format!(
+                    "the shard's sensors ({}) lack the pelvis, the networks' root",
+                    names.join(", ")
+                )
+            })?;
+        // Where each of the networks' sensors is along the shard's sensor axis.
+        let mut column = [0usize; imuflow_body::MAX_SITES];
+        for (i, site) in order.sites().enumerate() {
+            column[i] = sites.iter().position(|s| *s == site).unwrap_or(0);
         }
+        let n = sites.len();
         let st = SafeTensors::deserialize(bytes).context("safetensors")?;
         let f32s = |name: &str, per_frame: usize| -> anyhow::Result<Vec<f32>> {
             let t = st
@@ -304,9 +348,11 @@ impl<'a> Shard<'a> {
             })
             .collect();
         let shard = Shard {
-            orientation: f32s("imu_orientation", 54)?,
-            accel: f32s("imu_free_accel", 18)?,
-            gyro: f32s("imu_angular_velocity", 18)?,
+            orientation: f32s("imu_orientation", 9 * n)?,
+            accel: f32s("imu_free_accel", 3 * n)?,
+            gyro: f32s("imu_angular_velocity", 3 * n)?,
+            order,
+            column,
             pose: f32s("pose_local", 216)?,
             root: f32s("root_position", 3)?,
             joints: f32s("joint_position", 72)?,
@@ -332,12 +378,15 @@ impl<'a> Shard<'a> {
         self.metadata.as_ref()
     }
 
+    /// Frame `f`'s sensors in the networks' order.
     pub fn imu(&self, f: usize) -> ImuInput {
-        let mut imu = ImuInput::default();
-        for i in 0..6 {
-            let o = f * 54 + i * 9;
+        let n = self.order.len();
+        let mut imu = ImuInput::of(self.order);
+        for i in 0..n {
+            let c = self.column[i];
+            let o = f * 9 * n + c * 9;
             imu.orientation[i].copy_from_slice(&self.orientation[o..o + 9]);
-            let v = f * 18 + i * 3;
+            let v = f * 3 * n + c * 3;
             imu.acceleration[i].copy_from_slice(&self.accel[v..v + 3]);
             imu.angular_velocity[i].copy_from_slice(&self.gyro[v..v + 3]);
         }
@@ -372,6 +421,8 @@ impl<'a> Shard<'a> {
 
 struct Builder {
     method: Method,
+    /// The sensors of the inputs, in the networks' order.
+    order: InputOrder,
     /// The body model's tables, for the sequences synthesized on other statures.
     params: BodyParams,
     body: BodyModel,
@@ -412,14 +463,22 @@ pub fn from_to(a: [f32; 3], b: [f32; 3]) -> Mat3 {
 }
 
 impl Builder {
-    fn new(method: Method) -> anyhow::Result<Builder> {
+    fn new(method: Method, order: InputOrder) -> anyhow::Result<Builder> {
+        if !method.takes_sites(order.len()) {
+            bail!(
+                "{}'s networks take the six-site set only; the shards hold ({}) (PIP's networks \
+                 train for any set with the pelvis)",
+                method.name(),
+                order.mask().names()
+            );
+        }
         let params = BodyParams::builtin().context("built-in body model")?;
         // The dataset builder's subject (tools/dataset/README.md: 1.75 m, 70 kg).
         let body = BodyModel::new(&params, 1.75, 70.0).context("body model")?;
         let dims: &[(&'static str, usize)] = match method {
             Method::Pip => &[
-                ("imu", PIP_INPUT),
-                ("leaf", 15),
+                ("imu", pip_input_len(order.len())),
+                ("leaf", 3 * (order.len() - 1)),
                 ("full", 69),
                 ("r6d", 90),
                 ("vel", 72),
@@ -443,6 +502,7 @@ impl Builder {
         let arrays = dims.iter().map(|&(n, d)| (n, Array::new(d))).collect();
         Ok(Builder {
             method,
+            order,
             params,
             body,
             resized: None,
@@ -492,6 +552,7 @@ impl Builder {
         self.use_body(stature_m)?;
         let mut fk = FkData::new();
         let mut imu_pos = [Vector3::zeros(); 6];
+        let leaf_joints = self.order.leaf_joints();
         for f in start..end {
             let g = shard.globals(f);
             let root = g[0];
@@ -516,10 +577,10 @@ impl Builder {
                 .collect();
             match self.method {
                 Method::Pip => {
-                    let mut x = [0.0; PIP_INPUT];
+                    let mut x = vec![0.0; pip_input_len(imu.order.len())];
                     pip_input(&imu, &mut x);
                     self.put("imu", &x);
-                    let leaf: Vec<f32> = LEAF_JOINTS.iter().flat_map(|j| rel(j.index())).collect();
+                    let leaf: Vec<f32> = leaf_joints.iter().flat_map(|j| rel(j.index())).collect();
                     self.put("leaf", &leaf);
                     self.put("full", &full);
                     self.put("r6d", &r6);

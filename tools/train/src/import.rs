@@ -36,14 +36,14 @@ pub fn read_checkpoint(
         tensors.insert(name, t);
     }
     // Builds every net: names each missing, misshapen or foreign tensor.
-    nets_from_tensors(method, &tensors)?;
+    nets_from_tensors(method, &tensors, 6)?;
     Ok(tensors)
 }
 
 /// Convert `input` (PyTorch) to `output` (our safetensors with metadata).
 pub fn import_checkpoint(method: Method, input: &Path, output: &Path) -> anyhow::Result<()> {
     let tensors = read_checkpoint(method, input)?;
-    let nets = nets_from_tensors(method, &tensors)?;
+    let nets = nets_from_tensors(method, &tensors, 6)?;
     let mut named: Vec<(String, Tensor)> = tensors.into_iter().collect();
     named.sort_by(|a, b| a.0.cmp(&b.0));
     let metadata = WeightsMetadata {

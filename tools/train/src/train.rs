@@ -528,7 +528,21 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
     if options.device != TrainDevice::Cpu {
         eprintln!("training on {}", options.device);
     }
-    let specs = method.specs(options.hidden, options.layers);
+    if val_set.order != train_set.order {
+        bail!(
+            "the train split holds the sensors ({}), the validation split ({}): rebuild the dataset",
+            train_set.order.mask().names(),
+            val_set.order.mask().names()
+        );
+    }
+    if !train_set.order.is_six() {
+        eprintln!(
+            "  sensors: ({}), {} network inputs",
+            train_set.order.mask().names(),
+            imuflow_kinematics::features::pip_input_len(train_set.order.len())
+        );
+    }
+    let specs = method.specs(options.hidden, options.layers, train_set.order.len());
     let mut params = Vec::new();
     let mut init_rng = StdRng::seed_from_u64(options.seed ^ 0x1417);
     for spec in &specs {
@@ -951,7 +965,12 @@ fn export(
         format: weights::FORMAT.to_owned(),
         method: options.method,
         nets: specs.to_vec(),
-        normalization: weights::normalization(options.method).to_owned(),
+        normalization: if train_set.order.is_six() {
+            weights::normalization(options.method)
+        } else {
+            weights::PIP_SET_NORMALIZATION
+        }
+        .to_owned(),
         provenance: serde_json::json!({
             "trainer": format!("imuflow train (candle, {})", options.device),
             "data": options.data.display().to_string(),
@@ -975,7 +994,12 @@ fn export(
         licence:
             "CC BY-NC 4.0, inherited from the Bandai-Namco-Research-Motiondataset it was trained on"
                 .to_owned(),
-        sensors: imuflow_body::sensor_set::six_site_names(),
+        sensors: train_set
+            .order
+            .mask()
+            .sites()
+            .map(|s| s.name().to_owned())
+            .collect(),
     };
     weights::save(&options.out, &tensors, &metadata)
 }

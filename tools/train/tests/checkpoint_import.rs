@@ -105,7 +105,7 @@ fn missing_and_misshapen_tensors_are_named() {
     let mut tensors = read_checkpoint(Method::Pip, &fixture("pip-small.pt")).unwrap();
     let good = tensors.clone();
     tensors.remove("rnn3.rnn.bias_hh_l1");
-    let err = nets_from_tensors(Method::Pip, &tensors)
+    let err = nets_from_tensors(Method::Pip, &tensors, 6)
         .err()
         .unwrap()
         .to_string();
@@ -119,7 +119,7 @@ fn missing_and_misshapen_tensors_are_named() {
         "rnn2.linear1.weight".into(),
         Tensor::zeros((12, 70), candle_core::DType::F32, &Device::Cpu).unwrap(),
     );
-    let err = nets_from_tensors(Method::Pip, &tensors)
+    let err = nets_from_tensors(Method::Pip, &tensors, 6)
         .err()
         .unwrap()
         .to_string();

@@ -123,7 +123,7 @@ fn training_lowers_the_loss_resumes_and_exports_loadable_weights() {
     // Standing still in the T-pose: every bone's R_MB is the identity, no acceleration or rotation.
     let identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
     let still = imuflow_kinematics::features::ImuInput {
-        orientation: [identity; 6],
+        orientation: [identity; imuflow_body::MAX_SITES],
         ..Default::default()
     };
     let estimate = streamer.step(&still).unwrap();
@@ -181,6 +181,95 @@ fn training_lowers_the_loss_resumes_and_exports_loadable_weights() {
     let err = format!("{:#}", train(&mismatched).unwrap_err());
     assert!(
         err.contains("--init-weights") && err.contains("rnn1"),
+        "{err}"
+    );
+}
+
+/// A lower-body set's PIP networks: `dataset build --sensors lower-body` shards train nets whose
+/// inputs are the set's five sensors (60 inputs, four leaf joints), the weights record the set,
+/// and the streaming inference runs them, the joints the set does not observe at rest.
+/// GlobalPose's networks, six-site only, are refused on those shards by name.
+#[test]
+fn a_lower_body_sets_pip_networks_train_and_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = input_clips(dir.path());
+    let data = dir.path().join("dataset");
+    let mut build = imuflow_dataset::BuildOptions::new(&input, &data);
+    build.progress = false;
+    build.sensors = imuflow_body::SensorSet::builtin("lower-body").unwrap();
+    imuflow_dataset::build(&build).unwrap();
+    let run = TrainOptions {
+        out: dir.path().join("pip-legs.safetensors"),
+        ..options(&data, dir.path(), 1)
+    };
+    train(&run).unwrap();
+    let weights = Weights::load(&run.out, Method::Pip).unwrap();
+    assert_eq!(
+        weights.metadata.sensors,
+        [
+            "left_lower_leg",
+            "right_lower_leg",
+            "pelvis",
+            "left_upper_leg",
+            "right_upper_leg"
+        ]
+    );
+    // 5 sensors × (3 + 9) inputs; rnn1 predicts the knees and ankles (4 × 3).
+    assert_eq!(weights.nets[0].spec.input, 60);
+    assert_eq!(weights.nets[0].spec.output, 12);
+    assert_eq!(weights.nets[1].spec.input, 12 + 60);
+    let legs = imuflow_body::SensorSet::builtin("lower-body").unwrap();
+    weights.metadata.check_sensors(&legs).unwrap();
+    assert!(
+        weights
+            .metadata
+            .check_sensors(&imuflow_body::SensorSet::six())
+            .is_err()
+    );
+
+    let order =
+        imuflow_kinematics::features::InputOrder::of(legs.mask()).expect("the set has the pelvis");
+    let mut streamer = Streamer::new(weights, Pose::t_pose(Vector3::zeros())).unwrap();
+    // A six-site input is refused naming both sets.
+    let identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    let six = imuflow_kinematics::features::ImuInput {
+        orientation: [identity; imuflow_body::MAX_SITES],
+        ..Default::default()
+    };
+    let err = streamer.step(&six).unwrap_err().to_string();
+    assert!(
+        err.contains("left_forearm") && err.contains("left_upper_leg"),
+        "{err}"
+    );
+    let mut still = imuflow_kinematics::features::ImuInput::of(order);
+    still.orientation = [identity; imuflow_body::MAX_SITES];
+    let estimate = streamer.step(&still).unwrap();
+    let observed = legs.observed_joints();
+    for j in imuflow_body::JointId::all() {
+        if observed & (1 << j.index()) == 0 {
+            assert!(
+                estimate.pose[j.index()].angle() < 1e-12,
+                "{} is not observed but turned",
+                j.name()
+            );
+        }
+    }
+    assert!(
+        estimate
+            .joint_position
+            .iter()
+            .all(|v| v.iter().all(|x| x.is_finite()))
+    );
+
+    let globalpose = TrainOptions {
+        method: Method::GlobalPose,
+        checkpoint_dir: dir.path().join("ckpt-gp"),
+        out: dir.path().join("gp-legs.safetensors"),
+        ..options(&data, dir.path(), 1)
+    };
+    let err = format!("{:#}", train(&globalpose).unwrap_err());
+    assert!(
+        err.contains("six-site set only") && err.contains("left_upper_leg"),
         "{err}"
     );
 }
@@ -293,7 +382,7 @@ fn resized_sequences_get_imu_positions_of_their_own_body() {
 }
 
 #[test]
-fn a_dataset_of_another_sensor_set_is_refused_naming_it() {
+fn a_lower_body_shard_enters_the_networks_with_the_pelvis_last() {
     let input = tempfile::tempdir().unwrap();
     std::fs::copy(fixture(), input.path().join("walk_01.bvh")).unwrap();
     let out = tempfile::tempdir().unwrap();
@@ -307,12 +396,35 @@ fn a_dataset_of_another_sensor_set_is_refused_naming_it() {
         .find(|p| p.extension().is_some_and(|e| e == "safetensors"))
         .unwrap();
     let bytes = std::fs::read(&shard).unwrap();
-    let err = imuflow_train::data::Shard::parse(&bytes)
-        .err()
-        .unwrap()
-        .to_string();
-    assert!(
-        err.contains("\"left_upper_leg\"") && err.contains("six-site set's networks"),
-        "{err}"
+    let parsed = imuflow_train::data::Shard::parse(&bytes).unwrap();
+    let names: Vec<&str> = parsed.order.sites().map(|s| s.name()).collect();
+    assert_eq!(
+        names,
+        [
+            "left_lower_leg",
+            "right_lower_leg",
+            "left_upper_leg",
+            "right_upper_leg",
+            "pelvis"
+        ]
     );
+    // The shard's sensor axis is in wire slot order (left lower leg, right lower leg, pelvis,
+    // left upper leg, right upper leg): the networks' pelvis is the shard's third column, their
+    // left upper leg its fourth.
+    let tensors = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let raw = tensors.tensor("imu_orientation").unwrap();
+    assert_eq!(raw.shape()[1..], [5, 3, 3]);
+    let column = |f: usize, c: usize| -> Vec<f32> {
+        let o = (f * 45 + c * 9) * 4;
+        raw.data()[o..o + 36]
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+            .collect()
+    };
+    for f in [0, 100] {
+        let imu = parsed.imu(f);
+        assert_eq!(imu.orientation[4].to_vec(), column(f, 2));
+        assert_eq!(imu.orientation[2].to_vec(), column(f, 3));
+        assert_eq!(imu.orientation[0].to_vec(), column(f, 0));
+    }
 }
