@@ -361,6 +361,13 @@ impl Table {
 fn add_motion_rows(table: &mut Table, k: usize, s: &MotionScores, with_truth: bool) {
     if with_truth {
         table.set("SIP error", "deg", true, k, s.sip_error_deg);
+        table.set(
+            "leg angle error (hips, knees)",
+            "deg",
+            true,
+            k,
+            s.leg_angle_error_deg,
+        );
         table.set("angle error", "deg", true, k, s.angle_error_deg);
         table.set(
             "joint position error",

@@ -61,6 +61,26 @@ pub fn sip_error_deg(predicted: &FkData, truth: &FkData) -> f64 {
     )
 }
 
+/// The legs' joints whose global rotation [`leg_angle_error_deg`] scores: both hips (SIP's lower
+/// half) and both knees.
+pub const LEG_JOINTS: [JointId; 4] = [
+    JointId::LEFT_HIP,
+    JointId::RIGHT_HIP,
+    JointId::LEFT_KNEE,
+    JointId::RIGHT_KNEE,
+];
+
+/// Leg angle error (degrees), imuflow's own: SIP's measure (the mean global angle error) over the
+/// hips and knees, so that a set that senses only the legs is scored on what it estimates, and a
+/// six-site estimate on the same joints.
+pub fn leg_angle_error_deg(predicted: &FkData, truth: &FkData) -> f64 {
+    mean_angle_error_deg(
+        &predicted.world_from_joint,
+        &truth.world_from_joint,
+        &LEG_JOINTS,
+    )
+}
+
 /// Sensor-bone error (degrees): mean over the six sensors of the angle between the estimate's
 /// global orientation of the bone a sensor sits on (`IMU_JOINTS`: forearms, lower legs, head,
 /// pelvis) and that sensor's calibrated measurement `R_MB`. How far the pose contradicts its own
@@ -320,6 +340,39 @@ mod tests {
         assert_relative_eq!(
             sensor_bone_error_deg(&fk, &measured),
             want.to_degrees(),
+            epsilon = 1e-9
+        );
+    }
+    /// A left knee bent 0.4 rad more than the truth: the left knee's global rotation (and the
+    /// ankle's, not scored) 0.4 rad off, the hips not at all; a hip turned 0.2 rad turns its knee
+    /// with it: (0.2 + 0.2 + 0.4) / 4 once both.
+    #[test]
+    fn leg_angle_error_is_sips_measure_over_hips_and_knees() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let truth = Pose::t_pose(Vector3::zeros());
+        let mut bent = truth.clone();
+        bent.parent_from_joint[JointId::LEFT_KNEE.index()] =
+            Rotation3::from_axis_angle(&Vector3::x_axis(), 0.4);
+        let (mut fk_truth, mut fk) = (FkData::new(), FkData::new());
+        forward_kinematics(&body.skeleton, &truth, &mut fk_truth);
+        forward_kinematics(&body.skeleton, &bent, &mut fk);
+        assert_relative_eq!(
+            leg_angle_error_deg(&fk, &fk_truth),
+            (0.4f64 / 4.0).to_degrees(),
+            epsilon = 1e-9
+        );
+        bent.parent_from_joint[JointId::RIGHT_HIP.index()] =
+            Rotation3::from_axis_angle(&Vector3::z_axis(), 0.2);
+        forward_kinematics(&body.skeleton, &bent, &mut fk);
+        assert_relative_eq!(
+            leg_angle_error_deg(&fk, &fk_truth),
+            (0.8f64 / 4.0).to_degrees(),
+            epsilon = 1e-9
+        );
+        // SIP sees only the hip of the two.
+        assert_relative_eq!(
+            sip_error_deg(&fk, &fk_truth),
+            (0.2f64 / 4.0).to_degrees(),
             epsilon = 1e-9
         );
     }

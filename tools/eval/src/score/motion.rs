@@ -12,8 +12,8 @@ use crate::limbs::LimbErrors;
 use crate::metrics::{
     GLOBALPOSE_IGNORED_JOINTS, apply_ignored_joints, cumulative_translation_error_m,
     foot_skating_mps, global_angle_error_deg, ground_penetration_m, jitter_km_per_s3,
-    joint_position_error_m, per_joint_angle_error_deg, per_joint_position_error_m,
-    root_jitter_km_per_s3, sip_error_deg, translation_drift_percent,
+    joint_position_error_m, leg_angle_error_deg, per_joint_angle_error_deg,
+    per_joint_position_error_m, root_jitter_km_per_s3, sip_error_deg, translation_drift_percent,
 };
 
 /// A foot joint at most this high above its rest clearance is in contact (the metrics module's
@@ -60,6 +60,9 @@ pub struct MotionScores {
     pub sip_error_deg: Option<f64>,
     /// Global angle error, degrees: mean over all 24 joints (protocol G).
     pub angle_error_deg: Option<f64>,
+    /// Leg angle error, degrees: SIP's measure over the hips and knees
+    /// ([`crate::metrics::leg_angle_error_deg`]; protocol G), what a lower-body set estimates.
+    pub leg_angle_error_deg: Option<f64>,
     /// Joint position error, cm: mean over all 24 joints, root-aligned (protocol G).
     pub joint_position_error_cm: Option<f64>,
     /// Knee flexion error, degrees: mean |estimate's flexion − truth's| over both knees
@@ -221,7 +224,7 @@ fn protocol_g(pose: &Pose) -> Pose {
 /// SIP, angle and joint position errors: means, per frame and per joint.
 fn pose_errors(paired: &[(&Usable, &Usable)], body: &BodyModel, scores: &mut MotionScores) {
     let (mut fk_est, mut fk_true) = (FkData::new(), FkData::new());
-    let (mut sip, mut angle, mut joint) = (0.0, 0.0, 0.0);
+    let (mut sip, mut legs, mut angle, mut joint) = (0.0, 0.0, 0.0, 0.0);
     let mut per_joint = PerJoint::default();
     let mut limbs = LimbErrors::default();
     for (e, t) in paired {
@@ -232,6 +235,7 @@ fn pose_errors(paired: &[(&Usable, &Usable)], body: &BodyModel, scores: &mut Mot
         let frame_angle = global_angle_error_deg(&fk_est, &fk_true);
         let frame_joint_cm = 100.0 * joint_position_error_m(&fk_est, &fk_true);
         sip += sip_error_deg(&fk_est, &fk_true);
+        legs += leg_angle_error_deg(&fk_est, &fk_true);
         angle += frame_angle;
         joint += frame_joint_cm;
         scores.per_frame.seq.push(e.seq);
@@ -249,6 +253,7 @@ fn pose_errors(paired: &[(&Usable, &Usable)], body: &BodyModel, scores: &mut Mot
     }
     let n = paired.len() as f64;
     scores.sip_error_deg = Some(sip / n);
+    scores.leg_angle_error_deg = Some(legs / n);
     scores.angle_error_deg = Some(angle / n);
     scores.joint_position_error_cm = Some(joint / n);
     let [left_knee, right_knee, left_elbow, right_elbow] = limbs.means();
