@@ -103,6 +103,54 @@ params = { path = "{dir}/b.mcap" }
         stderr.contains("variant 'a': has no single motion output to compare"),
         "{stderr}"
     );
+    // Variants of two sensor sets: one run synthesizes one set.
+    let legs = sb.graph(
+        "legs.toml",
+        r#"
+name = "legs"
+rate_hz = 60
+sensors = "lower-body"
+[stages.source]
+kind = "test-source"
+[stages.record]
+kind = "recorder"
+inputs = { imu = "source.imu" }
+params = { path = "{dir}/legs.mcap" }
+"#,
+    );
+    let out = sb.run(&["compare", a, legs.to_str().expect("utf8"), "--print-graph"]);
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = text(&out.stderr);
+    assert!(
+        stderr.contains("variant 'legs': its sensor set is `lower-body`, 'a''s `six`"),
+        "{stderr}"
+    );
+    // Variants of one set other than the six: the combined graph names it.
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/examples/lower-body.toml");
+    let ablation = sb.graph(
+        "legs-ab.toml",
+        &format!(
+            r#"
+name = "legs-physics"
+description = "two optimizers on the lower-body example"
+[[variant]]
+name = "integrate"
+graph = "{0}"
+[[variant]]
+name = "pip"
+graph = "{0}"
+set = ["stages.opt.params.method=pip"]
+"#,
+            example.display()
+        ),
+    );
+    let out = sb.run(&["compare", ablation.to_str().expect("utf8"), "--print-graph"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stdout).contains("\nsensors = \"lower-body\"\n"),
+        "{}",
+        text(&out.stdout)
+    );
 }
 
 #[test]

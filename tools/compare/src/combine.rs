@@ -151,6 +151,9 @@ pub fn combine(
     );
     let _ = writeln!(text, "name = {}", quote(name));
     let _ = writeln!(text, "rate_hz = {}", float(first.graph.rate_hz));
+    if first.graph.sensors != imuflow_graph::graph::DEFAULT_SENSORS {
+        let _ = writeln!(text, "sensors = {}", quote(&first.graph.sensors));
+    }
     if first.graph.mode == imuflow_graph::Mode::Live {
         let _ = writeln!(text, "mode = \"live\"");
     }
@@ -583,6 +586,16 @@ fn check_comparable(first: &Variant, v: &Variant) -> Result<(), CombineError> {
         return Err(not_comparable(
             &v.name,
             format!("its mode differs from '{}' (offline vs live)", first.name),
+        ));
+    }
+    if v.graph.sensors != first.graph.sensors {
+        return Err(not_comparable(
+            &v.name,
+            format!(
+                "its sensor set is `{}`, '{}''s `{}`; variants of one run share a set (compare \
+                 each set's variants in a run of their own on the same --data and --split)",
+                v.graph.sensors, first.name, first.graph.sensors
+            ),
         ));
     }
     Ok(())
