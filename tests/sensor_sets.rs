@@ -526,3 +526,83 @@ params = { path = "{dir}/xio.mcap" }
     }
     assert_clean(&sb);
 }
+
+/// The shipped lower-body networks (`models/lower-body/pip.safetensors`) with PIP's physics on the
+/// real lower-body exports: the DOT session calibrated from its stand, the x-IMU3 excerpt from its
+/// walk. Estimated from the calibration on, the pelvis at standing height (physics holds the
+/// feet on the floor), the body near where it stood.
+#[test]
+fn the_lower_body_exports_run_end_to_end_with_the_shipped_lower_body_networks() {
+    let weights = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/lower-body/pip.safetensors");
+    for (folder, layout, calibration, max_invalid, max_away_m) in [
+        (
+            "movella-dot-lower-body",
+            "movella-dot.toml",
+            r#"method = "tpose", pose = "n", frame = "z-up""#,
+            // The fusion's start-up and the left femur's missing last 0.5 s.
+            36,
+            0.5,
+        ),
+        (
+            "x-io-lower-body",
+            "x-imu3.toml",
+            r#"method = "walking", frame = "z-up", pose = "n""#,
+            // The fusion's start-up and the packets lost at its end.
+            40,
+            1.5,
+        ),
+    ] {
+        let sb = Sandbox::new("sets-real-pip");
+        let graph = export_graph(
+            &sb,
+            folder,
+            layout,
+            "",
+            &format!(
+                r#"[stages.calib]
+kind = "calibration"
+inputs = {{ imu = "fusion.imu" }}
+params = {{ {calibration} }}
+[stages.kin]
+kind = "kinematics"
+inputs = {{ imu = "calib.body_imu" }}
+params = {{ net = "pip", weights = "{}" }}
+[stages.opt]
+kind = "optimizer"
+inputs = {{ kin = "kin.kinematics" }}
+params = {{ method = "pip" }}
+[stages.record]
+kind = "recorder"
+inputs = {{ motion = "opt.motion" }}
+params = {{ path = "{{dir}}/real.mcap" }}
+"#,
+                weights.display()
+            ),
+        );
+        let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+        let log = text(&out.stderr);
+        assert!(out.status.success(), "{folder}: stderr:\n{log}");
+        let motion: Vec<MotionFrame> = frames_of(&sb.path("real.mcap"), "opt.motion");
+        let estimated: Vec<&MotionFrame> = motion
+            .iter()
+            .filter(|f| !f.header.has(flags::INVALID))
+            .collect();
+        assert!(
+            estimated.len() + max_invalid >= motion.len(),
+            "{folder}: {} of {} estimated",
+            estimated.len(),
+            motion.len()
+        );
+        let start = estimated[0].root_position_m;
+        for f in &estimated {
+            let p = f.root_position_m;
+            assert!((0.75..1.1).contains(&p[1]), "{folder}: {p:?}");
+            let away = ((p[0] - start[0]).powi(2) + (p[2] - start[2]).powi(2)).sqrt();
+            assert!(
+                away < max_away_m,
+                "{folder}: {p:?} is {away} m from {start:?}"
+            );
+        }
+        assert_clean(&sb);
+    }
+}

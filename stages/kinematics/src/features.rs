@@ -159,6 +159,24 @@ impl InputOrder {
         self.sites().all(|s| self.index_of(s.mirror()).is_some())
     }
 
+    /// Whether the set senses the upper bone of every knee and elbow it observes (the thigh above
+    /// a sensed shank, the upper arm above a sensed forearm), so that those joints are measured,
+    /// not estimated; never for the six-site set, which senses the forearms and shanks only.
+    pub fn measures_every_observed_limb(&self) -> bool {
+        let observed = self.mask().observed_joints();
+        let sensed = |joint: JointId| self.sites().any(|s| s.joint() == joint);
+        let limbs = [
+            JointId::LEFT_KNEE,
+            JointId::RIGHT_KNEE,
+            JointId::LEFT_ELBOW,
+            JointId::RIGHT_ELBOW,
+        ];
+        limbs
+            .into_iter()
+            .filter(|limb| observed & (1 << limb.index()) != 0)
+            .all(|limb| limb.parent().is_some_and(sensed))
+    }
+
     /// Whether this is the six-site set's order.
     pub fn is_six(&self) -> bool {
         *self == InputOrder::six()
@@ -407,6 +425,9 @@ mod tests {
         );
         assert_eq!(legs.root(), 4);
         assert!(legs.is_symmetric() && !legs.is_six());
+        // The thighs above the shanks are sensed: the knees are measured; the six's are not.
+        assert!(legs.measures_every_observed_limb());
+        assert!(!InputOrder::six().measures_every_observed_limb());
         // A shank's leaf is its ankle, a thigh's its knee (SMPL: ankles 7/8, knees 4/5); the six
         // keep PIP's own (ankles, neck, wrists).
         assert_eq!(

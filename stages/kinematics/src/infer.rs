@@ -595,14 +595,29 @@ impl Streamer {
         if let Some(partner) = &mut self.partner {
             estimate = mirror::average(&estimate, &partner.step(imu)?);
         }
-        self.limb_joints
-            .impose(&mut estimate.pose, &estimate.joint_position, &self.body);
+        self.impose_limb_joints(&mut estimate.pose, &estimate.joint_position);
         if self.method == Method::GlobalPose {
             // GlobalPose's joint positions are its output pose's (forward kinematics).
             let positions = self.positions_in_root_frame(&estimate.pose);
             estimate.joint_position = world_positions(&positions, &estimate.pose[0]);
         }
         Ok(estimate)
+    }
+
+    /// The knees and elbows as [`LimbJoints`] allow, where the networks estimate them: a set
+    /// that measures the upper bone of every limb it observes (a lower-body set: thighs and
+    /// shanks; a full suit) has its knees and elbows measured, and a hinge imposed on them would
+    /// only move its thighs off their sensors (the lower body after one epoch, 40 test clips:
+    /// hips and knees 4.3° from the truth with the hinge, 2.6° without).
+    fn impose_limb_joints(
+        &self,
+        pose: &mut [Rotation3<f64>; NUM_JOINTS],
+        positions: &[Vector3<f64>; NUM_JOINTS],
+    ) {
+        if self.order.measures_every_observed_limb() {
+            return;
+        }
+        self.limb_joints.impose(pose, positions, &self.body);
     }
 
     /// One frame of this stream's own nets.
@@ -651,8 +666,7 @@ impl Streamer {
         if let SensorBones::Measured { tolerance_rad } = self.sensor_bones {
             impose_measured_bones(&mut pose, imu, tolerance_rad);
         }
-        self.limb_joints
-            .impose(&mut pose, &joint_position, &self.body);
+        self.impose_limb_joints(&mut pose, &joint_position);
         let mut joint_velocity = [Vector3::zeros(); NUM_JOINTS];
         for (j, v) in joint_velocity.iter_mut().enumerate() {
             // Reference §2.2: v_j = 3·R_root·out_j (m/s).
@@ -728,8 +742,7 @@ impl Streamer {
             impose_measured_bones(&mut pose, imu, tolerance_rad);
         }
         // iknet.net1's joint positions, in the frame of the root its pose is assembled on.
-        self.limb_joints
-            .impose(&mut pose, &world_positions(&ik1, &root_c), &self.body);
+        self.impose_limb_joints(&mut pose, &world_positions(&ik1, &root_c));
         // pRJ recomputed by FK of the pose with the root at identity (reference §2.4).
         let prj = self.positions_in_root_frame(&pose);
         let rrj: Vec<f32> = REDUCED_JOINTS
@@ -823,19 +836,28 @@ fn reroot(pose: &mut [Rotation3<f64>; NUM_JOINTS], root: &Rotation3<f64>) {
 /// Turns each bone that carries a non-root sensor onto the cone of half-angle `tolerance_rad`
 /// around the sensor's calibrated orientation `R_MB` (in M) when it lies outside it (the smallest
 /// rotation that does: about the axis of the difference); a bone inside the cone is left alone.
-/// Only the bones' local rotations change, against their parents' estimated global orientation;
-/// their children (wrists, hands, ankles, feet: identity in the networks' pose) follow them.
+/// Only the bones' local rotations change, against their parents' global orientation; their
+/// children (wrists, hands, ankles, feet: identity in the networks' pose) follow them. A set that
+/// senses a bone and one below it (a thigh and its shank) has them turned parent first, each
+/// against its parent as already turned, so that both end on their sensors.
 pub fn impose_measured_bones(
     pose: &mut [Rotation3<f64>; NUM_JOINTS],
     imu: &ImuInput,
     tolerance_rad: f64,
 ) {
-    let global = global_rotations(pose);
-    for (sensor, site) in imu.order.sites().enumerate() {
-        let joint = site.joint();
+    let mut sensors: Vec<(usize, JointId)> = imu
+        .order
+        .sites()
+        .enumerate()
+        .map(|(sensor, site)| (sensor, site.joint()))
+        .collect();
+    // Joint indices number parents before their children.
+    sensors.sort_by_key(|&(_, joint)| joint.index());
+    for (sensor, joint) in sensors {
         let Some(parent) = joint.parent() else {
             continue; // the root: each method sets its own
         };
+        let global = global_rotations(pose);
         let estimated = global[joint.index()];
         let measured = sensor_rotation(&imu.orientation[sensor]);
         if let Some(turned) = toward_within(&estimated, &measured, tolerance_rad) {
@@ -1159,6 +1181,35 @@ pub(crate) mod tests {
         let wrist = JointId::LEFT_WRIST;
         let want = some_rotation(40) * some_rotation(wrist.index());
         assert!((after.world_from(wrist).matrix() - want.matrix()).norm() < 1e-6);
+    }
+
+    /// A lower-body set senses the thighs and the shanks below them: every sensed bone ends on
+    /// its sensor, the shanks too after their thighs turned.
+    #[test]
+    fn measured_bones_of_a_chain_all_end_on_their_sensors() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let legs = imuflow_body::SiteMask::of([
+            Imu::Pelvis,
+            Imu::LeftLowerLeg,
+            Imu::RightLowerLeg,
+            Imu::LeftUpperLeg,
+            Imu::RightUpperLeg,
+        ]);
+        let order = InputOrder::of(legs).unwrap();
+        let mut pose = some_pose();
+        let mut imu = ImuInput::of(order);
+        for sensor in 0..order.len() {
+            imu.orientation[sensor] = row_major(&some_rotation(40 + sensor));
+        }
+        impose_measured_bones(&mut pose.parent_from_joint, &imu, 0.0);
+        let mut after = FkData::new();
+        forward_kinematics(&body.skeleton, &pose, &mut after);
+        for (sensor, site) in order.sites().enumerate().take(order.root()) {
+            let off = (after.world_from(site.joint()).matrix()
+                - some_rotation(40 + sensor).matrix())
+            .norm();
+            assert!(off < 1e-6, "{}: {off} from its sensor", site.name());
+        }
     }
 
     #[test]
