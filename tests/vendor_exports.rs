@@ -63,6 +63,22 @@ fn xsens_mtw_walk_as_a_full_suit_from_its_sensed_bones_walks_out_and_back() {
     );
 }
 
+/// The same walk as a full suit estimated by PIP's networks trained for that set
+/// (`models/full-suit/pip.safetensors`) with PIP's physics.
+#[test]
+fn xsens_mtw_walk_as_a_full_suit_with_its_networks_walks_out_and_back() {
+    let sb = Sandbox::new("xsens-mtw-suit-pip");
+    mtw_walk_out_and_back(
+        &sb,
+        &[
+            "sensors=full-suit",
+            "stages.kin.params.net=pip",
+            "stages.kin.params.weights=models/full-suit/pip.safetensors",
+            "stages.opt.params.method=pip",
+        ],
+    );
+}
+
 /// Runs `configs/examples/xsens-mtw.toml` with `extra` overrides and checks what a person sees.
 fn mtw_walk_out_and_back(sb: &Sandbox, extra: &[&str]) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
