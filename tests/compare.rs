@@ -561,6 +561,11 @@ fn ablation_files_expand_into_variants_and_bad_ones_are_named() {
         ("nets", &["pip-nets", "globalpose-nets"][..]),
         ("calibration", &["tpose", "walking"][..]),
         ("full", &["pip", "globalpose", "no-physics"][..]),
+        (
+            "lower-body",
+            &["sensed", "pip-legs", "pip-legs-physics"][..],
+        ),
+        ("full-suit", &["sensed", "pip-suit", "pip-suit-physics"][..]),
         ("full-protocol", &["pip", "globalpose", "no-physics"][..]),
         (
             "limb-flexion",
