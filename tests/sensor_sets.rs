@@ -528,8 +528,8 @@ params = { path = "{dir}/xio.mcap" }
 }
 
 /// The shipped lower-body networks (`models/lower-body/pip.safetensors`) with PIP's physics on the
-/// real lower-body exports: the DOT session calibrated from its stand, the x-IMU3 excerpt from its
-/// walk. Estimated from the calibration on, the pelvis at standing height (physics holds the
+/// real lower-body exports: the DOT session calibrated from its stand, the x-IMU3 excerpt and
+/// OpenSense's MTw walk from their walks. Estimated from the calibration on, the pelvis at standing height (physics holds the
 /// feet on the floor), the body near where it stood.
 #[test]
 fn the_lower_body_exports_run_end_to_end_with_the_shipped_lower_body_networks() {
@@ -549,6 +549,15 @@ fn the_lower_body_exports_run_end_to_end_with_the_shipped_lower_body_networks() 
             r#"method = "walking", frame = "z-up", pose = "n""#,
             // The fusion's start-up and the packets lost at its end.
             40,
+            2.5,
+        ),
+        (
+            // OpenSense's 8 MTw, the set's five for their first 10 s (a 5 s stand, then walking).
+            "xsens-mtw-lower-body-opensense-walk",
+            "xsens-mt-manager.toml",
+            r#"method = "walking", frame = "z-up", pose = "n""#,
+            // Measured: every frame (the stand's go out calibrated).
+            0,
             2.5,
         ),
     ] {
