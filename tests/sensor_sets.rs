@@ -53,6 +53,31 @@ params = {{ {fusion_params} }}
     )
 }
 
+/// The stages after the fusion in [`export_graph`]: the calibration with `calibration` params,
+/// the kinematics with `kin` params, the optimizer's `method`, and a recorder of `record` (its
+/// inputs) into `{dir}/<file>`.
+fn estimation(calibration: &str, kin: &str, method: &str, record: &str, file: &str) -> String {
+    format!(
+        r#"[stages.calib]
+kind = "calibration"
+inputs = {{ imu = "fusion.imu" }}
+params = {{ {calibration} }}
+[stages.kin]
+kind = "kinematics"
+inputs = {{ imu = "calib.body_imu" }}
+params = {{ {kin} }}
+[stages.opt]
+kind = "optimizer"
+inputs = {{ kin = "kin.kinematics" }}
+params = {{ method = "{method}" }}
+[stages.record]
+kind = "recorder"
+inputs = {{ {record} }}
+params = {{ path = "{{dir}}/{file}" }}
+"#
+    )
+}
+
 /// The frames of `topic` in the recording at `path`, END_OF_STREAM left out.
 fn frames_of<T: imuflow_graph::frames::Frame>(path: &Path, topic: &str) -> Vec<T> {
     mcap_messages(path)
@@ -217,23 +242,13 @@ fn a_lower_body_export_runs_end_to_end_from_a_stand() {
         "movella-dot-lower-body",
         "movella-dot.toml",
         "",
-        r#"[stages.calib]
-kind = "calibration"
-inputs = { imu = "fusion.imu" }
-params = { method = "tpose", pose = "n", frame = "z-up" }
-[stages.kin]
-kind = "kinematics"
-inputs = { imu = "calib.body_imu" }
-params = { net = "sensed" }
-[stages.opt]
-kind = "optimizer"
-inputs = { kin = "kin.kinematics" }
-params = { method = "integrate" }
-[stages.record]
-kind = "recorder"
-inputs = { imu = "fusion.imu", motion = "opt.motion" }
-params = { path = "{dir}/dot.mcap" }
-"#,
+        &estimation(
+            r#"method = "tpose", pose = "n", frame = "z-up""#,
+            r#"net = "sensed""#,
+            "integrate",
+            r#"imu = "fusion.imu", motion = "opt.motion""#,
+            "dot.mcap",
+        ),
     );
     let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     let log = text(&out.stderr);
@@ -483,23 +498,13 @@ fn the_x_imu3_lower_body_excerpt_runs_end_to_end_from_its_sensed_bones() {
         "x-imu3.toml",
         // The defaults: two packets lost in a row at 50 Hz (a 60 ms gap) are filled offline.
         "",
-        r#"[stages.calib]
-kind = "calibration"
-inputs = { imu = "fusion.imu" }
-params = { method = "walking", frame = "z-up", pose = "n" }
-[stages.kin]
-kind = "kinematics"
-inputs = { imu = "calib.body_imu" }
-params = { net = "sensed" }
-[stages.opt]
-kind = "optimizer"
-inputs = { kin = "kin.kinematics" }
-params = { method = "integrate" }
-[stages.record]
-kind = "recorder"
-inputs = { motion = "opt.motion" }
-params = { path = "{dir}/xio.mcap" }
-"#,
+        &estimation(
+            r#"method = "walking", frame = "z-up", pose = "n""#,
+            r#"net = "sensed""#,
+            "integrate",
+            r#"motion = "opt.motion""#,
+            "xio.mcap",
+        ),
     );
     let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
     let log = text(&out.stderr);
@@ -567,25 +572,12 @@ fn the_lower_body_exports_run_end_to_end_with_the_shipped_lower_body_networks() 
             folder,
             layout,
             "",
-            &format!(
-                r#"[stages.calib]
-kind = "calibration"
-inputs = {{ imu = "fusion.imu" }}
-params = {{ {calibration} }}
-[stages.kin]
-kind = "kinematics"
-inputs = {{ imu = "calib.body_imu" }}
-params = {{ net = "pip", weights = "{}" }}
-[stages.opt]
-kind = "optimizer"
-inputs = {{ kin = "kin.kinematics" }}
-params = {{ method = "pip" }}
-[stages.record]
-kind = "recorder"
-inputs = {{ motion = "opt.motion" }}
-params = {{ path = "{{dir}}/real.mcap" }}
-"#,
-                weights.display()
+            &estimation(
+                calibration,
+                &format!(r#"net = "pip", weights = "{}""#, weights.display()),
+                "pip",
+                r#"motion = "opt.motion""#,
+                "real.mcap",
             ),
         );
         let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);

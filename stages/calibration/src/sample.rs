@@ -81,15 +81,12 @@ impl Sample {
             return Err(Rejection::NoSamples { phase });
         };
         for k in first.slots() {
-            let unusable: Vec<&Sample> = window
-                .iter()
-                .filter(|s| s.valid_mask & (1 << k) == 0)
-                .collect();
-            if let Some(at) = unusable.first() {
+            let mut unusable = window.iter().filter(|s| s.valid_mask & (1 << k) == 0);
+            if let Some(at) = unusable.next() {
                 return Err(Rejection::Unusable {
                     phase,
                     sensor: crate::sensor_name(k),
-                    frames: unusable.len(),
+                    frames: 1 + unusable.count(),
                     of: window.len(),
                     from_s: at.time_s - first.time_s,
                 });

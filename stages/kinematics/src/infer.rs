@@ -248,6 +248,13 @@ pub struct Streamer {
     method: Method,
     /// The sensors the nets take, in their order (the weights' set).
     order: InputOrder,
+    /// For a set other than the six, the joints its sensors do not observe, as a mask over joint
+    /// indices: set to rest in every estimate, the joint positions following; `None` for the
+    /// six-site set, whose nets' own pose those joints keep.
+    at_rest: Option<u32>,
+    /// Whether the set measures the upper bone of every limb it observes
+    /// ([`InputOrder::measures_every_observed_limb`]): no hinge is imposed then.
+    limbs_measured: bool,
     sensor_bones: SensorBones,
     /// What the knees and elbows may do.
     limb_joints: LimbJoints,
@@ -334,9 +341,13 @@ impl Streamer {
             .collect::<candle_core::Result<_>>()?;
         let method = weights.metadata.method;
         let order = crate::weights::input_order(method, weights.metadata.sites()?)?;
+        let at_rest =
+            (!order.is_six()).then(|| !order.mask().observed_joints() & ((1 << NUM_JOINTS) - 1));
         Ok(Streamer {
             method,
             order,
+            at_rest,
+            limbs_measured: order.measures_every_observed_limb(),
             sensor_bones: SensorBones::default(),
             limb_joints: LimbJoints::default(),
             backend: Backend::default(),
@@ -362,6 +373,8 @@ impl Streamer {
             Box::new(Streamer {
                 method: self.method,
                 order: self.order,
+                at_rest: self.at_rest,
+                limbs_measured: self.limbs_measured,
                 sensor_bones: self.sensor_bones,
                 limb_joints: self.limb_joints,
                 backend: self.backend,
@@ -416,6 +429,11 @@ impl Streamer {
     /// Whether the nets also run on the mirrored stream.
     pub fn mirror_ensemble(&self) -> bool {
         self.mirrored.is_some()
+    }
+
+    /// The sensors the nets take, in their order (the weights' set).
+    pub fn input_order(&self) -> InputOrder {
+        self.order
     }
 
     pub fn method(&self) -> Method {
@@ -571,9 +589,8 @@ impl Streamer {
     /// joint positions follow that pose.
     pub fn step(&mut self, imu: &ImuInput) -> anyhow::Result<Estimate> {
         let mut estimate = self.step_ensemble(imu)?;
-        if !self.order.is_six() {
-            let observed = self.order.mask().observed_joints();
-            for j in (0..NUM_JOINTS).filter(|j| observed & (1 << j) == 0) {
+        if let Some(at_rest) = self.at_rest {
+            for j in (0..NUM_JOINTS).filter(|j| at_rest & (1 << j) != 0) {
                 estimate.pose[j] = Rotation3::identity();
             }
             let positions = self.positions_in_root_frame(&estimate.pose);
@@ -614,10 +631,9 @@ impl Streamer {
         pose: &mut [Rotation3<f64>; NUM_JOINTS],
         positions: &[Vector3<f64>; NUM_JOINTS],
     ) {
-        if self.order.measures_every_observed_limb() {
-            return;
+        if !self.limbs_measured {
+            self.limb_joints.impose(pose, positions, &self.body);
         }
-        self.limb_joints.impose(pose, positions, &self.body);
     }
 
     /// One frame of this stream's own nets.
@@ -845,23 +861,26 @@ pub fn impose_measured_bones(
     imu: &ImuInput,
     tolerance_rad: f64,
 ) {
-    let mut sensors: Vec<(usize, JointId)> = imu
-        .order
-        .sites()
-        .enumerate()
-        .map(|(sensor, site)| (sensor, site.joint()))
-        .collect();
-    // Joint indices number parents before their children.
-    sensors.sort_by_key(|&(_, joint)| joint.index());
-    for (sensor, joint) in sensors {
-        let Some(parent) = joint.parent() else {
+    let mut sensor_of = [None; NUM_JOINTS];
+    for (sensor, site) in imu.order.sites().enumerate() {
+        sensor_of[site.joint().index()] = Some(sensor);
+    }
+    // One pass in joint order (parents before children), each global orientation from its
+    // parent's as already turned.
+    let mut global = *pose;
+    for j in JointId::all() {
+        let Some(parent) = j.parent() else {
             continue; // the root: each method sets its own
         };
-        let global = global_rotations(pose);
-        let estimated = global[joint.index()];
+        let (j, parent) = (j.index(), parent.index());
+        global[j] = global[parent] * pose[j];
+        let Some(sensor) = sensor_of[j] else {
+            continue;
+        };
         let measured = sensor_rotation(&imu.orientation[sensor]);
-        if let Some(turned) = toward_within(&estimated, &measured, tolerance_rad) {
-            pose[joint.index()] = global[parent.index()].transpose() * turned;
+        if let Some(turned) = toward_within(&global[j], &measured, tolerance_rad) {
+            pose[j] = global[parent].transpose() * turned;
+            global[j] = turned;
         }
     }
 }

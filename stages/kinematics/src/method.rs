@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::features::{GLOBALPOSE_INPUT, pip_input_len};
+use crate::features::{GLOBALPOSE_INPUT, InputOrder, pip_input_len};
 use crate::net::RnnSpec;
 
 /// Which paper's networks.
@@ -40,26 +40,30 @@ impl Method {
         }
     }
 
-    /// Whether the method's networks can be sized for a set of `sites` sensors: PIP's for any set
-    /// with the pelvis (its inputs and its first net's leaf joints follow the set), GlobalPose's
-    /// for the six-site set only (its nets' inputs hold the six's sensor positions and
-    /// orientations in fixed blocks).
-    pub fn takes_sites(self, sites: usize) -> bool {
+    /// Whether the method's networks can be sized for the sensors of `order`: PIP's for any set
+    /// with the pelvis, which every order has (its inputs and its first net's leaf joints follow
+    /// the set), GlobalPose's for the six-site set only (its nets' inputs hold the six's sensor
+    /// positions and orientations in fixed blocks).
+    pub fn takes(self, order: &InputOrder) -> bool {
         match self {
-            Method::Pip => sites >= 1,
-            Method::GlobalPose => sites == 6,
+            Method::Pip => true,
+            Method::GlobalPose => order.is_six(),
         }
     }
 
-    /// `(input, output, init_input, input_linear)` of each net for a set of `sites` sensors (6:
-    /// PIP's and GlobalPose's own), the sizes the method's data flow fixes; `None` for a net the
-    /// method lacks or a set it cannot take ([`Method::takes_sites`]).
-    pub fn net_io(self, name: &str, sites: usize) -> Option<(usize, usize, Option<usize>, bool)> {
-        if !self.takes_sites(sites) {
+    /// `(input, output, init_input, input_linear)` of each net for the sensors of `order`
+    /// ([`InputOrder::six`]: PIP's and GlobalPose's own), the sizes the method's data flow fixes;
+    /// `None` for a net the method lacks or a set it cannot take ([`Method::takes`]).
+    pub fn net_io(
+        self,
+        name: &str,
+        order: &InputOrder,
+    ) -> Option<(usize, usize, Option<usize>, bool)> {
+        if !self.takes(order) {
             return None;
         }
         // PIP's inputs (72 for the six) and leaf joints (one per non-root sensor: 15 for the six).
-        let (x, leaf) = (pip_input_len(sites), 3 * (sites - 1));
+        let (x, leaf) = (pip_input_len(order.len()), 3 * order.root());
         let io = match (self, name) {
             // PIP (reference §2.2): unidirectional, input linear layer, 2 layers.
             (Method::Pip, "rnn1") => (x, leaf, Some(leaf), true),
@@ -86,14 +90,14 @@ impl Method {
         }
     }
 
-    /// Specs with hidden size `hidden` and `layers` layers for every net, for a set of `sites`
-    /// sensors (PIP's contact net keeps a quarter of the hidden size, as in the paper: 64 of 256).
-    pub fn specs(self, hidden: usize, layers: usize, sites: usize) -> Vec<RnnSpec> {
+    /// Specs with hidden size `hidden` and `layers` layers for every net, for the sensors of
+    /// `order` (PIP's contact net keeps a quarter of the hidden size, as in the paper: 64 of 256).
+    pub fn specs(self, hidden: usize, layers: usize, order: &InputOrder) -> Vec<RnnSpec> {
         self.net_names()
             .iter()
             .map(|&name| {
                 let (input, output, init_input, input_linear) =
-                    self.net_io(name, sites).unwrap_or((0, 0, None, false));
+                    self.net_io(name, order).unwrap_or((0, 0, None, false));
                 let hidden = if self == Method::Pip && name == "rnn5" {
                     (hidden / 4).max(16)
                 } else {

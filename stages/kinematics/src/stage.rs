@@ -149,16 +149,17 @@ pub fn run() -> anyhow::Result<()> {
             LIMB_JOINTS.join(", ")
         );
     };
-    let order = crate::weights::input_order(method, sensors.mask())
-        .with_context(|| format!("stage '{stage}': the graph's sensors"))?;
+    let warm_weights = params.warm_weights;
+    let mut streamer = Streamer::new(weights, start.pose())
+        .with_context(|| format!("stage '{stage}': weights '{}'", weights_path.display()))?;
+    // The weights' set, which `check_sensors` made the graph's.
+    let order = streamer.input_order();
     if params.mirror_ensemble && !order.is_symmetric() {
         bail!(
             "stage '{stage}': mirror_ensemble needs every sensor's mirror site in the set; {sensors} has ({}) ",
             order.mask().names()
         );
     }
-    let warm_weights = params.warm_weights;
-    let mut streamer = Streamer::new(weights, start.pose())?;
     streamer.set_sensor_bones(sensor_bones);
     streamer.set_limb_joints(limb_joints);
     streamer.set_mirror_ensemble(params.mirror_ensemble);

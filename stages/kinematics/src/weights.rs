@@ -69,7 +69,7 @@ pub fn input_order(method: Method, sites: SiteMask) -> Result<InputOrder, Weight
     };
     let order = InputOrder::of(sites)
         .ok_or_else(|| unsupported("the pelvis, their root, is not among them"))?;
-    if !method.takes_sites(order.len()) {
+    if !method.takes(&order) {
         return Err(unsupported(
             "GlobalPose's networks take the six-site set only (its inputs hold the six's \
              sensors in fixed blocks); PIP's can be trained for any set with the pelvis",
@@ -116,7 +116,7 @@ impl Weights {
             Some(meta) => input_order(method, meta.sites()?)?,
             None => InputOrder::six(),
         };
-        let nets = nets_from_tensors(method, &tensors, order.len())?;
+        let nets = nets_from_tensors(method, &tensors, &order)?;
         let metadata = metadata.unwrap_or_else(|| WeightsMetadata {
             format: FORMAT.to_owned(),
             method,
@@ -145,11 +145,12 @@ pub fn read_metadata(bytes: &[u8]) -> Result<Option<WeightsMetadata>, String> {
 }
 
 /// Build `method`'s nets from named tensors, with sizes read from the tensors and checked against
-/// what the method's data flow needs for a set of `sites` sensors (6: the six-site set).
+/// what the method's data flow needs for the sensors of `order` ([`InputOrder::six`]: the six-site
+/// set).
 pub fn nets_from_tensors(
     method: Method,
     tensors: &HashMap<String, Tensor>,
-    sites: usize,
+    order: &InputOrder,
 ) -> Result<Vec<Rnn>, WeightsError> {
     let names = method.net_names();
     if let Some(stray) = tensors
@@ -166,7 +167,7 @@ pub fn nets_from_tensors(
         .map(|&name| {
             let spec = RnnSpec::infer(name, tensors)?;
             let (input, output, init, input_linear) =
-                method.net_io(name, sites).unwrap_or((0, 0, None, false));
+                method.net_io(name, order).unwrap_or((0, 0, None, false));
             let check = |what: &str, found: usize, want: usize| {
                 if found == want {
                     Ok(())
@@ -387,5 +388,33 @@ mod sensor_tests {
                 .to_string()
                 .contains("'tail'")
         );
+    }
+
+    /// PIP's networks take any set with the pelvis; GlobalPose's the six-site set only, not
+    /// another set of six sites.
+    #[test]
+    fn which_sets_each_methods_networks_take_is_named() {
+        use imuflow_body::Imu;
+        let six_others = SiteMask::of([
+            Imu::Pelvis,
+            Imu::LeftLowerLeg,
+            Imu::RightLowerLeg,
+            Imu::LeftUpperLeg,
+            Imu::RightUpperLeg,
+            Imu::Sternum,
+        ]);
+        assert_eq!(input_order(Method::Pip, six_others).unwrap().len(), 6);
+        let err = input_order(Method::GlobalPose, six_others)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("six-site set only") && err.contains("sternum"),
+            "{err}"
+        );
+        assert!(input_order(Method::GlobalPose, SiteMask::of(Imu::SIX)).is_ok());
+        let err = input_order(Method::Pip, SiteMask::of([Imu::LeftLowerLeg]))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("the pelvis, their root"), "{err}");
     }
 }

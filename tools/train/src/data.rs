@@ -464,7 +464,7 @@ pub fn from_to(a: [f32; 3], b: [f32; 3]) -> Mat3 {
 
 impl Builder {
     fn new(method: Method, order: InputOrder) -> anyhow::Result<Builder> {
-        if !method.takes_sites(order.len()) {
+        if !method.takes(&order) {
             bail!(
                 "{}'s networks take the six-site set only; the shards hold ({}) (PIP's networks \
                  train for any set with the pelvis)",

@@ -9,6 +9,7 @@ use std::path::Path;
 use candle_core::{DType, Tensor};
 
 use imuflow_kinematics::error::WeightsError;
+use imuflow_kinematics::features::InputOrder;
 use imuflow_kinematics::method::Method;
 use imuflow_kinematics::weights::{self, WeightsMetadata, nets_from_tensors};
 
@@ -36,14 +37,14 @@ pub fn read_checkpoint(
         tensors.insert(name, t);
     }
     // Builds every net: names each missing, misshapen or foreign tensor.
-    nets_from_tensors(method, &tensors, 6)?;
+    nets_from_tensors(method, &tensors, &InputOrder::six())?;
     Ok(tensors)
 }
 
 /// Convert `input` (PyTorch) to `output` (our safetensors with metadata).
 pub fn import_checkpoint(method: Method, input: &Path, output: &Path) -> anyhow::Result<()> {
     let tensors = read_checkpoint(method, input)?;
-    let nets = nets_from_tensors(method, &tensors, 6)?;
+    let nets = nets_from_tensors(method, &tensors, &InputOrder::six())?;
     let mut named: Vec<(String, Tensor)> = tensors.into_iter().collect();
     named.sort_by(|a, b| a.0.cmp(&b.0));
     let metadata = WeightsMetadata {

@@ -542,7 +542,7 @@ pub fn train(options: &TrainOptions) -> anyhow::Result<PathBuf> {
             imuflow_kinematics::features::pip_input_len(train_set.order.len())
         );
     }
-    let specs = method.specs(options.hidden, options.layers, train_set.order.len());
+    let specs = method.specs(options.hidden, options.layers, &train_set.order);
     let mut params = Vec::new();
     let mut init_rng = StdRng::seed_from_u64(options.seed ^ 0x1417);
     for spec in &specs {

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 use candle_core::{Device, Tensor};
 use imuflow_kinematics::Method;
+use imuflow_kinematics::features::InputOrder;
 use imuflow_kinematics::weights::{Weights, nets_from_tensors};
 use imuflow_train::import::{import_checkpoint, read_checkpoint};
 
@@ -105,7 +106,7 @@ fn missing_and_misshapen_tensors_are_named() {
     let mut tensors = read_checkpoint(Method::Pip, &fixture("pip-small.pt")).unwrap();
     let good = tensors.clone();
     tensors.remove("rnn3.rnn.bias_hh_l1");
-    let err = nets_from_tensors(Method::Pip, &tensors, 6)
+    let err = nets_from_tensors(Method::Pip, &tensors, &InputOrder::six())
         .err()
         .unwrap()
         .to_string();
@@ -119,7 +120,7 @@ fn missing_and_misshapen_tensors_are_named() {
         "rnn2.linear1.weight".into(),
         Tensor::zeros((12, 70), candle_core::DType::F32, &Device::Cpu).unwrap(),
     );
-    let err = nets_from_tensors(Method::Pip, &tensors, 6)
+    let err = nets_from_tensors(Method::Pip, &tensors, &InputOrder::six())
         .err()
         .unwrap()
         .to_string();
