@@ -245,14 +245,11 @@ impl GraphArgs {
             &self.without,
             &registry::registry(),
         )?;
-        if let Err(e) = imuflow_body::SensorSet::resolve(&graph.sensors) {
+        let problems = sensor_set_problems(&graph);
+        if !problems.is_empty() {
             return Err(GraphLoadError::Invalid {
                 path: self.file.clone(),
-                problems: vec![imuflow_graph::graph::Problem {
-                    stage: None,
-                    key: Some("sensors".to_owned()),
-                    message: e.to_string(),
-                }],
+                problems,
             });
         }
         Ok(graph)
@@ -277,6 +274,49 @@ fn export_urdf(out: &std::path::Path, stature_m: f64, mass_kg: f64) -> anyhow::R
         imuflow_body::NUM_JOINTS
     );
     Ok(())
+}
+
+/// The graph's sensor sets that do not resolve, and stages whose own set wears a site the
+/// graph's set (what its sources deliver) lacks.
+fn sensor_set_problems(graph: &imuflow_graph::Graph) -> Vec<imuflow_graph::graph::Problem> {
+    use imuflow_graph::graph::Problem;
+    let graph_set = match imuflow_body::SensorSet::resolve(&graph.sensors) {
+        Ok(set) => set,
+        Err(e) => {
+            return vec![Problem {
+                stage: None,
+                key: Some("sensors".to_owned()),
+                message: e.to_string(),
+            }];
+        }
+    };
+    let mut problems = Vec::new();
+    for node in graph.stages.values() {
+        let Some(name) = &node.sensors else { continue };
+        let message = match imuflow_body::SensorSet::resolve(name) {
+            Err(e) => e.to_string(),
+            Ok(set) => {
+                let missing = set.mask().missing_from(graph_set.mask());
+                if missing.is_empty() {
+                    continue;
+                }
+                format!(
+                    "its set {set} wears {} that the graph's set {graph_set} lacks; the graph's \
+                     sources deliver the graph's set (set the graph's `sensors` to hold both, \
+                     for example \"{}+{}\")",
+                    missing.names(),
+                    graph.sensors,
+                    name
+                )
+            }
+        };
+        problems.push(Problem {
+            stage: Some(node.id.clone()),
+            key: Some("sensors".to_owned()),
+            message,
+        });
+    }
+    problems
 }
 
 fn main() -> ExitCode {

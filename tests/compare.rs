@@ -103,30 +103,79 @@ params = { path = "{dir}/b.mcap" }
         stderr.contains("variant 'a': has no single motion output to compare"),
         "{stderr}"
     );
-    // Variants of two sensor sets: one run synthesizes one set.
-    let legs = sb.graph(
-        "legs.toml",
-        r#"
+    // Variants of two sensor sets: the source delivers both sets' sites (the combined graph's
+    // `sensors` is their union) and each variant's stages work with their own set.
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/examples/lower-body.toml");
+    let cross = sb.graph(
+        "cross-ab.toml",
+        &format!(
+            r#"
+name = "cross"
+[[variant]]
+name = "six"
+graph = "{0}"
+set = ["sensors=six", "stages.kin.params.net=globalpose", "stages.kin.params.weights=models/globalpose.safetensors"]
+[[variant]]
 name = "legs"
-rate_hz = 60
+graph = "{0}"
+"#,
+            example.display()
+        ),
+    );
+    let out = sb.run(&["compare", cross.to_str().expect("utf8"), "--print-graph"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let graph = text(&out.stdout);
+    assert!(
+        graph.contains("\nsensors = \"six+lower-body\"\n"),
+        "{graph}"
+    );
+    for stage in ["six-calib", "six-kin", "six-opt"] {
+        assert!(
+            graph.contains(&format!("[stages.{stage}]\nkind"))
+                && graph
+                    .split(&format!("[stages.{stage}]"))
+                    .nth(1)
+                    .and_then(|rest| rest.split("\n\n").next())
+                    .is_some_and(|table| table.contains("sensors = \"six\"")),
+            "{stage} works with the six: {graph}"
+        );
+    }
+    assert!(
+        graph.contains("[stages.legs-kin]")
+            && graph
+                .split("[stages.legs-kin]")
+                .nth(1)
+                .and_then(|rest| rest.split("\n\n").next())
+                .is_some_and(|table| table.contains("sensors = \"lower-body\"")),
+        "{graph}"
+    );
+    // A stage whose own set wears a site the graph's set lacks: refused before anything starts.
+    let wider = sb.graph(
+        "wider.toml",
+        r#"
+name = "wider"
 sensors = "lower-body"
 [stages.source]
 kind = "test-source"
 [stages.record]
 kind = "recorder"
 inputs = { imu = "source.imu" }
-params = { path = "{dir}/legs.mcap" }
+params = { path = "{dir}/wider.mcap" }
+sensors = "six"
 "#,
     );
-    let out = sb.run(&["compare", a, legs.to_str().expect("utf8"), "--print-graph"]);
-    assert_eq!(out.status.code(), Some(2));
+    let out = sb.run(&["graph", "check", wider.to_str().expect("utf8")]);
+    assert!(!out.status.success());
     let stderr = text(&out.stderr);
     assert!(
-        stderr.contains("variant 'legs': its sensor set is `lower-body`, 'a''s `six`"),
+        stderr.contains("record")
+            && stderr.contains("sensors")
+            && stderr.contains(
+                "wears left_forearm, right_forearm, head that the graph's set lower-body"
+            ),
         "{stderr}"
     );
     // Variants of one set other than the six: the combined graph names it.
-    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/examples/lower-body.toml");
     let ablation = sb.graph(
         "legs-ab.toml",
         &format!(

@@ -112,6 +112,9 @@ pub struct StageNode {
     /// How the kernel schedules the stage's process (`nice` in the graph file).
     #[serde(default)]
     pub nice: Nice,
+    /// The sensor set this stage works with when it is not the graph's ([`Graph::sensors_of`]).
+    #[serde(default)]
+    pub sensors: Option<String>,
 }
 
 /// How the kernel schedules a stage's process (`nice = 10` or `nice = "idle"` in the graph file):
@@ -321,6 +324,14 @@ impl Graph {
         })
     }
 
+    /// The sensor set stage `id` works with: its own `sensors`, else the graph's.
+    pub fn sensors_of(&self, id: &str) -> &str {
+        self.stages
+            .get(id)
+            .and_then(|n| n.sensors.as_deref())
+            .unwrap_or(&self.sensors)
+    }
+
     /// Stages in an order where every stage comes after the stages it reads through non-feedback
     /// edges (validation guarantees one exists).
     pub fn topological_order(&self) -> Vec<&StageNode> {
@@ -445,6 +456,9 @@ impl Graph {
                 }
                 _ => {}
             }
+            if let Some(sensors) = &node.sensors {
+                let _ = writeln!(out, "  sensors = {sensors} (the graph's: {})", self.sensors);
+            }
             if node.on_failure == OnFailure::StopBranch {
                 let branch = self.branch(&node.id);
                 let _ = writeln!(
@@ -500,6 +514,7 @@ mod tests {
             params: toml::Table::new(),
             on_failure,
             nice: Nice::default(),
+            sensors: None,
             stall_timeout_s: None,
             restart: None,
         }

@@ -69,4 +69,9 @@ pub struct StageEntry {
     /// validation) yields the cores to the ones on it.
     #[serde(default)]
     pub nice: Option<toml::Value>,
+    /// The sensor set this stage works with, when it is not the graph's (`sensors` at the top):
+    /// a set whose sites the graph's set holds (`imuflow compare` of variants with different
+    /// sets gives each variant's stages its own).
+    #[serde(default)]
+    pub sensors: Option<String>,
 }

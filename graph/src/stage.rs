@@ -310,6 +310,12 @@ impl StageContext {
         &self.graph
     }
 
+    /// The sensor set this stage works with (a shipped set's name or a set file's path): the
+    /// stage's own `sensors` in the graph file, else the graph's.
+    pub fn sensors(&self) -> &str {
+        self.stage.sensors.as_deref().unwrap_or(&self.graph.sensors)
+    }
+
     /// This stage's node in the graph.
     pub fn node(&self) -> &StageNode {
         &self.stage

@@ -127,6 +127,7 @@ struct Declared<'a> {
     stall_timeout_s: Option<f64>,
     restart: Option<RestartPolicy>,
     nice: Nice,
+    sensors: Option<String>,
 }
 
 pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Graph, Vec<Problem>> {
@@ -262,6 +263,7 @@ pub fn validate(path: &Path, file: GraphFile, registry: &Registry) -> Result<Gra
                 stall_timeout_s: d.stall_timeout_s,
                 restart: d.restart,
                 nice: d.nice,
+                sensors: d.sensors.clone(),
             },
         );
     }
@@ -567,6 +569,18 @@ fn declare<'a>(
             }
         },
     };
+    let sensors = match entry.sensors.as_deref().map(str::trim) {
+        None => None,
+        Some("") => {
+            problems.stage(
+                id,
+                Some("sensors"),
+                "must name a sensor set (six, lower-body, full-suit) or a set file; leave it out for the graph's",
+            );
+            None
+        }
+        Some(name) => Some(name.to_owned()),
+    };
     Some(Declared {
         id,
         runner,
@@ -580,6 +594,7 @@ fn declare<'a>(
         stall_timeout_s,
         restart,
         nice,
+        sensors,
     })
 }
 

@@ -226,10 +226,40 @@ impl SensorSet {
         SensorSet::shipped().into_iter().find(|s| s.name == name)
     }
 
-    /// A shipped set by name, or the single set of a user's file by its path.
+    /// The union of `first` and `others`: every site any of them wears, named `a+b+...`, the
+    /// first set's heading reference (the first set itself when the others add no site and
+    /// there are none). What one source synthesizes when variants of different sets are compared
+    /// on the same input.
+    pub fn union(first: &SensorSet, others: &[SensorSet]) -> SensorSet {
+        if others.is_empty() {
+            return first.clone();
+        }
+        let names: Vec<&str> = std::iter::once(first)
+            .chain(others)
+            .map(|s| s.name.as_str())
+            .collect();
+        SensorSet {
+            name: names.join("+"),
+            description: format!("the sites of {}", names.join(", ")),
+            sites: SiteMask(others.iter().fold(first.sites.0, |m, s| m | s.sites.0)),
+            heading_reference: first.heading_reference,
+        }
+    }
+
+    /// A shipped set by name, the single set of a user's file by its path, or the union of sets
+    /// written `a+b` (each a name or a path; [`SensorSet::union`]).
     pub fn resolve(name_or_path: &str) -> Result<SensorSet, SensorSetError> {
         if let Some(set) = SensorSet::builtin(name_or_path) {
             return Ok(set);
+        }
+        if name_or_path.contains('+') && !Path::new(name_or_path).exists() {
+            let (first, others) = name_or_path.split_once('+').unwrap_or((name_or_path, ""));
+            let first = SensorSet::resolve(first.trim())?;
+            let others = others
+                .split('+')
+                .map(|part| SensorSet::resolve(part.trim()))
+                .collect::<Result<Vec<_>, _>>()?;
+            return Ok(SensorSet::union(&first, &others));
         }
         let shipped = || {
             let names: Vec<String> = SensorSet::shipped().into_iter().map(|s| s.name).collect();
@@ -415,6 +445,26 @@ mod tests {
             "{err}"
         );
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_union_of_sets_wears_every_site_of_each_and_keeps_the_first_ones_reference() {
+        let union = SensorSet::resolve("six+lower-body").unwrap();
+        assert_eq!(union.name(), "six+lower-body");
+        // The six's six sites and the lower body's two thighs: slots 0-7.
+        assert_eq!(union.mask(), SiteMask(0b1111_1111));
+        assert_eq!(union.heading_reference(), Imu::Pelvis);
+        assert!(
+            SensorSet::six()
+                .mask()
+                .missing_from(union.mask())
+                .is_empty()
+        );
+        // A set that holds the others is its own union.
+        let suit = SensorSet::resolve("full-suit+six").unwrap();
+        assert_eq!(suit.mask(), SensorSet::builtin("full-suit").unwrap().mask());
+        let err = SensorSet::resolve("six+legs").unwrap_err().to_string();
+        assert!(err.contains("'legs'"), "{err}");
     }
 
     #[test]

@@ -193,13 +193,13 @@ pub fn run() -> anyhow::Result<()> {
     let mut config = params
         .config(ctx.graph().rate_hz)
         .with_context(|| format!("stage '{stage}'"))?;
-    let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
-        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
+    let sensors = imuflow_body::SensorSet::resolve(ctx.sensors())
+        .with_context(|| format!("stage '{stage}': `sensors`"))?;
     config.sites = sensors.mask();
     if let Some(missing) = method_needs(config.method, &sensors) {
         bail!(
             "stage '{stage}': method = \"walking\" takes the body's heading from the pelvis and \
-             the walk's direction from both lower legs; the graph's sensors {sensors} lack {missing} \
+             the walk's direction from both lower legs; the stage's sensors {sensors} lack {missing} \
              (method = \"tpose\" calibrates any set)"
         );
     }
@@ -224,7 +224,7 @@ pub fn run() -> anyhow::Result<()> {
                 file::load(path).with_context(|| format!("stage '{stage}': from_file"))?;
             if calibration.sites != sensors.mask() {
                 bail!(
-                    "stage '{stage}': from_file '{}' calibrates the sensors ({}); the graph's sensors are {sensors}",
+                    "stage '{stage}': from_file '{}' calibrates the sensors ({}); the stage's sensors are {sensors}",
                     path.display(),
                     calibration.sites.names()
                 );

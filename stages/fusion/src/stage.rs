@@ -171,8 +171,8 @@ pub fn run() -> anyhow::Result<()> {
     let mut settings = params
         .settings(ctx.graph().rate_hz, ctx.mode())
         .with_context(|| format!("stage '{stage}'"))?;
-    settings.sites = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
-        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?
+    settings.sites = imuflow_body::SensorSet::resolve(ctx.sensors())
+        .with_context(|| format!("stage '{stage}': `sensors`"))?
         .mask();
     let input = ctx.input::<RawImuFrame>("raw")?;
     let mut output = ctx.output::<ImuFrame>("imu")?;

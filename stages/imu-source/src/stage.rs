@@ -133,11 +133,11 @@ pub fn run() -> anyhow::Result<()> {
     let params = ImuSourceParams::from_params(ctx.params());
     let mode = params.mode.as_str();
     let realtime = params.realtime.unwrap_or(ctx.mode() == Mode::Live);
-    let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
-        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
+    let sensors = imuflow_body::SensorSet::resolve(ctx.sensors())
+        .with_context(|| format!("stage '{stage}': `sensors`"))?;
     if !sensors.is_six() && mode == "udp" {
         bail!(
-            "stage '{stage}': mode 'udp' reads the six-site set's sensors (its packets carry six); the graph's sensors are {sensors} (synthesize, replay, file and slimevr follow any set)"
+            "stage '{stage}': mode 'udp' reads the six-site set's sensors (its packets carry six); the stage's sensors are {sensors} (synthesize, replay, file and slimevr follow any set)"
         );
     }
     match mode {
@@ -221,7 +221,7 @@ pub fn run() -> anyhow::Result<()> {
     }
 }
 
-/// Mode `synthesize`: the motion at the graph's `rate_hz` worn with the graph's `sensors`, and
+/// Mode `synthesize`: the motion at the graph's `rate_hz` worn with `sensors`, and
 /// with `raw` its raw sensor samples.
 fn synthesize(
     params: &ImuSourceParams,

@@ -20,7 +20,7 @@ pub enum WeightsError {
     #[error("the weights are for method '{found}', not '{expected}'")]
     WrongMethod { expected: String, found: String },
     #[error(
-        "the weights were trained for the sensors {weights}; the graph's sensors are {graph} (train weights for that set with `imuflow train`, or set the graph's `sensors`)"
+        "the weights were trained for the sensors {weights}; the stage's sensors are {graph} (train weights for that set with `imuflow train`, or set `sensors`: the graph's, or the stage's own)"
     )]
     WrongSensors { weights: String, graph: String },
     #[error("{method}'s networks cannot be sized for the sensors ({sensors}): {why}")]

@@ -99,8 +99,8 @@ pub fn run() -> anyhow::Result<()> {
     let mut ctx = StageContext::from_env()?;
     let stage = ctx.id().to_owned();
     let params = KinematicsParams::from_params(ctx.params());
-    let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
-        .with_context(|| format!("stage '{stage}': the graph's `sensors`"))?;
+    let sensors = imuflow_body::SensorSet::resolve(ctx.sensors())
+        .with_context(|| format!("stage '{stage}': `sensors`"))?;
     if params.net == "sensed" {
         return run_sensed(ctx, &stage, &sensors);
     }

@@ -147,8 +147,7 @@ pub fn run() -> anyhow::Result<()> {
         let overlaid = params.views == "overlaid";
         blueprint::send_grouped(&rec, &groups, overlaid, &inputs)?;
     }
-    let sensors =
-        imuflow_body::SensorSet::resolve(&ctx.graph().sensors).context("the graph's `sensors`")?;
+    let sensors = imuflow_body::SensorSet::resolve(ctx.sensors()).context("`sensors`")?;
     let sites: Vec<imuflow_body::Imu> = sensors.sites().collect();
     log_sensor_layout(&rec, &inputs, &sites)?;
 

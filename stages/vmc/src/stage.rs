@@ -51,8 +51,8 @@ pub fn run() -> anyhow::Result<()> {
     let mut sender = Sender::new(&stage, &params.host, params.port)?;
     let motion = ctx.input::<MotionFrame>("motion")?;
     if ctx.ready()? {
-        let sensors = imuflow_body::SensorSet::resolve(&ctx.graph().sensors)
-            .with_context(|| format!("stage {stage}: the graph's `sensors`"))?;
+        let sensors = imuflow_body::SensorSet::resolve(ctx.sensors())
+            .with_context(|| format!("stage {stage}: `sensors`"))?;
         let mut stream = Stream::new(&stage, unity_offsets_m(&body.skeleton), params.send_every)
             .with_capture_time(params.capture_time)
             .for_set(&sensors);

@@ -4,7 +4,7 @@
 //!
 //! Each clip runs exactly what a single comparison runs: the variants combined into one graph
 //! (byte-identical input to every variant), launched as processes, its recording scored by
-//! [`score_recording`]. The source is the clip's motion with six IMUs synthesized the way
+//! [`score_recording`]. The source is the clip's motion with the variants' sensors synthesized the way
 //! `imuflow compare --input clip.bvh` does (T-pose + walk calibration prelude, random mountings,
 //! the reference sensor noise), so the numbers are end to end, calibration included.
 //!
@@ -230,7 +230,15 @@ pub fn run(
         excluded: &excluded,
         remaining,
     };
-    let report = markdown(options, &names, &summaries, &per_source, &outcome, plot);
+    let report = markdown(
+        options,
+        variants,
+        &names,
+        &summaries,
+        &per_source,
+        &outcome,
+        plot,
+    );
     let report_path = options.out.join("report.md");
     std::fs::write(&report_path, report)
         .with_context(|| format!("cannot write {}", report_path.display()))?;
@@ -564,6 +572,7 @@ fn summarize_sources(
 
 fn markdown(
     options: &BatchOptions,
+    variants: &[Variant],
     names: &[String],
     summaries: &[MetricSummary],
     per_source: &[SourceSummary],
@@ -589,7 +598,7 @@ fn markdown(
         .collect();
     let _ = writeln!(
         md,
-        "{} clips of {} scored ({frames} frames){}{}{}. Each clip ran as one combined graph (every variant on byte-identical input: six IMUs synthesized from the clip with a T-pose + walk calibration prelude, random sensor mountings and {}), scored on the frames all variants share{}. Means are over clips (each clip counts once, whatever its length).\n",
+        "{} clips of {} scored ({frames} frames){}{}{}. Each clip ran as one combined graph (every variant on byte-identical input: {} synthesized from the clip with a T-pose + walk calibration prelude, random sensor mountings and {}), scored on the frames all variants share{}. Means are over clips (each clip counts once, whatever its length).\n",
         scored.len(),
         folders.join(" and "),
         if failed.is_empty() {
@@ -612,6 +621,11 @@ fn markdown(
         } else {
             String::new()
         },
+        match crate::combine::union_of_sets(variants) {
+            Ok(set) if set == imuflow_graph::graph::DEFAULT_SENSORS => "six IMUs".to_owned(),
+            Ok(set) => format!("the IMUs of the sensor set `{set}`"),
+            Err(_) => "the IMUs".to_owned(),
+        },
         options.sensor_errors.describe(),
         if options.source_set.is_empty() {
             String::new()
@@ -628,6 +642,12 @@ fn markdown(
 
     let _ = writeln!(md, "## Mean ± standard deviation over clips\n");
     means_table(&mut md, names, summaries, None);
+    let sets = variants
+        .iter()
+        .map(|v| (v.name.as_str(), v.graph.sensors.as_str()));
+    if let Some(note) = crate::report::unobserved_note(sets) {
+        let _ = writeln!(md, "\n{note}");
+    }
     if !per_source.is_empty() {
         let _ = writeln!(
             md,

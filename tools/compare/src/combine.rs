@@ -48,6 +48,9 @@ pub struct VariantOutputs {
     /// BodyImuFrame upstream of its motion), recorded as `<variant>__body_imu` so that the report
     /// can say how far the pose is from its own sensors. `None` when the graph has none.
     pub body_imu: Option<String>,
+    /// The sensor set the variant estimates from (its graph's `sensors`): the report scores it
+    /// on the joints that set observes.
+    pub sensors: String,
     /// Every stage of the variant's own branch, in the combined graph.
     pub stages: Vec<String>,
     /// The first stages of the branch (they read only shared stages): where identical input
@@ -103,6 +106,15 @@ pub fn combine(
     for v in variants {
         check_comparable(first, v)?;
     }
+    let sensors = union_of_sets(variants)?;
+    // The set a stage of variant `v` works with: its own, else its graph's.
+    let set_of = |v: &Variant, node: &StageNode| -> String {
+        node.sensors
+            .clone()
+            .unwrap_or_else(|| v.graph.sensors.clone())
+    };
+    // Written on a stage of the combined graph when it is not the combined graph's.
+    let own_set = |set: String| (set != sensors).then_some(set);
     for v in variants {
         motion_output(v)?;
     }
@@ -127,6 +139,7 @@ pub fn combine(
         let same_everywhere = variants.iter().zip(&sources).all(|(v, src)| {
             v.graph.stages.get(&node.id).is_some_and(|other| {
                 same_stage(node, other, src, &source.id)
+                    && set_of(v, other) == set_of(first, node)
                     && other
                         .inputs
                         .values()
@@ -151,8 +164,8 @@ pub fn combine(
     );
     let _ = writeln!(text, "name = {}", quote(name));
     let _ = writeln!(text, "rate_hz = {}", float(first.graph.rate_hz));
-    if first.graph.sensors != imuflow_graph::graph::DEFAULT_SENSORS {
-        let _ = writeln!(text, "sensors = {}", quote(&first.graph.sensors));
+    if sensors != imuflow_graph::graph::DEFAULT_SENSORS {
+        let _ = writeln!(text, "sensors = {}", quote(&sensors));
     }
     if first.graph.mode == imuflow_graph::Mode::Live {
         let _ = writeln!(text, "mode = \"live\"");
@@ -169,12 +182,21 @@ pub fn combine(
     let _ = writeln!(text, "stall_timeout_s = {}", float(stall));
 
     for id in &shared {
-        let node = if *id == source.id {
-            &source
+        let (node, set) = if *id == source.id {
+            // The source delivers every variant's sites: the combined graph's set.
+            (&source, source.sensors.clone())
         } else {
-            &first.graph.stages[id]
+            let node = &first.graph.stages[id];
+            (node, own_set(set_of(first, node)))
         };
-        write_stage(&mut text, id, node, &|from| from.to_owned(), None);
+        write_stage(
+            &mut text,
+            id,
+            node,
+            &|from| from.to_owned(),
+            None,
+            set.as_deref(),
+        );
     }
 
     let mut outputs = Vec::new();
@@ -211,6 +233,7 @@ pub fn combine(
                 node,
                 &rename,
                 isolate,
+                own_set(set_of(v, node)).as_deref(),
             );
         }
         let (motion_stage, motion_port) = motion_output(v)?;
@@ -247,6 +270,7 @@ pub fn combine(
             contacts,
             validation,
             body_imu,
+            sensors: set_of(v, motion_node),
             stages: own.iter().map(|n| prefixed(&v.name, &n.id)).collect(),
             roots,
         });
@@ -588,17 +612,38 @@ fn check_comparable(first: &Variant, v: &Variant) -> Result<(), CombineError> {
             format!("its mode differs from '{}' (offline vs live)", first.name),
         ));
     }
-    if v.graph.sensors != first.graph.sensors {
-        return Err(not_comparable(
-            &v.name,
-            format!(
-                "its sensor set is `{}`, '{}''s `{}`; variants of one run share a set (compare \
-                 each set's variants in a run of their own on the same --data and --split)",
-                v.graph.sensors, first.name, first.graph.sensors
-            ),
-        ));
-    }
     Ok(())
+}
+
+/// The sensor set of the combined graph: what the shared source delivers, every variant's sites.
+/// The variants' own set when they share one (the common case, written as they name it), the set
+/// among theirs that holds all the others' sites, or their union (`a+b`).
+pub(crate) fn union_of_sets(variants: &[Variant]) -> Result<String, CombineError> {
+    let mut names: Vec<&str> = Vec::new();
+    let mut sets = Vec::new();
+    for v in variants {
+        for name in std::iter::once(v.graph.sensors.as_str())
+            .chain(v.graph.stages.values().filter_map(|n| n.sensors.as_deref()))
+        {
+            if names.contains(&name) {
+                continue;
+            }
+            let set = imuflow_body::SensorSet::resolve(name)
+                .map_err(|e| not_comparable(&v.name, format!("its `sensors`: {e}")))?;
+            names.push(name);
+            sets.push(set);
+        }
+    }
+    let Some((first, others)) = sets.split_first() else {
+        return Err(CombineError::TooFew(variants.len()));
+    };
+    let union = imuflow_body::SensorSet::union(first, others);
+    let holding_all = names
+        .iter()
+        .zip(&sets)
+        .find(|(_, set)| set.mask() == union.mask())
+        .map(|(name, _)| (*name).to_owned());
+    Ok(holding_all.unwrap_or_else(|| names.join("+")))
 }
 
 /// The variant's motion estimate: what its sinks read as `motion`, else the single `motion`
@@ -689,6 +734,7 @@ fn write_stage(
     node: &StageNode,
     rename: &dyn Fn(&str) -> String,
     on_failure: Option<OnFailure>,
+    sensors: Option<&str>,
 ) {
     let _ = writeln!(text, "\n[stages.{id}]");
     match &node.runner {
@@ -749,6 +795,9 @@ fn write_stage(
     }
     if !node.nice.is_default() {
         let _ = writeln!(text, "nice = {}", node.nice);
+    }
+    if let Some(set) = sensors {
+        let _ = writeln!(text, "sensors = {}", quote(set));
     }
     if on_failure.unwrap_or(node.on_failure) == OnFailure::StopBranch {
         let _ = writeln!(text, "on_failure = \"stop-branch\"");

@@ -193,8 +193,13 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
             None => score_without_truth(&estimate, &body, rate_hz),
         };
         add_motion_rows(&mut table, k, &scores, truth.is_some());
+        let set = &combined.variants[k].sensors;
+        for row in unobserved_scores(set)? {
+            table.blank(row, k);
+        }
         if !v.body_imu.is_empty() {
-            let error = sensor_bone_error_deg(&estimate, &v.body_imu, &body);
+            let sites = imuflow_body::SensorSet::resolve(set)?.mask();
+            let error = sensor_bone_error_deg(&estimate, &v.body_imu, &body, sites);
             table.set("sensor-bone error", "deg", true, k, error);
         }
         if !v.validation.is_empty() {
@@ -254,7 +259,15 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
         for (k, v) in variants.iter().enumerate().skip(1) {
             let d = disagreement(&on_common(&first.motion), &on_common(&v.motion), &body);
             let name = &first.name;
-            table.set(&format!("angle vs {name}"), "deg", false, k, d.angle_deg);
+            // An angle over joints one of the two leaves at rest says nothing about either.
+            let both_observe = [&combined.variants[0].sensors, &combined.variants[k].sensors]
+                .into_iter()
+                .map(|set| unobserved_scores(set).map(|rows| !rows.contains(&"angle error")))
+                .collect::<anyhow::Result<Vec<bool>>>()?
+                .into_iter()
+                .all(|b| b);
+            let angle = d.angle_deg.filter(|_| both_observe);
+            table.set(&format!("angle vs {name}"), "deg", false, k, angle);
             let root = d.root_distance_m;
             table.set(&format!("root distance vs {name}"), "m", false, k, root);
         }
@@ -355,6 +368,73 @@ impl Table {
         };
         row.values[k] = value;
     }
+
+    /// Clears variant `k`'s value of row `name`, if the row exists.
+    fn blank(&mut self, name: &str, k: usize) {
+        if let Some(row) = self.rows.iter_mut().find(|r| r.name == name) {
+            row.values[k] = None;
+        }
+    }
+}
+
+/// The rows of the pose scores whose joints the sensor set `set` (a variant's `sensors`) does not
+/// all observe ([`imuflow_body::SensorSet::observed_joints`]): an estimate leaves those joints at
+/// rest, so a score over them measures the rest pose, not the estimate. The report shows them
+/// as not applicable (–) for that variant. For the six and for sets that observe all they do:
+/// none.
+pub(crate) fn unobserved_scores(set: &str) -> anyhow::Result<Vec<&'static str>> {
+    use imuflow_body::JointId;
+    let set = imuflow_body::SensorSet::resolve(set)?;
+    let observes_all = |joints: &[JointId]| joints.iter().all(|j| set.observes(*j));
+    let mut rows = Vec::new();
+    if !observes_all(&[
+        JointId::LEFT_HIP,
+        JointId::RIGHT_HIP,
+        JointId::LEFT_SHOULDER,
+        JointId::RIGHT_SHOULDER,
+    ]) {
+        rows.push("SIP error");
+    }
+    if !observes_all(&[
+        JointId::LEFT_HIP,
+        JointId::RIGHT_HIP,
+        JointId::LEFT_KNEE,
+        JointId::RIGHT_KNEE,
+    ]) {
+        rows.push("leg angle error (hips, knees)");
+    }
+    if !observes_all(&[JointId::LEFT_KNEE, JointId::RIGHT_KNEE]) {
+        rows.push("knee flexion error");
+    }
+    if !observes_all(&[JointId::LEFT_ELBOW, JointId::RIGHT_ELBOW]) {
+        rows.push("elbow flexion error");
+    }
+    // The whole-body scores cover what the six observe (protocol G's joints).
+    let six = imuflow_body::SensorSet::six().observed_joints();
+    if six & !set.observed_joints() != 0 {
+        rows.extend(["angle error", "joint position error", "jitter"]);
+    }
+    Ok(rows)
+}
+
+/// The report's line under the table when a variant's set leaves scores out; `variants`: each
+/// variant's name and sensor set.
+pub(crate) fn unobserved_note<'a>(
+    variants: impl IntoIterator<Item = (&'a str, &'a str)>,
+) -> Option<String> {
+    let mut parts = Vec::new();
+    for (name, sensors) in variants {
+        let rows = unobserved_scores(sensors).ok()?;
+        if !rows.is_empty() {
+            parts.push(format!("{name} (sensors `{sensors}`): {}", rows.join(", ")));
+        }
+    }
+    (!parts.is_empty()).then(|| {
+        format!(
+            "Not scored (–), because the variant's sensor set does not observe every joint of the score and its estimate leaves those at rest: {}.",
+            parts.join("; ")
+        )
+    })
 }
 
 /// The rows of one variant's motion scores.
@@ -532,6 +612,13 @@ fn markdown(
             }
         }
         let _ = writeln!(md, " {} |", best.map_or("", |k| names[k]));
+    }
+    let sets = combined
+        .variants
+        .iter()
+        .map(|v| (v.name.as_str(), v.sensors.as_str()));
+    if let Some(note) = unobserved_note(sets) {
+        let _ = writeln!(md, "\n{note}");
     }
     let _ = writeln!(
         md,

@@ -291,8 +291,23 @@ fn sensor_bone_error_pairs_by_seq_and_leaves_out_incomplete_measurements() {
     // Seq 1's head sensor is not valid, seq 3 has no measurement: both left out.
     let frames: std::collections::BTreeMap<u64, BodyImuFrame> =
         [measured(0, 0x3f), measured(1, 0x2f), measured(2, 0x3f)].into();
-    let error = sensor_bone_error_deg(&estimate, &frames, &body).unwrap();
+    let six = imuflow_body::SensorSet::six().mask();
+    let error = sensor_bone_error_deg(&estimate, &frames, &body, six).unwrap();
     assert_relative_eq!(error, 10.0, epsilon = 1e-4);
+    // A lower-body set (pelvis, lower legs, upper legs: slots 2, 3, 5, 6, 7) has no head sensor:
+    // every sensor agrees, and seq 1 (its head invalid) counts too. A frame without the thighs'
+    // samples is left out for it.
+    let legs = imuflow_body::SensorSet::builtin("lower-body")
+        .unwrap()
+        .mask();
+    let frames_legs: std::collections::BTreeMap<u64, BodyImuFrame> =
+        [measured(0, 0xff), measured(1, 0xef), measured(2, 0x3f)].into();
+    let error = sensor_bone_error_deg(&estimate, &frames_legs, &body, legs).unwrap();
+    assert_relative_eq!(error, 0.0, epsilon = 1e-4);
+    assert_eq!(
+        sensor_bone_error_deg(&estimate, &[measured(2, 0x3f)].into(), &body, legs),
+        None
+    );
     // An estimate whose frames are all flagged INVALID has nothing to score.
     let invalid: Vec<MotionFrame> = estimate
         .iter()
@@ -302,5 +317,5 @@ fn sensor_bone_error_pairs_by_seq_and_leaves_out_incomplete_measurements() {
             g
         })
         .collect();
-    assert_eq!(sensor_bone_error_deg(&invalid, &frames, &body), None);
+    assert_eq!(sensor_bone_error_deg(&invalid, &frames, &body, six), None);
 }
