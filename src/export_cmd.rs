@@ -37,6 +37,11 @@ pub struct ExportArgs {
     /// BVH and glb: the subject's stature (m), which scales the skeleton's offsets.
     #[arg(long, default_value_t = 1.75)]
     stature_m: f64,
+    /// Write every joint also for a motion estimated from a sensor set that does not observe
+    /// them all (a lower body's upper body, at rest); by default such a motion's BVH and glb hold
+    /// the joints its set observes, and its npz flags them (`joint_estimated`).
+    #[arg(long)]
+    all_joints: bool,
 }
 
 pub fn run(args: ExportArgs) -> ExitCode {
@@ -52,6 +57,7 @@ pub fn run(args: ExportArgs) -> ExitCode {
         },
         keep_all: args.keep_all,
         stature_m: args.stature_m,
+        all_joints: args.all_joints,
     };
     match imuflow_export::export(&options) {
         Ok(done) => {
@@ -65,6 +71,23 @@ pub fn run(args: ExportArgs) -> ExitCode {
                 done.first_time_s,
                 done.left_out
             );
+            if let Some(sites) = &done.sites {
+                let joints = done.joints.count_ones();
+                let what = match options.format {
+                    Format::Npz => "flagged estimated (joint_estimated)",
+                    _ => "written",
+                };
+                if joints < imuflow_body::NUM_JOINTS as u32 {
+                    println!(
+                        "  estimated from the sensors {sites}: {joints} of {} joints {what}, the ones those sensors observe (--all-joints writes every joint, the others at rest)",
+                        imuflow_body::NUM_JOINTS
+                    );
+                } else {
+                    println!(
+                        "  estimated from the sensors {sites}: every joint written (--all-joints), the ones they do not observe at rest"
+                    );
+                }
+            }
             ExitCode::SUCCESS
         }
         Err(e) => {

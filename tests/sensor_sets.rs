@@ -486,6 +486,55 @@ fn a_lower_body_set_is_estimated_from_its_sensed_bones_against_the_truth() {
         (0.9..1.05).contains(&ratio),
         "walked {walked:.2} m of {walked_truth:.2} m"
     );
+
+    // Its exports hold the joints the set observes: pelvis, hips and knees (the recorder names
+    // the set's sites with the motion's channel); --all-joints writes all 24.
+    let bvh_joints = |extra: &[&str]| -> Vec<String> {
+        let out_file = sb.path("legs.bvh");
+        let mut args = vec![
+            "export",
+            recording.to_str().expect("utf8"),
+            "--format",
+            "bvh",
+            "-o",
+            out_file.to_str().expect("utf8"),
+        ];
+        args.extend(extra);
+        let out = sb.run(&args);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        std::fs::read_to_string(&out_file)
+            .expect("bvh")
+            .lines()
+            .filter_map(|l| {
+                let l = l.trim();
+                l.strip_prefix("ROOT ")
+                    .or_else(|| l.strip_prefix("JOINT "))
+                    .map(str::to_owned)
+            })
+            .collect()
+    };
+    assert_eq!(
+        bvh_joints(&[]),
+        ["pelvis", "left_hip", "left_knee", "right_hip", "right_knee"]
+    );
+    assert_eq!(bvh_joints(&["--all-joints"]).len(), 24);
+    let truth_export = sb.run(&[
+        "export",
+        recording.to_str().expect("utf8"),
+        "--channel",
+        "source.truth",
+        "--format",
+        "bvh",
+        "-o",
+        sb.path("truth.bvh").to_str().expect("utf8"),
+    ]);
+    assert!(truth_export.status.success());
+    let truth_bvh = std::fs::read_to_string(sb.path("truth.bvh")).expect("bvh");
+    assert_eq!(
+        truth_bvh.matches("JOINT ").count(),
+        23,
+        "the truth: every joint"
+    );
     assert_clean(&sb);
 }
 

@@ -70,12 +70,18 @@ pub const SMPL_POSE_VALUES: usize = NUM_JOINTS * 3;
 pub struct AmassOptions {
     /// `J0`: the rest root joint added to `trans` (m, see the module docs).
     pub smpl_root_joint_m: Vector3<f64>,
+    /// Writing: which of the 24 joints the motion estimates (a mask over joint indices, such as
+    /// the joints a sensor set observes), written as the array `joint_estimated` (24 values, 1
+    /// estimated, 0 at rest) beside `poses`, whose SMPL layout holds every joint. `None`: every
+    /// joint, no such array.
+    pub estimated_joints: Option<u32>,
 }
 
 impl Default for AmassOptions {
     fn default() -> AmassOptions {
         AmassOptions {
             smpl_root_joint_m: Vector3::from(SMPL_MEAN_ROOT_JOINT_M),
+            estimated_joints: None,
         }
     }
 }
@@ -368,11 +374,23 @@ pub fn amass_to_writer<W: Write + Seek>(
         file: file.to_string(),
         source: io::Error::other(e),
     };
-    let arrays: [(&str, Vec<u64>, &[f64]); 3] = [
+    let estimated: Vec<f64> = options
+        .estimated_joints
+        .map(|mask| {
+            (0..SMPL_POSE_VALUES / 3)
+                .map(|j| f64::from(u8::from(mask & (1 << j) != 0)))
+                .collect()
+        })
+        .unwrap_or_default();
+    let rate = [rate_hz];
+    let mut arrays: Vec<(&str, Vec<u64>, &[f64])> = vec![
         ("poses", vec![n as u64, SMPL_POSE_VALUES as u64], &poses),
         ("trans", vec![n as u64, 3], &trans),
-        ("mocap_framerate", vec![], &[rate_hz]),
+        ("mocap_framerate", vec![], &rate),
     ];
+    if !estimated.is_empty() {
+        arrays.push(("joint_estimated", vec![estimated.len() as u64], &estimated));
+    }
     let opts = zip::write::SimpleFileOptions::default()
         .compression_method(zip::CompressionMethod::Deflated);
     for (name, shape, data) in arrays {
@@ -460,11 +478,24 @@ mod tests {
             AmassOptions::default(),
             AmassOptions {
                 smpl_root_joint_m: Vector3::zeros(),
+                estimated_joints: Some(0b111),
             },
         ] {
             let bytes = amass_to_writer(Cursor::new(Vec::new()), &clip, &options, "rt.npz")
                 .unwrap()
                 .into_inner();
+            // The estimated joints, when given, travel beside `poses`: 1 for joints 0, 1, 2.
+            let mut zip = zip::ZipArchive::new(Cursor::new(bytes.clone())).unwrap();
+            match options.estimated_joints {
+                None => assert!(read_array(&mut zip, "rt.npz", "joint_estimated").is_err()),
+                Some(_) => {
+                    let (shape, flags) = read_array(&mut zip, "rt.npz", "joint_estimated").unwrap();
+                    assert_eq!(shape, [24]);
+                    let mut expected = vec![0.0; 24];
+                    expected[..3].fill(1.0);
+                    assert_eq!(flags, expected);
+                }
+            }
             let back = amass_from_reader(Cursor::new(bytes), "rt.npz", &options).unwrap();
             assert!((back.frame_time_s - clip.frame_time_s).abs() < 1e-12);
             assert_eq!(back.poses.len(), clip.poses.len());

@@ -748,14 +748,36 @@ pub fn bvh_from_clip(
     unit: LengthUnit,
     file: &str,
 ) -> Option<Bvh> {
+    bvh_of_joints(body, clip, unit, file, u32::MAX)
+}
+
+/// [`bvh_from_clip`] of the joints in `joints` (a mask over joint indices, such as the joints a
+/// sensor set observes) and their ancestors' chain only: a joint is written when it and every
+/// joint above it are in the mask, the root always. A written joint whose children are all left
+/// out ends in an End Site at its first child (the bone it turns keeps its length: a knee's shank
+/// reaches the ankle); the skeleton's own leaves end as in [`bvh_from_clip`].
+pub fn bvh_of_joints(
+    body: &BodyModel,
+    clip: &MotionClip,
+    unit: LengthUnit,
+    file: &str,
+    joints: u32,
+) -> Option<Bvh> {
     let s = 1.0 / unit.metres_per_unit();
     let rot = [Channel::Xrotation, Channel::Yrotation, Channel::Zrotation];
-    let order = depth_first_order();
+    let kept = |j: JointId| {
+        std::iter::successors(Some(j), |j| j.parent())
+            .all(|a| a.parent().is_none() || joints & (1 << a.index()) != 0)
+    };
+    let order: Vec<JointId> = depth_first_order()
+        .into_iter()
+        .filter(|&j| kept(j))
+        .collect();
     let mut position_in_file = [0usize; NUM_JOINTS];
     for (k, j) in order.iter().enumerate() {
         position_in_file[j.index()] = k;
     }
-    let joints: Vec<BvhJoint> = order
+    let bvh_joints: Vec<BvhJoint> = order
         .iter()
         .map(|&j| {
             let mut channels = Vec::new();
@@ -764,7 +786,12 @@ pub fn bvh_from_clip(
             }
             channels.extend(rot);
             let off = body.skeleton.offset_in_parent_m(j);
-            let end_sites = if j.children().next().is_none() {
+            let end_sites = if j.children().any(kept) {
+                Vec::new()
+            } else if let Some(child) = j.children().next() {
+                // Its children left out: the bone it turns, to the first child's joint.
+                vec![body.skeleton.offset_in_parent_m(child) * s]
+            } else {
                 // Leaves: head top, or continue the bone by 0.1 m (hands, feet).
                 let e = if j == JointId::HEAD {
                     Vector3::new(0.0, body.head_top_above_head_joint_m, 0.0)
@@ -772,8 +799,6 @@ pub fn bvh_from_clip(
                     off.try_normalize(1e-12).unwrap_or_else(Vector3::zeros) * 0.1
                 };
                 vec![e * s]
-            } else {
-                Vec::new()
             };
             BvhJoint {
                 name: j.name().to_owned(),
@@ -785,7 +810,7 @@ pub fn bvh_from_clip(
             }
         })
         .collect();
-    let mut values = Vec::with_capacity(clip.poses.len() * (3 + 3 * NUM_JOINTS));
+    let mut values = Vec::with_capacity(clip.poses.len() * (3 + 3 * order.len()));
     for p in &clip.poses {
         values.extend((p.root_in_world_m * s).iter());
         for j in &order {
@@ -793,7 +818,7 @@ pub fn bvh_from_clip(
             values.extend(euler_xyz_from_rotation(r).map(f64::to_degrees));
         }
     }
-    Bvh::from_parts(file, joints, clip.frame_time_s, values)
+    Bvh::from_parts(file, bvh_joints, clip.frame_time_s, values)
 }
 
 /// The 24 joints in depth-first order (children in index order), the nesting order BVH files need.
@@ -1118,5 +1143,53 @@ left_ankle = "LeftFoot"
         assert!(seen.iter().all(|s| *s));
         assert_eq!(order[1], JointId::LEFT_HIP);
         assert_eq!(order[2], JointId::LEFT_KNEE);
+    }
+
+    #[test]
+    fn a_bvh_of_some_joints_keeps_their_chain_and_ends_each_cut_bone_at_its_child() {
+        let body = BodyModel::new(&BodyParams::builtin().unwrap(), 1.75, 70.0).unwrap();
+        let mut pose = Pose::default();
+        pose.parent_from_joint[JointId::LEFT_KNEE.index()] = Axis::X.rotation(0.5);
+        pose.parent_from_joint[JointId::LEFT_ANKLE.index()] = Axis::X.rotation(0.3);
+        let clip = MotionClip {
+            frame_time_s: 1.0 / 60.0,
+            poses: vec![pose],
+        };
+        // Pelvis, hips and knees (a lower body's); spine1 without its parent's chain is dropped
+        // too: the left ankle is not in the mask, and a joint under it never is.
+        let mask = [
+            JointId::ROOT,
+            JointId::LEFT_HIP,
+            JointId::RIGHT_HIP,
+            JointId::LEFT_KNEE,
+            JointId::RIGHT_KNEE,
+            JointId::LEFT_FOOT,
+        ]
+        .iter()
+        .fold(0u32, |m, j| m | 1 << j.index());
+        let bvh = bvh_of_joints(&body, &clip, LengthUnit::Metre, "legs.bvh", mask).unwrap();
+        let names: Vec<&str> = bvh.joints.iter().map(|j| j.name.as_str()).collect();
+        assert_eq!(
+            names,
+            ["pelvis", "left_hip", "left_knee", "right_hip", "right_knee"]
+        );
+        // The knee's End Site is the shank: the ankle's offset from the knee.
+        let knee = &bvh.joints[2];
+        let ankle = body.skeleton.offset_in_parent_m(JointId::LEFT_ANKLE);
+        assert_eq!(knee.end_sites.len(), 1);
+        assert!((knee.end_sites[0] - ankle).norm() < 1e-12);
+        // One frame: the root's 3 positions and 3 rotations per written joint; the left knee's
+        // 0.5 rad about x, the ankle's turn not written anywhere.
+        let text = bvh.to_bvh_string();
+        let frame: Vec<f64> = text
+            .lines()
+            .last()
+            .unwrap()
+            .split_whitespace()
+            .map(|v| v.parse().unwrap())
+            .collect();
+        assert_eq!(frame.len(), 3 + 3 * 5);
+        assert!((frame[3 + 3 * 2] - 0.5f64.to_degrees()).abs() < 1e-9);
+        assert_eq!(frame.iter().filter(|v| v.abs() > 1e-9).count(), 1);
     }
 }

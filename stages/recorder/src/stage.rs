@@ -87,6 +87,24 @@ pub fn run() -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The sensor sites a channel's frames were made from, for `sites` in its metadata: the set of
+/// the stage that publishes it, named when it is not the six (whose recordings stay as they
+/// were; exports keep every joint for them) and the stage is not a source (a source delivers the
+/// sensors and the truth, which holds every joint).
+fn estimated_from(ctx: &StageContext, stage: &str) -> anyhow::Result<Option<String>> {
+    let graph = ctx.graph();
+    if graph
+        .stages
+        .get(stage)
+        .is_none_or(|n| n.role == Role::Source)
+    {
+        return Ok(None);
+    }
+    let set = imuflow_body::SensorSet::resolve(graph.sensors_of(stage))
+        .with_context(|| format!("stage '{stage}': `sensors`"))?;
+    Ok((!set.is_six()).then(|| set.site_names().join(",")))
+}
+
 fn add_channels<W: std::io::Write + std::io::Seek>(
     ctx: &StageContext,
     writer: &mut mcap::Writer<W>,
@@ -102,6 +120,9 @@ fn add_channels<W: std::io::Write + std::io::Seek>(
         meta.insert("input".to_owned(), name.clone());
         meta.insert("frame".to_owned(), edge.frame.name().to_owned());
         meta.insert("frame_size".to_owned(), layout.size.to_string());
+        if let Some(sites) = estimated_from(ctx, &edge.from_stage)? {
+            meta.insert("sites".to_owned(), sites);
+        }
 
         let raw_schema = match schemas.get(&(edge.frame, false)) {
             Some(id) => *id,

@@ -8,9 +8,9 @@
 //! FRAME is an index into the exported frames (frame k of the BVH, the glb's keyframe k), the
 //! frames `imuflow export` leaves out (calibration, prelude, invalid) not counted. Prints
 //! `{"recording", "channel", "stature_m", "rate_hz", "frames_exported", "joints": [names],
-//! "frames": [{"index", "position_m": 24 × [x, y, z], "rotation_wxyz": 24 × [w, x, y, z]}]}`:
-//! every joint's world position (m) and world rotation in the model frame M (x left, y up, z
-//! forward).
+//! "frames": [{"index", "position_m": J × [x, y, z], "rotation_wxyz": J × [w, x, y, z]}]}`:
+//! the world position (m) and world rotation in the model frame M (x left, y up, z forward) of
+//! every joint the export writes (all 24, or those a sensor set's estimate observes).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -64,6 +64,8 @@ fn run(args: Args) -> Result<serde_json::Value, String> {
     // The export's body: mass does not enter the kinematics.
     let body = BodyModel::new(&params, args.stature_m, 70.0).map_err(|e| e.to_string())?;
     let poses = &motion.clip.poses;
+    let mask = motion.exported.joints;
+    let written = || JointId::all().filter(move |j| mask & (1 << j.index()) != 0);
     let mut fk = FkData::new();
     let mut frames = Vec::new();
     for &k in &args.frames {
@@ -75,10 +77,10 @@ fn run(args: Args) -> Result<serde_json::Value, String> {
             )
         })?;
         forward_kinematics(&body.skeleton, pose, &mut fk);
-        let positions: Vec<[f64; 3]> = JointId::all()
+        let positions: Vec<[f64; 3]> = written()
             .map(|j| fk.position(j).as_slice().try_into().expect("3 values"))
             .collect();
-        let rotations: Vec<[f64; 4]> = JointId::all()
+        let rotations: Vec<[f64; 4]> = written()
             .map(|j| quat_wxyz_from_rotation(fk.world_from(j)))
             .collect();
         frames.push(json!({"index": k, "position_m": positions, "rotation_wxyz": rotations}));
@@ -89,7 +91,7 @@ fn run(args: Args) -> Result<serde_json::Value, String> {
         "stature_m": args.stature_m,
         "rate_hz": motion.exported.rate_hz,
         "frames_exported": motion.exported.frames,
-        "joints": JointId::all().map(JointId::name).collect::<Vec<_>>(),
+        "joints": written().map(JointId::name).collect::<Vec<_>>(),
         "frames": frames,
     }))
 }

@@ -42,16 +42,31 @@ pub fn glb_from_clip(
     clip: &MotionClip,
     animation: &str,
 ) -> Result<Vec<u8>, String> {
+    glb_of_joints(body, clip, animation, u32::MAX)
+}
+
+/// [`glb_from_clip`] of the joints in `joints` (a mask over joint indices, such as the joints a
+/// sensor set observes) whose every ancestor is in it too, the root always: their nodes (in joint
+/// order, so node `k` is the `k`-th joint written), their bones and their rotations. A written
+/// joint whose children are all left out gets the box of the bone it turns, to its first child's
+/// joint (a knee's shank reaches the ankle).
+pub fn glb_of_joints(
+    body: &BodyModel,
+    clip: &MotionClip,
+    animation: &str,
+    joints: u32,
+) -> Result<Vec<u8>, String> {
     let first = clip.poses.first().ok_or("the motion has no frame")?;
     let mut doc = Document::default();
-    joint_nodes(&mut doc, body, &first.root_in_world_m);
-    bone_meshes(&mut doc, body);
-    animate(&mut doc, clip, animation);
+    let nodes = JointNodes::of(joints);
+    joint_nodes(&mut doc, body, &first.root_in_world_m, &nodes);
+    bone_meshes(&mut doc, body, &nodes);
+    animate(&mut doc, clip, animation, &nodes);
     doc.root.scenes.push(json::Scene {
         extensions: None,
         extras: Default::default(),
         name: Some("imuflow".into()),
-        nodes: vec![json::Index::new(JointId::ROOT.index() as u32)],
+        nodes: vec![json::Index::new(0)],
     });
     doc.root.scene = Some(json::Index::new(0));
     doc.into_glb()
@@ -212,9 +227,48 @@ fn f32x3(v: &Vector3<f64>) -> [f32; 3] {
     [v.x as f32, v.y as f32, v.z as f32]
 }
 
-/// Nodes 0..24: the joints, in joint order, each the child of its parent joint.
-fn joint_nodes(doc: &mut Document, body: &BodyModel, root_position_m: &Vector3<f64>) {
-    for j in JointId::all() {
+/// The joints written and their node indices: the first nodes, in joint order (a parent's index
+/// is below its children's, so every parent is written before them).
+struct JointNodes {
+    node: [Option<usize>; imuflow_body::NUM_JOINTS],
+}
+
+impl JointNodes {
+    /// The joints of `mask` whose every ancestor is in it, and the root.
+    fn of(mask: u32) -> JointNodes {
+        let mut node = [None; imuflow_body::NUM_JOINTS];
+        let mut next = 0;
+        for j in JointId::all() {
+            let written = match j.parent() {
+                None => true,
+                Some(p) => mask & (1 << j.index()) != 0 && node[p.index()].is_some(),
+            };
+            if written {
+                node[j.index()] = Some(next);
+                next += 1;
+            }
+        }
+        JointNodes { node }
+    }
+
+    fn of_joint(&self, j: JointId) -> Option<usize> {
+        self.node[j.index()]
+    }
+
+    /// The joints written, in joint (and node) order.
+    fn joints(&self) -> impl Iterator<Item = JointId> + '_ {
+        JointId::all().filter(|j| self.of_joint(*j).is_some())
+    }
+}
+
+/// The first nodes: the joints written, in joint order, each the child of its parent joint.
+fn joint_nodes(
+    doc: &mut Document,
+    body: &BodyModel,
+    root_position_m: &Vector3<f64>,
+    nodes: &JointNodes,
+) {
+    for j in nodes.joints() {
         let translation = match j.parent() {
             None => root_position_m,
             Some(_) => body.skeleton.offset_in_parent_m(j),
@@ -224,8 +278,8 @@ fn joint_nodes(doc: &mut Document, body: &BodyModel, root_position_m: &Vector3<f
             translation: Some(f32x3(translation)),
             ..Default::default()
         });
-        if let Some(parent) = j.parent() {
-            doc.add_child(parent.index(), index);
+        if let Some(parent) = j.parent().and_then(|p| nodes.of_joint(p)) {
+            doc.add_child(parent, index);
         }
     }
 }
@@ -257,27 +311,68 @@ impl Side {
 
 /// One unit box mesh per side (the same geometry, a different material), then a scaled box node
 /// per bone under its parent joint's node.
-fn bone_meshes(doc: &mut Document, body: &BodyModel) {
-    let meshes = side_meshes(doc);
+fn bone_meshes(doc: &mut Document, body: &BodyModel, nodes: &JointNodes) {
     let k = body.stature_m / REFERENCE_STATURE_M;
-    for j in JointId::all() {
-        if let Some(parent) = j.parent() {
+    // Every box, then a mesh per side in use (a mesh nothing uses is one a validator flags).
+    let mut boxes: Vec<BoneBox> = Vec::new();
+    for j in nodes.joints() {
+        let Some(node) = nodes.of_joint(j) else {
+            continue;
+        };
+        if let Some(parent) = j.parent()
+            && let Some(parent_node) = nodes.of_joint(parent)
+        {
             let offset = *body.skeleton.offset_in_parent_m(j);
             let name = format!("{}-{}", parent.name(), j.name());
-            let mesh = meshes[Side::of(j).index()];
-            bone_node(
-                doc,
-                parent,
-                name,
-                mesh,
-                &offset,
-                bone_size_m(j).map(|w| w * k),
-            );
+            boxes.push(BoneBox::new(parent_node, name, j, offset, bone_size_m(j)));
         }
-        if let Some(end) = end_of(body, j) {
-            let name = format!("{}-end", j.name());
-            let mesh = meshes[Side::of(j).index()];
-            bone_node(doc, j, name, mesh, &end, end_size_m(j).map(|w| w * k));
+        let first_child = j.children().next();
+        let children_left_out = j.children().all(|c| nodes.of_joint(c).is_none());
+        match first_child {
+            // The bone this joint turns, to its first child's joint (not written).
+            Some(child) if children_left_out => {
+                let offset = *body.skeleton.offset_in_parent_m(child);
+                let name = format!("{}-{}", j.name(), child.name());
+                boxes.push(BoneBox::new(node, name, child, offset, bone_size_m(child)));
+            }
+            _ => {
+                if let Some(end) = end_of(body, j) {
+                    let name = format!("{}-end", j.name());
+                    boxes.push(BoneBox::new(node, name, j, end, end_size_m(j)));
+                }
+            }
+        }
+    }
+    let mut used = [false; 3];
+    for b in &boxes {
+        used[b.side.index()] = true;
+    }
+    let meshes = side_meshes(doc, used);
+    for b in boxes {
+        if let Some(mesh) = meshes[b.side.index()] {
+            bone_node(doc, b.parent, b.name, mesh, &b.to, b.size.map(|w| w * k));
+        }
+    }
+}
+
+/// One box of the figure: under node `parent`, from it to `to` (in its frame), `size` across at
+/// the reference stature, coloured by the side of the joint it leads to.
+struct BoneBox {
+    parent: usize,
+    name: String,
+    side: Side,
+    to: Vector3<f64>,
+    size: [f64; 2],
+}
+
+impl BoneBox {
+    fn new(parent: usize, name: String, toward: JointId, to: Vector3<f64>, size: [f64; 2]) -> Self {
+        BoneBox {
+            parent,
+            name,
+            side: Side::of(toward),
+            to,
+            size,
         }
     }
 }
@@ -332,7 +427,7 @@ fn end_size_m(leaf: JointId) -> [f64; 2] {
 /// bone along y, turned with the bone otherwise.
 fn bone_node(
     doc: &mut Document,
-    parent: JointId,
+    parent: usize,
     name: String,
     mesh: json::Index<json::Mesh>,
     to: &Vector3<f64>,
@@ -352,7 +447,7 @@ fn bone_node(
         scale: Some([size[0] as f32, to.norm() as f32, size[1] as f32]),
         ..Default::default()
     });
-    doc.add_child(parent.index(), node);
+    doc.add_child(parent, node);
 }
 
 /// glTF's quaternion order `[x, y, z, w]`.
@@ -362,7 +457,7 @@ fn quat_xyzw(r: &Rotation3<f64>) -> [f32; 4] {
 }
 
 /// The unit box (−0.5..0.5 on each axis) with flat normals, and a mesh of it per side.
-fn side_meshes(doc: &mut Document) -> [json::Index<json::Mesh>; 3] {
+fn side_meshes(doc: &mut Document, used: [bool; 3]) -> [Option<json::Index<json::Mesh>>; 3] {
     let (positions, normals, indices) = unit_box();
     let positions = doc.floats(
         &positions,
@@ -392,7 +487,12 @@ fn side_meshes(doc: &mut Document) -> [json::Index<json::Mesh>; 3] {
         ("right", [0.85, 0.25, 0.15, 1.0]),
         ("centre", [0.75, 0.75, 0.75, 1.0]),
     ];
+    let mut side = 0;
     colours.map(|(name, colour)| {
+        side += 1;
+        if !used[side - 1] {
+            return None;
+        }
         let material = doc.root.push(json::Material {
             name: Some(name.to_owned()),
             pbr_metallic_roughness: json::material::PbrMetallicRoughness {
@@ -407,7 +507,7 @@ fn side_meshes(doc: &mut Document) -> [json::Index<json::Mesh>; 3] {
             (Valid(json::mesh::Semantic::Positions), positions),
             (Valid(json::mesh::Semantic::Normals), normals),
         ];
-        doc.root.push(json::Mesh {
+        Some(doc.root.push(json::Mesh {
             extensions: None,
             extras: Default::default(),
             name: Some(format!("box-{name}")),
@@ -421,7 +521,7 @@ fn side_meshes(doc: &mut Document) -> [json::Index<json::Mesh>; 3] {
                 targets: None,
             }],
             weights: None,
-        })
+        }))
     })
 }
 
@@ -450,7 +550,7 @@ fn unit_box() -> (Vec<f32>, Vec<f32>, Vec<u16>) {
 }
 
 /// The animation: keyframe times, the root translation, and every joint's rotation.
-fn animate(doc: &mut Document, clip: &MotionClip, name: &str) {
+fn animate(doc: &mut Document, clip: &MotionClip, name: &str, nodes: &JointNodes) {
     let times: Vec<f32> = (0..clip.poses.len())
         .map(|k| (k as f64 * clip.frame_time_s) as f32)
         .collect();
@@ -465,7 +565,7 @@ fn animate(doc: &mut Document, clip: &MotionClip, name: &str) {
         json::animation::Property::Translation,
         doc.floats(&root, Type::Vec3, false, None),
     )];
-    for j in JointId::all() {
+    for j in nodes.joints() {
         let rotations = continuous_quaternions(clip, j);
         let output = doc.floats(&rotations, Type::Vec4, false, None);
         channels.push((j, json::animation::Property::Rotation, output));
@@ -490,7 +590,7 @@ fn animate(doc: &mut Document, clip: &MotionClip, name: &str) {
             target: json::animation::Target {
                 extensions: None,
                 extras: Default::default(),
-                node: json::Index::new(joint.index() as u32),
+                node: json::Index::new(nodes.of_joint(joint).unwrap_or(0) as u32),
                 path: Valid(path),
             },
             extensions: None,

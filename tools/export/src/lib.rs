@@ -8,8 +8,16 @@
 //!   translation and every joint's local rotation animated, and a box per bone so any glTF viewer
 //!   shows a moving figure; Y up, metres, the model frame as it is ([`glb`]).
 //! - **npz** (`--format npz`): AMASS style (`poses` N × 72 SMPL axis-angle with the root, `trans`
-//!   N × 3, `mocap_framerate`, `betas` zeros, `gender` "neutral"), in the conventions
+//!   N × 3, `mocap_framerate`; no `betas` or `gender`), in the conventions
 //!   `imuflow_motion::npz` reads, so exporting and reading back is the identity.
+//!
+//! A motion estimated from a sensor set other than the six (the recorder names the set's sites in
+//! the channel's metadata, `sites`) is written with the joints that set observes
+//! ([`imuflow_body::SiteMask::observed_joints`]): BVH and glb leave the others out (a joint whose
+//! children are left out ends at its first child, so a lower body's shanks reach the ankles), npz
+//! keeps SMPL's 24 (its layout has no place to leave one out) and adds `joint_estimated`. The
+//! six's exports, a truth and recordings without `sites` keep every joint; `all_joints` keeps
+//! them for any set (the unobserved ones at rest).
 //!
 //! Frames flagged CALIBRATING, PRELUDE or INVALID are left out unless `keep_all`; the result says
 //! which recorded frame the export starts at. Nothing is written unless the whole export succeeds:
@@ -19,10 +27,10 @@ pub mod glb;
 
 use std::path::{Path, PathBuf};
 
-use imuflow_body::{BodyModel, BodyParams, Pose};
+use imuflow_body::{BodyModel, BodyParams, Imu, Pose, SiteMask};
 use imuflow_graph::frames::{MotionFrame, flags};
 use imuflow_motion::npz::{AmassOptions, write_amass_npz};
-use imuflow_motion::retarget::{LengthUnit, MotionClip, bvh_from_clip};
+use imuflow_motion::retarget::{LengthUnit, MotionClip, bvh_of_joints};
 use imuflow_recording::{carries, decode, for_each_record, schema_name};
 
 /// The file formats `imuflow export` writes.
@@ -62,6 +70,8 @@ pub struct ExportOptions {
     pub keep_all: bool,
     /// The subject's stature (m): scales the BVH and glTF skeleton's offsets.
     pub stature_m: f64,
+    /// Write every joint also for a motion estimated from a set that does not observe them all.
+    pub all_joints: bool,
 }
 
 /// What an export wrote.
@@ -76,6 +86,11 @@ pub struct Exported {
     pub first_time_s: f64,
     /// The rate written (Hz): the recording's graph rate.
     pub rate_hz: f64,
+    /// The sensor sites the channel's motion was estimated from, when the recording names them
+    /// (sets other than the six), comma-separated.
+    pub sites: Option<String>,
+    /// The joints written (BVH, glb) or flagged estimated (npz), as a mask over joint indices.
+    pub joints: u32,
 }
 
 /// Why nothing was exported; every variant names the file, and the channel where it matters.
@@ -131,17 +146,28 @@ pub struct ChannelMotion {
 
 /// Exports `options.channel` of `options.input` to `options.out`.
 pub fn export(options: &ExportOptions) -> Result<Exported, ExportError> {
-    let motion = read_motion(&options.input, &options.channel, options.keep_all)?;
+    let mut motion = read_motion(&options.input, &options.channel, options.keep_all)?;
+    if options.all_joints {
+        motion.exported.joints = ALL_JOINTS;
+    }
+    let joints = motion.exported.joints;
     let clip = &motion.clip;
     write_atomically(&options.out, |path| match options.format {
-        Format::Bvh => write_bvh(path, clip, options),
-        Format::Glb => write_glb(path, clip, options),
+        Format::Bvh => write_bvh(path, clip, options, joints),
+        Format::Glb => write_glb(path, clip, options, joints),
         Format::Npz => {
-            write_amass_npz(path, clip, &AmassOptions::default()).map_err(|e| e.to_string())
+            let amass = AmassOptions {
+                estimated_joints: (joints != ALL_JOINTS).then_some(joints),
+                ..AmassOptions::default()
+            };
+            write_amass_npz(path, clip, &amass).map_err(|e| e.to_string())
         }
     })?;
     Ok(motion.exported)
 }
+
+/// Every joint of the skeleton, as a mask over joint indices.
+pub const ALL_JOINTS: u32 = (1 << imuflow_body::NUM_JOINTS) - 1;
 
 /// The poses of MotionFrame channel `channel` of the recording `input` that an export writes
 /// (frame `k` of the clip is frame `k` of every exported file): the frames flagged CALIBRATING,
@@ -197,6 +223,8 @@ pub fn read_motion(
             first_seq,
             first_time_s,
             rate_hz: recorded.rate_hz,
+            joints: recorded.sites.map_or(ALL_JOINTS, |s| s.observed_joints()),
+            sites: recorded.sites.map(|s| s.names()),
         },
     })
 }
@@ -210,6 +238,8 @@ fn is_left_out(frame: &MotionFrame) -> bool {
 struct RecordedChannel {
     frames: Vec<MotionFrame>,
     rate_hz: f64,
+    /// The sensor sites its motion was estimated from (channel metadata `sites`), when named.
+    sites: Option<SiteMask>,
 }
 
 /// The recorder's rate when its metadata has none (imuflow's nominal rate).
@@ -261,6 +291,15 @@ fn read_channel(path: &Path, channel: &str) -> Result<RecordedChannel, ExportErr
         }
         Some(c) => c.id,
     };
+    let sites = match channels[&wanted].metadata.get("sites") {
+        None => None,
+        Some(names) => Some(
+            site_mask(names).map_err(|message| ExportError::NotARecording {
+                file: file.clone(),
+                message: format!("channel '{channel}': metadata `sites`: {message}"),
+            })?,
+        ),
+    };
     let mut frames = Vec::new();
     let mut rate_hz = DEFAULT_RATE_HZ;
     for_each_record(&bytes, |_, record| {
@@ -284,7 +323,28 @@ fn read_channel(path: &Path, channel: &str) -> Result<RecordedChannel, ExportErr
         Ok(())
     })
     .map_err(not_a_recording)?;
-    Ok(RecordedChannel { frames, rate_hz })
+    Ok(RecordedChannel {
+        frames,
+        rate_hz,
+        sites,
+    })
+}
+
+/// The sites of a channel's `sites` metadata (site names, comma-separated).
+fn site_mask(names: &str) -> Result<SiteMask, String> {
+    names
+        .split(',')
+        .map(|name| {
+            Imu::from_name(name.trim()).ok_or_else(|| {
+                format!(
+                    "'{}' is not a site of the body model ({})",
+                    name.trim(),
+                    Imu::NAMES.join(", ")
+                )
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map(SiteMask::of)
 }
 
 /// The subject's body model at `stature_m` (its mass does not enter an export: BVH and glTF hold
@@ -294,17 +354,27 @@ fn body_model(stature_m: f64) -> Result<BodyModel, String> {
     BodyModel::new(&params, stature_m, 70.0).map_err(|e| e.to_string())
 }
 
-fn write_bvh(path: &Path, clip: &MotionClip, options: &ExportOptions) -> Result<(), String> {
+fn write_bvh(
+    path: &Path,
+    clip: &MotionClip,
+    options: &ExportOptions,
+    joints: u32,
+) -> Result<(), String> {
     let body = body_model(options.stature_m)?;
     let name = options.out.display().to_string();
-    let bvh = bvh_from_clip(&body, clip, options.unit, &name)
+    let bvh = bvh_of_joints(&body, clip, options.unit, &name, joints)
         .ok_or_else(|| "the motion has no frame".to_owned())?;
     std::fs::write(path, bvh.to_bvh_string()).map_err(|e| e.to_string())
 }
 
-fn write_glb(path: &Path, clip: &MotionClip, options: &ExportOptions) -> Result<(), String> {
+fn write_glb(
+    path: &Path,
+    clip: &MotionClip,
+    options: &ExportOptions,
+    joints: u32,
+) -> Result<(), String> {
     let body = body_model(options.stature_m)?;
-    let bytes = glb::glb_from_clip(&body, clip, &options.channel)?;
+    let bytes = glb::glb_of_joints(&body, clip, &options.channel, joints)?;
     std::fs::write(path, bytes).map_err(|e| e.to_string())
 }
 

@@ -28,6 +28,7 @@ fn options(out: &Path, format: Format) -> ExportOptions {
         unit: LengthUnit::Metre,
         keep_all: false,
         stature_m: 1.75,
+        all_joints: false,
     }
 }
 

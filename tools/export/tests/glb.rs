@@ -28,6 +28,7 @@ fn export_glb(out: &Path, stature_m: f64) -> imuflow_export::Exported {
         unit: LengthUnit::Metre,
         keep_all: false,
         stature_m,
+        all_joints: false,
     })
     .expect("exports")
 }
@@ -283,4 +284,70 @@ fn the_file_composes_to_imuflows_forward_kinematics() {
             assert!(d < 1e-5, "frame {k} {j}: {d} m from forward kinematics");
         }
     }
+}
+
+/// A lower body's joints only (pelvis, hips, knees): five joint nodes nested as the skeleton,
+/// the bones between them, and each knee's shank to the ankle (the bone a knee turns, its child
+/// left out); the animation turns those five and moves the root, nothing else.
+#[test]
+fn a_glb_of_some_joints_holds_their_nodes_bones_and_rotations_only() {
+    let body = body(1.75);
+    let motion = read_motion(&sample(), "source.truth", false).expect("reads");
+    let joints = [
+        JointId::ROOT,
+        JointId::LEFT_HIP,
+        JointId::RIGHT_HIP,
+        JointId::LEFT_KNEE,
+        JointId::RIGHT_KNEE,
+    ];
+    let mask = joints.iter().fold(0u32, |m, j| m | 1 << j.index());
+    let bytes =
+        imuflow_export::glb::glb_of_joints(&body, &motion.clip, "legs", mask).expect("writes");
+    let gltf = gltf::Gltf::from_slice(&bytes).expect("valid glTF");
+    let nodes: Vec<gltf::Node> = gltf.nodes().collect();
+    let names: Vec<&str> = nodes.iter().filter_map(|n| n.name()).collect();
+    assert_eq!(
+        names,
+        [
+            "pelvis",
+            "left_hip",
+            "right_hip",
+            "left_knee",
+            "right_knee",
+            "pelvis-left_hip",
+            "pelvis-right_hip",
+            "left_hip-left_knee",
+            "left_knee-left_ankle",
+            "right_hip-right_knee",
+            "right_knee-right_ankle",
+        ]
+    );
+    // The shank's box hangs from the knee and ends at the ankle's rest offset.
+    let shank = &nodes[8];
+    let (t, r, s) = shank.transform().decomposed();
+    let ankle = body.skeleton.offset_in_parent_m(JointId::LEFT_ANKLE);
+    let far_end = point(&trs(t, r, s), Vector3::new(0.0, 0.5, 0.0));
+    assert!((far_end - ankle).norm() < 1e-5, "{far_end} vs {ankle}");
+    assert!(
+        nodes[3]
+            .children()
+            .any(|c| c.name() == Some("left_knee-left_ankle"))
+    );
+    // Root translation and five rotations, each on a joint node.
+    let animation = gltf.animations().next().expect("an animation");
+    let targets: Vec<(usize, Property)> = animation
+        .channels()
+        .map(|c| (c.target().node().index(), c.target().property()))
+        .collect();
+    assert_eq!(targets.len(), 6);
+    assert_eq!(targets[0], (0, Property::Translation));
+    assert!(
+        targets[1..]
+            .iter()
+            .enumerate()
+            .all(|(k, t)| *t == (k, Property::Rotation))
+    );
+    // Only the two sides' box meshes are used: the centre's is not written.
+    let meshes: Vec<&str> = gltf.meshes().filter_map(|m| m.name()).collect();
+    assert_eq!(meshes, ["box-left", "box-right"]);
 }

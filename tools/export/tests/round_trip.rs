@@ -30,6 +30,7 @@ fn the_synthesizer_reads_an_exported_npz_as_the_exported_motion() {
         unit: LengthUnit::Metre,
         keep_all: false,
         stature_m: 1.75,
+        all_joints: false,
     })
     .expect("exports");
     let truth = truth_after_prelude();
