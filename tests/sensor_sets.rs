@@ -228,6 +228,21 @@ params = {{ path = "{{dir}}/hips.mcap" }}
             && err.contains("hips (pelvis, left_upper_leg, right_upper_leg)"),
         "{err}"
     );
+
+    // A set whose heading reference is not the pelvis: the walking calibration names both.
+    std::fs::write(
+        &set,
+        "[legs-by-thigh]\nsites = [\"pelvis\", \"left_upper_leg\", \"right_upper_leg\", \"left_lower_leg\", \"right_lower_leg\"]\nheading_reference = \"left_upper_leg\"\n",
+    )
+    .expect("write the set");
+    let out = sb.run(&["run", graph.to_str().expect("utf8"), "--no-progress"]);
+    let err = text(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("takes the body's heading from the pelvis sensor")
+            && err.contains("legs-by-thigh names left_upper_leg as its heading_reference"),
+        "{err}"
+    );
     assert_clean(&sb);
 }
 

@@ -196,6 +196,16 @@ pub fn run() -> anyhow::Result<()> {
     let sensors = imuflow_body::SensorSet::resolve(ctx.sensors())
         .with_context(|| format!("stage '{stage}': `sensors`"))?;
     config.sites = sensors.mask();
+    if config.method == Method::Walking && sensors.heading_reference() != imuflow_body::Imu::Pelvis
+    {
+        bail!(
+            "stage '{stage}': method = \"walking\" takes the body's heading from the pelvis sensor; \
+             the sensor set {} names {} as its heading_reference (set heading_reference = \"pelvis\" \
+             in the set file, or calibrate with method = \"tpose\", which takes no sensor's heading)",
+            sensors.name(),
+            sensors.heading_reference().name()
+        );
+    }
     if let Some(missing) = method_needs(config.method, &sensors) {
         bail!(
             "stage '{stage}': method = \"walking\" takes the body's heading from the pelvis and \

@@ -143,11 +143,18 @@ fn error_per_joint(path: &Path, series: &[Series]) -> anyhow::Result<()> {
     for (k, s) in series.iter().enumerate() {
         let c = colour(k);
         chart
-            .draw_series(s.per_joint_cm.iter().enumerate().map(|(j, e)| {
-                let row = n - 1.0 - j as f64;
-                let y1 = row + 0.9 - k as f64 * height;
-                Rectangle::new([(0.0, y1 - height), (*e, y1)], c.filled())
-            }))?
+            // NaN: a joint whose position the variant's sensors do not place (no bar).
+            .draw_series(
+                s.per_joint_cm
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, e)| e.is_finite())
+                    .map(|(j, e)| {
+                        let row = n - 1.0 - j as f64;
+                        let y1 = row + 0.9 - k as f64 * height;
+                        Rectangle::new([(0.0, y1 - height), (*e, y1)], c.filled())
+                    }),
+            )?
             .label(s.name.as_str())
             .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], c.filled()));
     }

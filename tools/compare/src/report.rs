@@ -61,6 +61,7 @@ pub struct Series {
     pub name: String,
     /// (seq, joint position error cm).
     pub error_cm: Vec<(u32, f64)>,
+    /// Per joint, cm; NaN where the variant's sensors do not place the joint (its parent not observed).
     pub per_joint_cm: [f64; NUM_JOINTS],
     /// Root positions (x, z), m.
     pub trajectory: Vec<(f64, f64)>,
@@ -194,9 +195,11 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
         };
         add_motion_rows(&mut table, k, &scores, truth.is_some());
         let set = &combined.variants[k].sensors;
-        for row in unobserved_scores(set)? {
+        let unobserved = unobserved_scores(set)?;
+        for row in &unobserved {
             table.blank(row, k);
         }
+        let observed = imuflow_body::SensorSet::resolve(set)?.observed_joints();
         if !v.body_imu.is_empty() {
             let sites = imuflow_body::SensorSet::resolve(set)?.mask();
             let error = sensor_bone_error_deg(&estimate, &v.body_imu, &body, sites);
@@ -230,6 +233,19 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
             table.set("source-to-motion latency p50", "ms", true, k, p(0.5));
             table.set("source-to-motion latency p99", "ms", true, k, p(0.99));
         }
+        // A set that leaves joints at rest: no whole-body error over time, and per joint only
+        // where the joint's position follows from observed rotations (its parent's chain).
+        let whole_body = !unobserved.contains(&"joint position error");
+        let mut per_joint_cm = scores
+            .per_joint
+            .as_ref()
+            .map_or([0.0; NUM_JOINTS], |j| j.joint_position_error_cm);
+        for j in imuflow_body::JointId::all() {
+            let placed = j.parent().is_none_or(|p| observed & (1 << p.index()) != 0);
+            if !placed {
+                per_joint_cm[j.index()] = f64::NAN;
+            }
+        }
         series.push(Series {
             name: v.name.clone(),
             error_cm: scores
@@ -237,12 +253,10 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
                 .seq
                 .iter()
                 .zip(&scores.per_frame.joint_position_error_cm)
+                .filter(|_| whole_body)
                 .map(|(seq, e)| (*seq as u32, *e))
                 .collect(),
-            per_joint_cm: scores
-                .per_joint
-                .as_ref()
-                .map_or([0.0; NUM_JOINTS], |j| j.joint_position_error_cm),
+            per_joint_cm,
             trajectory: estimate
                 .iter()
                 .map(|f| {
