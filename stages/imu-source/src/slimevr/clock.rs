@@ -12,10 +12,20 @@
 //! - `P`, the time per packet number: the mean of the intervals per number between consecutive
 //!   datagrams of the last [`PACE_WINDOW_NS`], leaving out those under half their upper quartile
 //!   (a backlog's datagrams, delivered back to back, would make the pace look faster) and those
-//!   over twice the median of the rest (the stall before a backlog).
+//!   over twice the median of the rest (the stall before a backlog). A tracker that sends each
+//!   sample as several datagrams back to back (SlimeVR's tracker emulator and firmware that does
+//!   not bundle: a rotation and an acceleration datagram per sensor) has consecutive intervals of
+//!   nothing and of a whole sample in turn, and those left by the backlog rule would make the
+//!   pace a whole sample per number: its pace is measured across [`PACE_SPAN`] numbers (a tenth
+//!   off each end: the intervals across a stall's edges).
 //! - the line `t(n) = n·P + o` touches the earliest-delivered datagram of the last [`WINDOW_NS`]
-//!   (`o` is the smallest `a − n·P` there). A backlog's datagrams lie above it and are dated back
-//!   onto it, `P` apart per number; a lost datagram leaves its gap.
+//!   (`o` is the smallest `a − n·P` there). With a sample sent as several datagrams, that is a
+//!   sample's last datagram, and its first lies above the line by the sample's other datagrams'
+//!   numbers: `S`, that spread (the 80th percentile of how far each datagram of the pace window
+//!   lies above the lowest of the [`PACE_SPAN`] before it, in whole numbers of `P`; 0 for one
+//!   datagram per sample), is allowed. A datagram is dated at `min(arrival, t(n) + S)`: a
+//!   sample's first datagram on its send, a backlog's back onto the line; a lost datagram leaves
+//!   its gap.
 //! - Each date is at or before the arrival and after the previous date by at least 3/4 of the
 //!   pace per number (where the line moves back, a less delayed datagram or a new pace, the
 //!   dates rejoin it without bunching), and so at most [`WINDOW_NS`] before the arrival.
@@ -38,6 +48,10 @@ pub const PACE_WINDOW_NS: u64 = 1_000_000_000;
 pub const MIN_INTERVALS: usize = 16;
 /// The pace is measured again every this many datagrams.
 const REPACE_EVERY: u32 = 16;
+/// The pace is measured over datagrams this many numbers apart: more than a board sends for one
+/// sample unbundled (two sensors' rotation and acceleration: 4), so an interval spans whole
+/// samples' time on average.
+const PACE_SPAN: usize = 8;
 
 /// One tracker's packet-number clock.
 #[derive(Debug, Default, Clone)]
@@ -46,6 +60,11 @@ pub struct PacketClock {
     recent: VecDeque<(u64, u64)>,
     /// The time per packet number, ns, and how many datagrams ago it was measured.
     pace: Option<f64>,
+    /// How far above the line datagrams that came on time lie, ns (with the pace).
+    spread: f64,
+    /// The tracker has been seen sending a sample as several datagrams: its firmware keeps doing
+    /// so (a window of irregular sends, a loaded sender catching up, does not undo it).
+    grouped: bool,
     since_pace: u32,
     last_dated: u64,
     last_number: Option<u64>,
@@ -65,19 +84,33 @@ impl PacketClock {
         }
         self.since_pace += 1;
         if self.pace.is_none() || self.since_pace >= REPACE_EVERY {
-            self.pace = pace_ns(&self.recent).or(self.pace);
+            if let Some((pace, grouped)) = pace_ns(&self.recent, self.grouped) {
+                self.grouped = grouped;
+                self.pace = Some(pace);
+                self.spread = if grouped {
+                    spread_ns(&self.recent, pace)
+                } else {
+                    0.0
+                };
+            }
             self.since_pace = 0;
         }
         let dated = match self.pace {
             // The line through the earliest-delivered recent datagram, at this number.
-            Some(pace) => self
-                .recent
-                .iter()
-                .rev()
-                .take_while(|&&(_, a)| a + WINDOW_NS >= arrival_ns)
-                .map(|&(n, a)| a as f64 + (number as f64 - n as f64) * pace)
-                .fold(f64::INFINITY, f64::min)
-                .round() as u64,
+            // (Relative to this arrival: epoch nanoseconds are beyond f64's integers.)
+            Some(pace) => {
+                let before_arrival = self
+                    .recent
+                    .iter()
+                    .rev()
+                    .take_while(|&&(_, a)| a + WINDOW_NS >= arrival_ns)
+                    .map(|&(n, a)| {
+                        (arrival_ns as i64 - a as i64) as f64 - (number as f64 - n as f64) * pace
+                    })
+                    .fold(f64::NEG_INFINITY, f64::max)
+                    - self.spread;
+                arrival_ns.saturating_sub(before_arrival.max(0.0).round() as u64)
+            }
             None => arrival_ns,
         };
         // Never after the arrival; after the previous date by at least 3/4 of the pace per number
@@ -95,22 +128,31 @@ impl PacketClock {
     }
 }
 
-/// The time per packet number, ns: the mean of the intervals per number between consecutive
-/// datagrams, leaving out those under half the upper quartile (a backlog's, delivered at once) and
-/// those over twice the median of the rest (a stall's), once there are [`MIN_INTERVALS`].
-fn pace_ns(datagrams: &VecDeque<(u64, u64)>) -> Option<f64> {
-    let mut per_number: Vec<f64> = datagrams
-        .iter()
-        .zip(datagrams.iter().skip(1))
-        .filter(|(p, q)| q.0 > p.0)
-        .map(|(p, q)| (q.1 as f64 - p.1 as f64) / (q.0 - p.0) as f64)
-        .collect();
-    if per_number.len() < MIN_INTERVALS {
+/// The time per packet number, ns, and whether the tracker sends each sample as several
+/// datagrams (`grouped_before`: it was seen to): the mean of the intervals per number between consecutive datagrams, leaving out
+/// those under half the upper quartile (a backlog's, delivered at once) and those over twice the
+/// median of the rest (a stall's), once there are [`MIN_INTERVALS`]. A tracker that sends a
+/// sample as several datagrams back to back (more than a quarter of the consecutive intervals
+/// under half their 90th percentile; a backlog is a tenth at most) has consecutive intervals of
+/// nothing and of a whole sample in turn, and the rule above would keep only the whole samples':
+/// its pace is measured across [`PACE_SPAN`] numbers, and a tenth is taken off each end of the
+/// intervals kept (those across a stall's edges, partly delayed).
+fn pace_ns(datagrams: &VecDeque<(u64, u64)>, grouped_before: bool) -> Option<(f64, bool)> {
+    let consecutive = per_number_ns(datagrams, 1);
+    if consecutive.len() < MIN_INTERVALS {
         return None;
     }
-    per_number.sort_by(f64::total_cmp);
-    let upper_quartile = per_number[per_number.len() * 3 / 4];
-    let steady: Vec<f64> = per_number
+    let p90 = consecutive[consecutive.len() * 9 / 10];
+    let bunched = consecutive.iter().filter(|&&d| d < 0.5 * p90).count();
+    let grouped = grouped_before || 4 * bunched > consecutive.len();
+    let across = per_number_ns(datagrams, PACE_SPAN);
+    let (intervals, trim) = if grouped && across.len() >= MIN_INTERVALS {
+        (across, true)
+    } else {
+        (consecutive, false)
+    };
+    let upper_quartile = intervals[intervals.len() * 3 / 4];
+    let steady: Vec<f64> = intervals
         .into_iter()
         .filter(|&d| d >= 0.5 * upper_quartile)
         .collect();
@@ -118,8 +160,51 @@ fn pace_ns(datagrams: &VecDeque<(u64, u64)>) -> Option<f64> {
     // left out as its backlog's short ones were.
     let median = *steady.get(steady.len() / 2)?;
     let kept: Vec<f64> = steady.into_iter().filter(|&d| d <= 2.0 * median).collect();
-    let mean = kept.iter().sum::<f64>() / kept.len() as f64;
-    (mean > 0.0).then_some(mean)
+    let cut = if trim { kept.len() / 10 } else { 0 };
+    let middle = &kept[cut..kept.len() - cut];
+    let mean = middle.iter().sum::<f64>() / middle.len().max(1) as f64;
+    (mean > 0.0).then_some((mean, grouped))
+}
+
+/// The intervals per number between datagrams `span` apart (numbers increasing), sorted, ns.
+fn per_number_ns(datagrams: &VecDeque<(u64, u64)>, span: usize) -> Vec<f64> {
+    let mut per_number: Vec<f64> = datagrams
+        .iter()
+        .zip(datagrams.iter().skip(span))
+        .filter(|(p, q)| q.0 > p.0)
+        .map(|(p, q)| (q.1 as f64 - p.1 as f64) / (q.0 - p.0) as f64)
+        .collect();
+    per_number.sort_by(f64::total_cmp);
+    per_number
+}
+
+/// How far above the line of `pace` datagrams that came on time lie, ns, in whole numbers of the
+/// pace: the 80th percentile, over `datagrams`, of each one's `a − n·P` above the lowest of the
+/// [`PACE_SPAN`] before it, rounded to a multiple of `P`. A sample sent as m datagrams puts its
+/// first (m − 1)·P above its last, a fraction 1/m of them; the percentile finds that for m up to
+/// 5 and stays clear of a stall's backlog (a 100 ms stall per second is a tenth of the
+/// datagrams). One datagram per sample: 0 (its jitter is under half a number).
+fn spread_ns(datagrams: &VecDeque<(u64, u64)>, pace: f64) -> f64 {
+    let Some(&(n0, a0)) = datagrams.front() else {
+        return 0.0;
+    };
+    let above_line: Vec<f64> = datagrams
+        .iter()
+        .map(|&(n, a)| (a - a0) as f64 - (n - n0) as f64 * pace)
+        .collect();
+    let mut above_lowest: Vec<f64> = above_line
+        .windows(PACE_SPAN + 1)
+        .map(|w| w[PACE_SPAN] - w.iter().copied().fold(f64::INFINITY, f64::min))
+        .collect();
+    if above_lowest.is_empty() {
+        return 0.0;
+    }
+    above_lowest.sort_by(f64::total_cmp);
+    // Whole numbers of the pace: a sample's datagrams lie whole numbers above one another; what
+    // is less than half a number is the delivery's jitter, which the line (the least delayed)
+    // already leaves out.
+    let spread = above_lowest[above_lowest.len() * 4 / 5];
+    (spread / pace).round() * pace
 }
 
 #[cfg(test)]
@@ -202,6 +287,47 @@ mod tests {
             let error =
                 clock.date(n, stall_end + n * 1000) as i64 - (t0 + (n - 50) * 10 * MS) as i64;
             assert!(error.abs() < 200_000, "{n}: {error} ns off");
+        }
+    }
+
+    #[test]
+    fn a_tracker_sending_each_sample_as_two_datagrams_is_dated_by_its_samples() {
+        // SlimeVR's tracker emulator (and firmware that does not bundle): a rotation and an
+        // acceleration datagram per 10 ms sample, 20 µs apart, numbers two per sample (5 ms per
+        // number on average), arriving 0.3 ms after they were sent. From 2 s a stall, then its
+        // 10 samples' 20 datagrams 0.1 ms apart, the last before the next sample's.
+        let mut clock = PacketClock::default();
+        let t0 = 1_700_000_000_000 * MS;
+        let mut dates = Vec::new();
+        for k in 0..300u64 {
+            for (d, n) in [(0, 2 * k + 1), (20_000, 2 * k + 2)] {
+                let sent = t0 + k * 10 * MS + d;
+                let arrival = if (200..210).contains(&k) {
+                    t0 + 2098 * MS + (n - 401) * MS / 10
+                } else {
+                    sent + 300_000
+                };
+                dates.push((n, sent, arrival, clock.date(n, arrival)));
+            }
+        }
+        let pace = clock.pace.expect("measured");
+        assert!((pace / (5.0 * MS as f64) - 1.0).abs() < 0.02, "{pace}");
+        for &(n, sent, arrival, dated) in &dates[200..] {
+            let error = dated as i64 - sent as i64;
+            if arrival == sent + 300_000 {
+                // On time: its send plus the least delay (0.3 ms), the rotation 20 µs after it
+                // (its sample's acceleration's, on the line).
+                assert!((300_000..=320_000).contains(&error), "{n}: {error}");
+            } else if n % 2 == 1 {
+                // The backlog's rotations (whose date a sample takes): back at their sends.
+                assert!(error.abs() < 1_000_000, "{n}: {error} ns off");
+            } else {
+                // Its accelerations: at most a sample after, never after the arrival.
+                assert!(
+                    (0..11_000_000).contains(&error) && dated <= arrival,
+                    "{n}: {error}"
+                );
+            }
         }
     }
 }
