@@ -132,8 +132,7 @@ impl PacketClock {
 /// datagrams (`grouped_before`: it was seen to): the mean of the intervals per number between consecutive datagrams, leaving out
 /// those under half the upper quartile (a backlog's, delivered at once) and those over twice the
 /// median of the rest (a stall's), once there are [`MIN_INTERVALS`]. A tracker that sends a
-/// sample as several datagrams back to back (more than a quarter of the consecutive intervals
-/// under half their 90th percentile; a backlog is a tenth at most) has consecutive intervals of
+/// sample as several datagrams back to back ([`sends_samples_as_groups`]) has consecutive intervals of
 /// nothing and of a whole sample in turn, and the rule above would keep only the whole samples':
 /// its pace is measured across [`PACE_SPAN`] numbers, and a tenth is taken off each end of the
 /// intervals kept (those across a stall's edges, partly delayed).
@@ -142,9 +141,7 @@ fn pace_ns(datagrams: &VecDeque<(u64, u64)>, grouped_before: bool) -> Option<(f6
     if consecutive.len() < MIN_INTERVALS {
         return None;
     }
-    let p90 = consecutive[consecutive.len() * 9 / 10];
-    let bunched = consecutive.iter().filter(|&&d| d < 0.5 * p90).count();
-    let grouped = grouped_before || 4 * bunched > consecutive.len();
+    let grouped = grouped_before || sends_samples_as_groups(datagrams, &consecutive);
     let across = per_number_ns(datagrams, PACE_SPAN);
     let (intervals, trim) = if grouped && across.len() >= MIN_INTERVALS {
         (across, true)
@@ -164,6 +161,37 @@ fn pace_ns(datagrams: &VecDeque<(u64, u64)>, grouped_before: bool) -> Option<(f6
     let middle = &kept[cut..kept.len() - cut];
     let mean = middle.iter().sum::<f64>() / middle.len().max(1) as f64;
     (mean > 0.0).then_some((mean, grouped))
+}
+
+/// Whether the datagrams come in groups of 2 to 4 numbers sent back to back: for some group size
+/// m, the intervals after the datagrams of some numbers mod m are bunched (under half the 90th
+/// percentile of `consecutive`, the sorted consecutive intervals per number) at least 4 times in
+/// 5, and after those of another at most 1 in 5. A backlog's bunched intervals (a tenth at most)
+/// fall on every number alike, as does a loaded sender's catching up, so neither looks like it.
+fn sends_samples_as_groups(datagrams: &VecDeque<(u64, u64)>, consecutive: &[f64]) -> bool {
+    let Some(&p90) = consecutive.get(consecutive.len() * 9 / 10) else {
+        return false;
+    };
+    (2..=4u64).any(|m| {
+        let mut bunched = [0usize; 4];
+        let mut total = [0usize; 4];
+        for (p, q) in datagrams.iter().zip(datagrams.iter().skip(1)) {
+            if q.0 != p.0 + 1 {
+                continue;
+            }
+            let r = (p.0 % m) as usize;
+            total[r] += 1;
+            if (q.1 as f64) - (p.1 as f64) < 0.5 * p90 {
+                bunched[r] += 1;
+            }
+        }
+        let share = |r: usize| bunched[r] as f64 / total[r].max(1) as f64;
+        let counted = |r: usize| total[r] >= MIN_INTERVALS / 2;
+        let residues = 0..m as usize;
+        residues.clone().all(counted)
+            && residues.clone().any(|r| share(r) >= 0.8)
+            && residues.into_iter().any(|r| share(r) <= 0.2)
+    })
 }
 
 /// The intervals per number between datagrams `span` apart (numbers increasing), sorted, ns.
