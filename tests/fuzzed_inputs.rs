@@ -13,7 +13,7 @@ use std::path::Path;
 
 use imuflow_graph::Graph;
 use imuflow_graph::spec::Registry;
-use imuflow_imu_source::udp::{PACKET_SIZE, Packet};
+use imuflow_imu_source::udp::{PACKET_SIZE, Packet, packet_size};
 use imuflow_motion::bvh::Bvh;
 use imuflow_motion::retarget::{BANDAI_NAMCO_MAPPING_TOML, SourceSkeleton};
 use imuflow_recording::Recording;
@@ -168,12 +168,18 @@ proptest! {
 
     #[test]
     fn udp_packets(bytes in prop::collection::vec(any::<u8>(), 0..PACKET_SIZE * 2)) {
-        let _ = Packet::decode(&bytes);
+        let _ = Packet::decode(&bytes, 6);
+        let _ = Packet::decode(&bytes, 17);
     }
 
     #[test]
     fn udp_packets_of_the_right_size(bytes in prop::collection::vec(any::<u8>(), PACKET_SIZE)) {
-        let _ = Packet::decode(&bytes);
+        let _ = Packet::decode(&bytes, 6);
+    }
+
+    #[test]
+    fn udp_packets_of_a_full_suits_size(bytes in prop::collection::vec(any::<u8>(), packet_size(17))) {
+        let _ = Packet::decode(&bytes, 17);
     }
 }
 

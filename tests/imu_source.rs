@@ -257,13 +257,28 @@ params = { path = "{dir}/out.mcap" }
 
 #[test]
 fn udp_packets_become_frames_with_invalid_sensors_marked() {
-    let sb = Sandbox::new("udp");
+    // The six-site set: its six slots.
+    udp_packets_of_a_set("six", 6, 0b11_1111);
+}
+
+#[test]
+fn udp_packets_of_a_lower_body_set_fill_its_slots() {
+    // Pelvis, upper and lower legs: slots 2, 3, 5, 6, 7, five sensors a packet.
+    udp_packets_of_a_set("lower-body", 5, 1 << 2 | 1 << 3 | 1 << 5 | 1 << 6 | 1 << 7);
+}
+
+/// A udp source of the sensor set `sensors` receives 60 packets of `count` sensors (every 10th
+/// with a NaN, every 7th with its second sensor not valid): frames whose valid mask is `slots`
+/// unless a sensor was not valid, and then flagged INVALID.
+fn udp_packets_of_a_set(sensors: &str, count: usize, slots: u32) {
+    let sb = Sandbox::new(&format!("udp-{sensors}"));
     let port = free_udp_port();
     let graph = sb.graph(
         "udp.toml",
         &format!(
             r#"
 name = "udp-test"
+sensors = "{sensors}"
 [stages.sensors]
 kind = "imu-source"
 params = {{ mode = "udp", bind = "127.0.0.1:{port}", timeout_ms = 1500, frames = 60 }}
@@ -283,7 +298,7 @@ params = {{ path = "{{dir}}/udp.mcap" }}
             let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("sender socket");
             let mut seq = 0;
             while !done.load(std::sync::atomic::Ordering::Relaxed) && seq < 12_000 {
-                let packet = udp::synthetic_packet(seq, 200.0, 10, 7);
+                let packet = udp::synthetic_packet(seq, 200.0, 10, 7, count);
                 let _ = socket.send_to(&packet.encode(), ("127.0.0.1", port));
                 seq += 1;
                 std::thread::sleep(std::time::Duration::from_millis(5));
@@ -302,7 +317,8 @@ params = {{ path = "{{dir}}/udp.mcap" }}
     assert_eq!(frames.len(), 60);
     let mut invalid = 0;
     for f in &frames {
-        let bad = f.valid_mask != 0b11_1111;
+        assert_eq!(f.valid_mask & !slots, 0, "a slot outside the set");
+        let bad = f.valid_mask != slots;
         assert_eq!(f.header.has(flags::INVALID), bad);
         invalid += usize::from(bad);
         assert!(f.header.capture_ns > 0);

@@ -89,7 +89,10 @@ params = {{ path = "{{dir}}/live.mcap" }}
         imuflow_graph::wait::sleep_until(start + Duration::from_secs_f64(step as f64 / RATE_HZ));
         for seq in faults.plan(step, RATE_HZ) {
             socket
-                .send_to(&faults.packet(seq, RATE_HZ).encode(), ("127.0.0.1", port))
+                .send_to(
+                    &faults.packet(seq, RATE_HZ, 6).encode(),
+                    ("127.0.0.1", port),
+                )
                 .expect("loopback send");
             if accepted.last().is_some_and(|last| seq <= *last) {
                 stale += 1;

@@ -135,11 +135,6 @@ pub fn run() -> anyhow::Result<()> {
     let realtime = params.realtime.unwrap_or(ctx.mode() == Mode::Live);
     let sensors = imuflow_body::SensorSet::resolve(ctx.sensors())
         .with_context(|| format!("stage '{stage}': `sensors`"))?;
-    if !sensors.is_six() && mode == "udp" {
-        bail!(
-            "stage '{stage}': mode 'udp' reads the six-site set's sensors (its packets carry six); the stage's sensors are {sensors} (synthesize, replay, file and slimevr follow any set)"
-        );
-    }
     match mode {
         "synthesize" => {
             let (motion, raw) = synthesize(&params, &stage, ctx.graph().rate_hz, &sensors)?;
@@ -160,6 +155,7 @@ pub fn run() -> anyhow::Result<()> {
         }
         "udp" => {
             let options = udp::Options {
+                sites: sensors.mask(),
                 bind: params
                     .bind
                     .clone()

@@ -1,15 +1,18 @@
-//! Mode `udp`: live sensors sending one datagram per sample of all six IMUs.
+//! Mode `udp`: live sensors sending one datagram per sample of all the sensor set's IMUs.
 //!
-//! # Packet format (version 1), little-endian, 288 bytes
+//! # Packet format (version 1), little-endian, 24 + N × 44 bytes
+//!
+//! N is the number of sensors of the stage's sensor set (the six-site set: 6, 288 bytes; the
+//! lower body: 5, 244 bytes; the full suit: 17, 772 bytes).
 //!
 //! | offset | size | field |
 //! |---|---|---|
 //! | 0 | 4 | magic `b"IMUF"` |
 //! | 4 | 2 | version, u16 = 1 |
-//! | 6 | 2 | number of sensors, u16 = 6 |
+//! | 6 | 2 | number of sensors, u16 = N |
 //! | 8 | 8 | seq, u64: the sender's sample counter (increasing by 1 per sample) |
 //! | 16 | 8 | timestamp_ns, u64: capture time, ns since the Unix epoch (0: use the arrival time) |
-//! | 24 | 6 × 44 | per sensor, in IMU order (left forearm, right forearm, left lower leg, right lower leg, head, pelvis): |
+//! | 24 | N × 44 | per sensor, in the set's wire slot order (the six: left forearm, right forearm, left lower leg, right lower leg, head, pelvis; docs/sensor-sets.md lists every site's slot): |
 //! | +0 | 16 | orientation R_IS as quaternion [w, x, y, z], 4 × f32 |
 //! | +16 | 12 | specific force in the sensor frame, m/s², 3 × f32 |
 //! | +28 | 12 | angular rate in the sensor frame, rad/s, 3 × f32 |
@@ -19,20 +22,21 @@
 //! cleared and the frame is flagged INVALID. Frames are numbered from the first packet received:
 //! `seq` = packet seq − first packet seq, so lost packets show as gaps (counted as drops
 //! downstream); packets older than the last one are discarded. Malformed packets (wrong size,
-//! magic, version or sensor count) are counted and skipped. The stream ends after `timeout_ms`
+//! magic, version, or a sensor count other than the set's, which the warning names) are counted
+//! and skipped. The stream ends after `timeout_ms`
 //! without a packet, after `frames` packets (when > 0), or on stop.
 
 use std::net::UdpSocket;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use imuflow_body::NUM_IMUS;
+use imuflow_body::{NUM_IMUS, SiteMask};
 use imuflow_graph::StageContext;
 use imuflow_graph::frames::{FrameHeader, ImuFrame};
 use imuflow_graph::transport::now_ns;
 
 use crate::publisher::Publisher;
-use crate::{ALL_VALID, mark_invalid_sensors};
+use imuflow_synth::mark_invalid_sites;
 
 /// First four bytes of every packet.
 pub const MAGIC: [u8; 4] = *b"IMUF";
@@ -42,8 +46,12 @@ pub const VERSION: u16 = 1;
 pub const HEADER_SIZE: usize = 24;
 /// Bytes per sensor.
 pub const SENSOR_SIZE: usize = 44;
-/// Bytes per packet.
-pub const PACKET_SIZE: usize = HEADER_SIZE + NUM_IMUS * SENSOR_SIZE;
+/// Bytes per packet of `sensors` sensors.
+pub const fn packet_size(sensors: usize) -> usize {
+    HEADER_SIZE + sensors * SENSOR_SIZE
+}
+/// Bytes per packet of the six-site set.
+pub const PACKET_SIZE: usize = packet_size(NUM_IMUS);
 
 /// One sensor's sample in a packet.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -54,34 +62,34 @@ pub struct SensorSample {
     pub valid: bool,
 }
 
-/// One decoded packet.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+/// One decoded packet: its sensors in the set's slot order.
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct Packet {
     pub seq: u64,
     pub timestamp_ns: u64,
-    pub sensors: [SensorSample; NUM_IMUS],
+    pub sensors: Vec<SensorSample>,
 }
 
 /// Why a datagram is not a packet.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum PacketError {
-    #[error("{0} bytes, expected {PACKET_SIZE}")]
-    Size(usize),
+    #[error("{found} bytes, expected {expected}")]
+    Size { found: usize, expected: usize },
     #[error("bad magic (expected \"IMUF\")")]
     Magic,
     #[error("version {0}, expected {VERSION}")]
     Version(u16),
-    #[error("{0} sensors, expected {NUM_IMUS}")]
-    Sensors(u16),
+    #[error("{found} sensors, expected {expected} (the stage's sensor set's)")]
+    Sensors { found: u16, expected: usize },
 }
 
 impl Packet {
     /// The packet's bytes.
-    pub fn encode(&self) -> [u8; PACKET_SIZE] {
-        let mut b = [0u8; PACKET_SIZE];
+    pub fn encode(&self) -> Vec<u8> {
+        let mut b = vec![0u8; packet_size(self.sensors.len())];
         b[0..4].copy_from_slice(&MAGIC);
         b[4..6].copy_from_slice(&VERSION.to_le_bytes());
-        b[6..8].copy_from_slice(&(NUM_IMUS as u16).to_le_bytes());
+        b[6..8].copy_from_slice(&(self.sensors.len() as u16).to_le_bytes());
         b[8..16].copy_from_slice(&self.seq.to_le_bytes());
         b[16..24].copy_from_slice(&self.timestamp_ns.to_le_bytes());
         for (i, s) in self.sensors.iter().enumerate() {
@@ -99,10 +107,13 @@ impl Packet {
         b
     }
 
-    /// Decodes a datagram.
-    pub fn decode(b: &[u8]) -> Result<Packet, PacketError> {
-        if b.len() != PACKET_SIZE {
-            return Err(PacketError::Size(b.len()));
+    /// Decodes a datagram of a sender of `sensors` sensors.
+    pub fn decode(b: &[u8], sensors: usize) -> Result<Packet, PacketError> {
+        if b.len() < HEADER_SIZE {
+            return Err(PacketError::Size {
+                found: b.len(),
+                expected: packet_size(sensors),
+            });
         }
         let u16_at = |at: usize| u16::from_le_bytes([b[at], b[at + 1]]);
         let u32_at = |at: usize| u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]);
@@ -114,13 +125,22 @@ impl Packet {
         if u16_at(4) != VERSION {
             return Err(PacketError::Version(u16_at(4)));
         }
-        if usize::from(u16_at(6)) != NUM_IMUS {
-            return Err(PacketError::Sensors(u16_at(6)));
+        if usize::from(u16_at(6)) != sensors {
+            return Err(PacketError::Sensors {
+                found: u16_at(6),
+                expected: sensors,
+            });
+        }
+        if b.len() != packet_size(sensors) {
+            return Err(PacketError::Size {
+                found: b.len(),
+                expected: packet_size(sensors),
+            });
         }
         let mut p = Packet {
             seq: u64_at(8),
             timestamp_ns: u64_at(16),
-            ..Packet::default()
+            sensors: vec![SensorSample::default(); sensors],
         };
         for (i, s) in p.sensors.iter_mut().enumerate() {
             let at = HEADER_SIZE + i * SENSOR_SIZE;
@@ -132,11 +152,13 @@ impl Packet {
         Ok(p)
     }
 
-    /// The frame's payload and valid mask (INVALID flagged in its header when a sensor is not
-    /// valid); the header's seq and capture time are left to the caller.
-    pub fn to_frame(&self) -> ImuFrame {
+    /// The frame's payload and valid mask, the packet's sensors in the slots of `sites` (in
+    /// order; as many as the packet has), INVALID flagged in its header when one is not valid;
+    /// the header's seq and capture time are left to the caller.
+    pub fn to_frame(&self, sites: SiteMask) -> ImuFrame {
         let mut f = ImuFrame::default();
-        for (i, s) in self.sensors.iter().enumerate() {
+        for (s, site) in self.sensors.iter().zip(sites.sites()) {
+            let i = site.index();
             f.orientation_wxyz[i] = s.orientation_wxyz;
             f.specific_force_mps2[i] = s.specific_force_mps2;
             f.angular_rate_radps[i] = s.angular_rate_radps;
@@ -144,8 +166,7 @@ impl Packet {
                 f.valid_mask |= 1 << i;
             }
         }
-        mark_invalid_sensors(&mut f);
-        debug_assert!(f.valid_mask & !ALL_VALID == 0);
+        mark_invalid_sites(&mut f, sites);
         f
     }
 }
@@ -154,6 +175,8 @@ impl Packet {
 #[derive(Debug, Clone)]
 pub struct Options {
     pub bind: String,
+    /// The sensor set's sites: what each packet carries, in slot order.
+    pub sites: SiteMask,
     pub timeout: Duration,
     /// End after this many packets (0: no limit).
     pub frames: u64,
@@ -195,7 +218,7 @@ pub fn run(ctx: StageContext, options: &Options) -> anyhow::Result<()> {
         };
         let t0 = Instant::now();
         last_packet = t0;
-        let packet = match Packet::decode(buf.get(..len).unwrap_or(&[])) {
+        let packet = match Packet::decode(buf.get(..len).unwrap_or(&[]), options.sites.len()) {
             Ok(p) => p,
             Err(e) => {
                 malformed += 1;
@@ -218,7 +241,7 @@ pub fn run(ctx: StageContext, options: &Options) -> anyhow::Result<()> {
         let first = *first_seq.get_or_insert(packet.seq);
         last_seq = Some(packet.seq);
         received += 1;
-        let mut frame = packet.to_frame();
+        let mut frame = packet.to_frame(options.sites);
         frame.header = FrameHeader {
             seq: packet.seq - first,
             capture_ns: if packet.timestamp_ns == 0 {
@@ -285,12 +308,13 @@ impl Faults {
         out
     }
 
-    /// Packet `seq` of the synthetic body ([`synthetic_packet`]) with these faults.
-    pub fn packet(&self, seq: u64, rate_hz: f64) -> Packet {
-        let mut p = synthetic_packet(seq, rate_hz, self.nan_every, self.missing_every);
+    /// Packet `seq` of the synthetic body ([`synthetic_packet`]) of `sensors` sensors with these
+    /// faults.
+    pub fn packet(&self, seq: u64, rate_hz: f64, sensors: usize) -> Packet {
+        let mut p = synthetic_packet(seq, rate_hz, self.nan_every, self.missing_every, sensors);
         if self.still.contains(&seq) {
             // Held in the first still packet's orientations; the faults stay this packet's.
-            let held = synthetic_packet(self.still.start, rate_hz, 0, 0);
+            let held = synthetic_packet(self.still.start, rate_hz, 0, 0, sensors);
             for (s, h) in p.sensors.iter_mut().zip(&held.sensors) {
                 s.orientation_wxyz = h.orientation_wxyz;
                 s.angular_rate_radps = [0.0; 3];
@@ -298,21 +322,29 @@ impl Faults {
         }
         if let Some((sensor, packets)) = &self.dead
             && packets.contains(&seq)
+            && let Some(s) = p.sensors.get_mut(*sensor)
         {
-            p.sensors[*sensor].valid = false;
+            s.valid = false;
         }
         if let Some((sensor, packets)) = &self.nan_burst
             && packets.contains(&seq)
+            && let Some(s) = p.sensors.get_mut(*sensor)
         {
-            p.sensors[*sensor].angular_rate_radps[1] = f32::NAN;
+            s.angular_rate_radps[1] = f32::NAN;
         }
         p
     }
 }
 
-/// Sends `frames` steps of a slowly turning body ([`synthetic_packet`]) to `to` at `rate_hz`
-/// (the sender of `tools/udp-send`), with `faults`. Returns the packets sent.
-pub fn send_synthetic(to: &str, frames: u64, rate_hz: f64, faults: &Faults) -> anyhow::Result<u64> {
+/// Sends `frames` steps of a slowly turning body of `sensors` sensors ([`synthetic_packet`]) to
+/// `to` at `rate_hz` (the sender of `tools/udp-send`), with `faults`. Returns the packets sent.
+pub fn send_synthetic(
+    to: &str,
+    frames: u64,
+    rate_hz: f64,
+    faults: &Faults,
+    sensors: usize,
+) -> anyhow::Result<u64> {
     let socket = UdpSocket::bind("127.0.0.1:0")
         .or_else(|_| UdpSocket::bind("0.0.0.0:0"))
         .context("cannot open a UDP socket")?;
@@ -326,7 +358,7 @@ pub fn send_synthetic(to: &str, frames: u64, rate_hz: f64, faults: &Faults) -> a
         imuflow_graph::wait::sleep_until(start + period.mul_f64(step as f64));
         for seq in faults.plan(step, rate_hz) {
             // A receiver that is not (yet) listening makes loopback sends fail; keep going.
-            if let Err(e) = socket.send(&faults.packet(seq, rate_hz).encode()) {
+            if let Err(e) = socket.send(&faults.packet(seq, rate_hz, sensors).encode()) {
                 tracing::debug!("send {seq}: {e}");
             }
             sent += 1;
@@ -335,14 +367,20 @@ pub fn send_synthetic(to: &str, frames: u64, rate_hz: f64, faults: &Faults) -> a
     Ok(sent)
 }
 
-/// Packet `seq` of [`send_synthetic`]: sensor i turns about the vertical at 0.5·(i+1) rad/s and
-/// feels gravity's reaction (+9.81 m/s² up).
-pub fn synthetic_packet(seq: u64, rate_hz: f64, nan_every: u64, missing_every: u64) -> Packet {
+/// Packet `seq` of [`send_synthetic`] with `sensors` sensors: sensor i turns about the vertical
+/// at 0.5·(i+1) rad/s and feels gravity's reaction (+9.81 m/s² up).
+pub fn synthetic_packet(
+    seq: u64,
+    rate_hz: f64,
+    nan_every: u64,
+    missing_every: u64,
+    sensors: usize,
+) -> Packet {
     let t = seq as f64 / rate_hz;
     let mut p = Packet {
         seq,
         timestamp_ns: now_ns(),
-        ..Packet::default()
+        sensors: vec![SensorSample::default(); sensors],
     };
     for (i, s) in p.sensors.iter_mut().enumerate() {
         let rate = 0.5 * (i + 1) as f64;
@@ -354,11 +392,17 @@ pub fn synthetic_packet(seq: u64, rate_hz: f64, nan_every: u64, missing_every: u
             valid: true,
         };
     }
-    if nan_every > 0 && seq % nan_every == nan_every - 1 {
-        p.sensors[0].specific_force_mps2[0] = f32::NAN;
+    if nan_every > 0
+        && seq % nan_every == nan_every - 1
+        && let Some(s) = p.sensors.first_mut()
+    {
+        s.specific_force_mps2[0] = f32::NAN;
     }
-    if missing_every > 0 && seq % missing_every == missing_every - 1 {
-        p.sensors[1].valid = false;
+    if missing_every > 0
+        && seq % missing_every == missing_every - 1
+        && let Some(s) = p.sensors.get_mut(1)
+    {
+        s.valid = false;
     }
     p
 }
@@ -366,24 +410,62 @@ pub fn synthetic_packet(seq: u64, rate_hz: f64, nan_every: u64, missing_every: u
 #[cfg(test)]
 mod tests {
     use super::*;
+    use imuflow_body::SensorSet;
     use imuflow_graph::frames::flags;
+
+    const SIX: usize = NUM_IMUS;
+
+    fn six() -> SiteMask {
+        SensorSet::six().mask()
+    }
 
     #[test]
     fn packets_round_trip_and_bad_ones_are_rejected() {
-        let p = synthetic_packet(41, 60.0, 0, 0);
+        let p = synthetic_packet(41, 60.0, 0, 0, SIX);
         let bytes = p.encode();
         assert_eq!(bytes.len(), 288);
-        assert_eq!(Packet::decode(&bytes), Ok(p));
-        assert_eq!(Packet::decode(&bytes[..100]), Err(PacketError::Size(100)));
-        let mut bad = bytes;
+        assert_eq!(Packet::decode(&bytes, SIX), Ok(p.clone()));
+        assert_eq!(
+            Packet::decode(&bytes[..100], SIX),
+            Err(PacketError::Size {
+                found: 100,
+                expected: 288
+            })
+        );
+        let mut bad = bytes.clone();
         bad[0] = b'X';
-        assert_eq!(Packet::decode(&bad), Err(PacketError::Magic));
-        let mut bad = bytes;
+        assert_eq!(Packet::decode(&bad, SIX), Err(PacketError::Magic));
+        let mut bad = bytes.clone();
         bad[4] = 9;
-        assert_eq!(Packet::decode(&bad), Err(PacketError::Version(9)));
-        let f = p.to_frame();
-        assert_eq!(f.valid_mask, ALL_VALID);
+        assert_eq!(Packet::decode(&bad, SIX), Err(PacketError::Version(9)));
+        // A six-sensor sender and a five-sensor receiver: the counts named.
+        assert_eq!(
+            Packet::decode(&bytes, 5),
+            Err(PacketError::Sensors {
+                found: 6,
+                expected: 5
+            })
+        );
+        let f = p.to_frame(six());
+        assert_eq!(f.valid_mask, 0b11_1111);
         assert_eq!(f.header.flags, 0);
+    }
+
+    #[test]
+    fn a_lower_body_packet_carries_five_sensors_into_the_sets_slots() {
+        // Pelvis, upper and lower legs: slots 2, 3, 5, 6, 7, in that order in the packet.
+        let legs = SensorSet::builtin("lower-body").expect("shipped").mask();
+        let mut p = synthetic_packet(7, 60.0, 0, 0, 5);
+        p.sensors[4].valid = false; // the right upper leg
+        let bytes = p.encode();
+        assert_eq!(bytes.len(), 24 + 5 * 44);
+        assert_eq!(u16::from_le_bytes([bytes[6], bytes[7]]), 5);
+        let f = Packet::decode(&bytes, 5).expect("decodes").to_frame(legs);
+        assert_eq!(f.valid_mask, 1 << 2 | 1 << 3 | 1 << 5 | 1 << 6);
+        assert!(f.header.has(flags::INVALID));
+        // The packet's third sensor (turning at 1.5 rad/s) is the pelvis, slot 5.
+        assert_eq!(f.angular_rate_radps[5], [0.0, 1.5, 0.0]);
+        assert_eq!(f.angular_rate_radps[4], [0.0; 3]);
     }
 
     #[test]
@@ -405,36 +487,39 @@ mod tests {
         assert_eq!(f.plan(1, 60.0), vec![1]);
         assert!(Faults::default().plan(5, 60.0) == vec![5]);
         let frame = |seq| {
-            Packet::decode(&f.packet(seq, 60.0).encode())
+            Packet::decode(&f.packet(seq, 60.0, SIX).encode(), SIX)
                 .unwrap()
-                .to_frame()
+                .to_frame(six())
         };
-        assert_eq!(frame(4).valid_mask, ALL_VALID);
-        assert_eq!(frame(5).valid_mask, ALL_VALID & !(1 << 2));
-        assert_eq!(frame(6).valid_mask, ALL_VALID & !(1 << 2) & !(1 << 4));
-        assert_eq!(frame(7).valid_mask, ALL_VALID & !(1 << 4));
-        assert_eq!(f.packet(7, 60.0).seq, 7);
+        let all = 0b11_1111;
+        assert_eq!(frame(4).valid_mask, all);
+        assert_eq!(frame(5).valid_mask, all & !(1 << 2));
+        assert_eq!(frame(6).valid_mask, all & !(1 << 2) & !(1 << 4));
+        assert_eq!(frame(7).valid_mask, all & !(1 << 4));
+        assert_eq!(f.packet(7, 60.0, SIX).seq, 7);
         // Held still, a packet keeps its seq's own faults and the first still orientation.
         let still = Faults {
             missing_every: 4,
             still: 0..10,
             ..Faults::default()
         };
-        let (first, held) = (still.packet(0, 60.0), still.packet(7, 60.0));
+        let (first, held) = (still.packet(0, 60.0, SIX), still.packet(7, 60.0, SIX));
         assert!(!held.sensors[1].valid && first.sensors[1].valid);
         assert_eq!(
             held.sensors[5].orientation_wxyz,
             first.sensors[5].orientation_wxyz
         );
         assert_eq!(held.sensors[5].angular_rate_radps, [0.0; 3]);
-        assert!(still.packet(10, 60.0).sensors[5].angular_rate_radps[1] > 0.0);
+        assert!(still.packet(10, 60.0, SIX).sensors[5].angular_rate_radps[1] > 0.0);
     }
 
     #[test]
     fn missing_and_nan_samples_are_invalid() {
-        let p = synthetic_packet(5, 60.0, 3, 2);
-        let f = Packet::decode(&p.encode()).expect("decodes").to_frame();
-        assert_eq!(f.valid_mask, ALL_VALID & !0b11);
+        let p = synthetic_packet(5, 60.0, 3, 2, SIX);
+        let f = Packet::decode(&p.encode(), SIX)
+            .expect("decodes")
+            .to_frame(six());
+        assert_eq!(f.valid_mask, 0b11_1111 & !0b11);
         assert!(f.header.has(flags::INVALID));
     }
 }

@@ -1,6 +1,6 @@
-//! `udp-send`: sends synthetic six-IMU packets (the format documented in
-//! `imuflow_imu_source::udp`) to an imu-source stage in `udp` mode, so the mode can be tried and
-//! tested without sensors.
+//! `udp-send`: sends synthetic IMU packets (the format documented in `imuflow_imu_source::udp`)
+//! of a sensor set's sensors (`--sensors`, the six by default) to an imu-source stage in `udp`
+//! mode, so the mode can be tried and tested without sensors.
 //!
 //! Sensor i turns about the vertical at 0.5·(i+1) rad/s at rest (or holds still, `--still`). The
 //! fault options inject what wireless sensor networks do: NaN samples, sensors not valid, lost,
@@ -11,7 +11,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 
-/// Send synthetic six-IMU UDP packets to an imu-source stage in udp mode.
+/// Send synthetic IMU UDP packets to an imu-source stage in udp mode.
 #[derive(Parser)]
 #[command(name = "udp-send", version)]
 struct Args {
@@ -21,6 +21,10 @@ struct Args {
     /// Packets to send.
     #[arg(long, default_value_t = 600)]
     frames: u64,
+    /// The sensor set the packets carry (the receiving graph's `sensors`): six, lower-body,
+    /// full-suit or a set file's path.
+    #[arg(long, default_value = "six")]
+    sensors: String,
     /// Send rate, Hz.
     #[arg(long, default_value_t = 60.0)]
     rate: f64,
@@ -53,10 +57,13 @@ struct Args {
     still: u64,
 }
 
-/// `SENSOR:FIRST..END` (sensor 0-5, packets FIRST up to END, END excluded).
+/// `SENSOR:FIRST..END` (a sensor of the packet, from 0; packets FIRST up to END, END excluded).
 fn sensor_range(text: &str) -> Result<(usize, std::ops::Range<u64>), String> {
-    let bad =
-        || format!("expected SENSOR:FIRST..END with SENSOR 0-5 (e.g. 2:120..240), got '{text}'");
+    let bad = || {
+        format!(
+            "expected SENSOR:FIRST..END with SENSOR a sensor index from 0 (e.g. 2:120..240), got '{text}'"
+        )
+    };
     let (sensor, range) = text.split_once(':').ok_or_else(bad)?;
     let (first, end) = range.split_once("..").ok_or_else(bad)?;
     let sensor: usize = sensor.trim().parse().map_err(|_| bad())?;
@@ -64,8 +71,7 @@ fn sensor_range(text: &str) -> Result<(usize, std::ops::Range<u64>), String> {
         first.trim().parse().map_err(|_| bad())?,
         end.trim().parse().map_err(|_| bad())?,
     );
-    let sensors = imuflow_imu_source::udp::Packet::default().sensors.len();
-    if sensor >= sensors || first >= end {
+    if first >= end {
         return Err(bad());
     }
     Ok((sensor, first..end))
@@ -80,6 +86,25 @@ fn main() -> ExitCode {
         );
         return ExitCode::from(2);
     }
+    let sensors = match imuflow_body::SensorSet::resolve(&args.sensors) {
+        Ok(set) => set.len(),
+        Err(e) => {
+            eprintln!("error: --sensors: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    for (option, range) in [("--dead", &args.dead), ("--nan-burst", &args.nan_burst)] {
+        if let Some((sensor, _)) = range
+            && *sensor >= sensors
+        {
+            eprintln!(
+                "error: {option}: sensor {sensor}, but the set {} has {sensors} sensors (0 to {})",
+                args.sensors,
+                sensors - 1
+            );
+            return ExitCode::from(2);
+        }
+    }
     let faults = imuflow_imu_source::udp::Faults {
         nan_every: args.nan_every,
         missing_every: args.missing_every,
@@ -91,7 +116,13 @@ fn main() -> ExitCode {
         nan_burst: args.nan_burst,
         still: 0..args.still,
     };
-    match imuflow_imu_source::udp::send_synthetic(&args.to, args.frames, args.rate, &faults) {
+    match imuflow_imu_source::udp::send_synthetic(
+        &args.to,
+        args.frames,
+        args.rate,
+        &faults,
+        sensors,
+    ) {
         Ok(sent) => {
             eprintln!("sent {sent} packets ({} steps) to {}", args.frames, args.to);
             ExitCode::SUCCESS
