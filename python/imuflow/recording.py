@@ -130,10 +130,12 @@ def open_recording(path):
     return Recording(path)
 
 
-def export(path, channel, out, format=None, keep_all=False, unit=None, stature_m=None):
+def export(path, channel, out, format=None, keep_all=False, unit=None, stature_m=None,
+           all_joints=False):
     """Exports MotionFrame channel `channel` of recording `path` to the file `out` by running
     `imuflow export` (the formats are the binary's: bvh, glb, npz; `format=None` takes it from
-    `out`'s extension). `keep_all`, `unit` ("m" or "cm", BVH) and `stature_m` (BVH, glb) are the
+    `out`'s extension). `keep_all`, `unit` ("m" or "cm", BVH), `stature_m` (BVH, glb) and
+    `all_joints` (every joint also for a sensor set's estimate that leaves some at rest) are the
     command's options. Returns `out`. Raises `ExportError` with the binary's message (which names
     the file and channel) when it refuses; nothing is written then."""
     out = str(out)
@@ -150,6 +152,8 @@ def export(path, channel, out, format=None, keep_all=False, unit=None, stature_m
         command += ["--unit", unit]
     if stature_m is not None:
         command += ["--stature-m", str(stature_m)]
+    if all_joints:
+        command.append("--all-joints")
     done = subprocess.run(command, capture_output=True, text=True)
     if done.returncode != 0:
         message = done.stderr.strip().removeprefix("error: ") or f"exit status {done.returncode}"

@@ -202,6 +202,31 @@ def test_export_runs_the_binary_and_reads_back_as_the_recording():
         assert not os.path.exists(bad)
 
 
+def test_a_sensor_sets_estimate_exports_the_joints_it_observes_or_all_when_asked():
+    try:
+        binary = imuflow.recording.find_binary()
+    except imuflow.recording.ExportError as e:
+        skip(f"no export through the binary: {e}")
+    import subprocess
+    root = os.path.join(HERE, "..", "..")
+    with tempfile.TemporaryDirectory() as d:
+        mcap = os.path.join(d, "legs.mcap")
+        run = subprocess.run(
+            [binary, "run", "configs/examples/lower-body.toml", "--no-progress", "--quiet",
+             "--set", f"stages.record.params.path={mcap}", "--without", "viz"],
+            cwd=root, capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr
+        rec = imuflow.open_recording(mcap)
+
+        def joints(**options):
+            bvh = rec.export("opt.motion", os.path.join(d, "legs.bvh"), **options)
+            with open(bvh) as f:
+                return [line.split()[1] for line in f if line.split()[:1] in (["ROOT"], ["JOINT"])]
+
+        assert joints() == ["pelvis", "left_hip", "left_knee", "right_hip", "right_knee"], joints()
+        assert len(joints(all_joints=True)) == 24
+
+
 def test_export_says_what_it_lacks():
     try:
         imuflow.recording.export(SAMPLE, "source.truth", "walk.fbx")
