@@ -229,6 +229,36 @@ params = {{ path = "{{dir}}/hips.mcap" }}
         "{err}"
     );
 
+    // A six-site recording replayed as a lower body: the replay names the sites it never has.
+    let sample = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/sample/walk.mcap");
+    let replay = sb.graph(
+        "replay-legs.toml",
+        &format!(
+            r#"name = "replay-legs"
+sensors = "lower-body"
+[stages.source]
+kind = "imu-source"
+params = {{ mode = "replay", path = "{}" }}
+[stages.record]
+kind = "recorder"
+inputs = {{ imu = "source.imu" }}
+params = {{ path = "{{dir}}/replay.mcap" }}
+"#,
+            sample.display()
+        ),
+    );
+    let out = sb.run(&["run", replay.to_str().expect("utf8"), "--no-progress"]);
+    let err = text(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains(
+            "never carries left_upper_leg, right_upper_leg of the stage's sensors lower-body"
+        ) && err.contains(
+            "it holds left_forearm, right_forearm, left_lower_leg, right_lower_leg, head, pelvis"
+        ),
+        "{err}"
+    );
+
     // A set whose heading reference is not the pelvis: the walking calibration names both.
     std::fs::write(
         &set,

@@ -4,10 +4,19 @@
 
 use std::time::{Duration, Instant};
 
+use imuflow_body::SiteMask;
 use imuflow_graph::StageContext;
 use imuflow_recording::{Recorded, Recording};
 
 use crate::publisher::Publisher;
+
+/// The sites any of `recording`'s IMU frames holds a valid sample of.
+pub fn sites_held(recording: &Recording) -> SiteMask {
+    SiteMask(recording.frames.iter().fold(0, |mask, f| match f {
+        Recorded::Imu(f) => mask | f.valid_mask,
+        Recorded::Truth(_) => mask,
+    }))
+}
 
 /// Publishes the recording (paced by the recorded capture times when `realtime`).
 /// Replays `recording`; `limit` > 0 ends the stream after that many IMU frames.

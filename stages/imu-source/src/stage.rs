@@ -151,6 +151,23 @@ pub fn run() -> anyhow::Result<()> {
                 params.truth_topic.as_deref().filter(|t| !t.is_empty()),
             )
             .with_context(|| format!("stage '{stage}': cannot replay"))?;
+            let held = replay::sites_held(&recording);
+            let missing = sensors.mask().missing_from(held);
+            if !missing.is_empty() {
+                bail!(
+                    "stage '{stage}': {} ({}) never carries {} of the stage's sensors {sensors}; \
+                     it holds {} (replay a recording of that set, or set `sensors` to a set of \
+                     the sites it holds)",
+                    path.display(),
+                    recording.imu_topic,
+                    missing.names(),
+                    if held.is_empty() {
+                        "no valid sensor".to_owned()
+                    } else {
+                        held.names()
+                    }
+                );
+            }
             replay::run(ctx, &recording, realtime, params.frames)
         }
         "udp" => {
