@@ -103,52 +103,7 @@ params = { path = "{dir}/b.mcap" }
         stderr.contains("variant 'a': has no single motion output to compare"),
         "{stderr}"
     );
-    // Variants of two sensor sets: the source delivers both sets' sites (the combined graph's
-    // `sensors` is their union) and each variant's stages work with their own set.
-    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/examples/lower-body.toml");
-    let cross = sb.graph(
-        "cross-ab.toml",
-        &format!(
-            r#"
-name = "cross"
-[[variant]]
-name = "six"
-graph = "{0}"
-set = ["sensors=six", "stages.kin.params.net=globalpose", "stages.kin.params.weights=models/globalpose.safetensors"]
-[[variant]]
-name = "legs"
-graph = "{0}"
-"#,
-            example.display()
-        ),
-    );
-    let out = sb.run(&["compare", cross.to_str().expect("utf8"), "--print-graph"]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let graph = text(&out.stdout);
-    assert!(
-        graph.contains("\nsensors = \"six+lower-body\"\n"),
-        "{graph}"
-    );
-    for stage in ["six-calib", "six-kin", "six-opt"] {
-        assert!(
-            graph.contains(&format!("[stages.{stage}]\nkind"))
-                && graph
-                    .split(&format!("[stages.{stage}]"))
-                    .nth(1)
-                    .and_then(|rest| rest.split("\n\n").next())
-                    .is_some_and(|table| table.contains("sensors = \"six\"")),
-            "{stage} works with the six: {graph}"
-        );
-    }
-    assert!(
-        graph.contains("[stages.legs-kin]")
-            && graph
-                .split("[stages.legs-kin]")
-                .nth(1)
-                .and_then(|rest| rest.split("\n\n").next())
-                .is_some_and(|table| table.contains("sensors = \"lower-body\"")),
-        "{graph}"
-    );
+    // Variants of two sensor sets compare on one input: tests/sensor_sets.rs.
     // A stage whose own set wears a site the graph's set lacks: refused before anything starts.
     let wider = sb.graph(
         "wider.toml",
@@ -176,6 +131,7 @@ sensors = "six"
         "{stderr}"
     );
     // Variants of one set other than the six: the combined graph names it.
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/examples/lower-body.toml");
     let ablation = sb.graph(
         "legs-ab.toml",
         &format!(

@@ -728,6 +728,38 @@ graph = "{0}"
             example.display()
         ),
     );
+    // The combined graph: the union of the two sets at the top, each variant's stages their own.
+    let out = sb
+        .command(&["compare", ablation.to_str().expect("utf8"), "--print-graph"])
+        .current_dir(root)
+        .output()
+        .expect("run imuflow");
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let graph = text(&out.stdout);
+    assert!(
+        graph.contains("\nsensors = \"six+lower-body\"\n"),
+        "{graph}"
+    );
+    for stage in ["six-calib", "six-kin", "six-opt"] {
+        assert!(
+            graph.contains(&format!("[stages.{stage}]\nkind"))
+                && graph
+                    .split(&format!("[stages.{stage}]"))
+                    .nth(1)
+                    .and_then(|rest| rest.split("\n\n").next())
+                    .is_some_and(|table| table.contains("sensors = \"six\"")),
+            "{stage} works with the six: {graph}"
+        );
+    }
+    assert!(
+        graph.contains("[stages.legs-kin]")
+            && graph
+                .split("[stages.legs-kin]")
+                .nth(1)
+                .and_then(|rest| rest.split("\n\n").next())
+                .is_some_and(|table| table.contains("sensors = \"lower-body\"")),
+        "{graph}"
+    );
     let out_dir = sb.path("cmp");
     let out = sb
         .command(&[
