@@ -130,7 +130,13 @@ pub(crate) fn log_small_fields(
 pub(crate) struct Posed {
     pub joints: [[f32; 3]; NUM_JOINTS],
     pub sip: [nalgebra::Rotation3<f64>; SIP_JOINTS.len()],
+    /// The joints the pose holds (every joint; a sensor set's estimate: those it observes and
+    /// places): the errors are measured on those.
+    pub holds: crate::skeleton::Estimated,
 }
+
+/// Every joint, as a mask over joint indices.
+pub(crate) const ALL_JOINTS: u32 = (1 << NUM_JOINTS) - 1;
 
 /// The error and latency series of the estimates.
 pub(crate) struct ErrorSeries {
@@ -262,16 +268,21 @@ fn log_difference(
     estimate: &Posed,
     reference: &Posed,
 ) -> anyhow::Result<()> {
-    let (joint_cm, root_m) = error_against_truth(&estimate.joints, &reference.joints);
-    let sip_deg = estimate
-        .sip
-        .iter()
-        .zip(&reference.sip)
-        .map(|(a, b)| angle_between(a, b).to_degrees())
-        .sum::<f64>()
-        / SIP_JOINTS.len() as f64;
+    // On the joints both hold (a sensor set's estimate leaves the others at rest).
+    let measured = estimate.holds.drawn & reference.holds.drawn;
+    let (joint_cm, root_m) = error_against_truth(&estimate.joints, &reference.joints, measured);
     let base = format!("{plots}/{}", group_of(entity).unwrap_or(entity));
-    rec.log(format!("{base}/sip_deg"), &rerun::Scalars::single(sip_deg))?;
+    let observed = estimate.holds.observed & reference.holds.observed;
+    if SIP_JOINTS.iter().all(|j| observed & (1 << j.index()) != 0) {
+        let sip_deg = estimate
+            .sip
+            .iter()
+            .zip(&reference.sip)
+            .map(|(a, b)| angle_between(a, b).to_degrees())
+            .sum::<f64>()
+            / SIP_JOINTS.len() as f64;
+        rec.log(format!("{base}/sip_deg"), &rerun::Scalars::single(sip_deg))?;
+    }
     rec.log(
         format!("{base}/joint_position_cm"),
         &rerun::Scalars::single(joint_cm),
@@ -283,22 +294,28 @@ fn log_difference(
     Ok(())
 }
 
-/// Mean joint position error after aligning the roots (cm), and the roots' distance (m).
+/// Mean joint position error over the joints of `measured` (a mask over joint indices) after
+/// aligning the roots (cm), and the roots' distance (m).
 fn error_against_truth(
     joints: &[[f32; 3]; NUM_JOINTS],
     truth: &[[f32; 3]; NUM_JOINTS],
+    measured: u32,
 ) -> (f64, f64) {
     let root = JointId::ROOT.index();
     let offset: [f64; 3] = std::array::from_fn(|k| f64::from(joints[root][k] - truth[root][k]));
-    let mut sum_m = 0.0;
-    for (p, t) in joints.iter().zip(truth) {
+    let (mut sum_m, mut n) = (0.0, 0usize);
+    for (j, (p, t)) in joints.iter().zip(truth).enumerate() {
+        if measured & (1 << j) == 0 {
+            continue;
+        }
         let d: f64 = (0..3)
             .map(|k| (f64::from(p[k] - t[k]) - offset[k]).powi(2))
             .sum();
         sum_m += d.sqrt();
+        n += 1;
     }
     let root_m = offset.iter().map(|x| x * x).sum::<f64>().sqrt();
-    (100.0 * sum_m / NUM_JOINTS as f64, root_m)
+    (100.0 * sum_m / n.max(1) as f64, root_m)
 }
 
 /// The group of an entity path, if it has one. Here, below the other modules, because everything
@@ -318,8 +335,11 @@ mod tests {
         // Shifted 0.3 m sideways, one joint 0.24 m off on top: 0.24 m / 24 joints = 1 cm.
         let mut estimate = truth.map(|[x, y, z]| [x + 0.3, y, z]);
         estimate[5][2] += 0.24;
-        let (joint_cm, root_m) = error_against_truth(&estimate, &truth);
+        let (joint_cm, root_m) = error_against_truth(&estimate, &truth, ALL_JOINTS);
         assert!((joint_cm - 1.0).abs() < 1e-4, "{joint_cm}");
         assert!((root_m - 0.3).abs() < 1e-6, "{root_m}");
+        // Over joints 4 to 7 only: 0.24 m / 4 joints = 6 cm.
+        let (joint_cm, _) = error_against_truth(&estimate, &truth, 0b1111_0000);
+        assert!((joint_cm - 6.0).abs() < 1e-4, "{joint_cm}");
     }
 }

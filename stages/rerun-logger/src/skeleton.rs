@@ -9,7 +9,7 @@ use imuflow_body::{BodyModel, JointId, NUM_JOINTS, Pose, forward_kinematics};
 use imuflow_graph::frames::{ContactFrame, FrameType, MAX_SITES, MotionFrame};
 
 use crate::columns::{FrameTime, Log};
-use crate::plots::{ErrorSeries, Plots, Posed, TRUTH_FRAMES_KEPT, group_of};
+use crate::plots::{ALL_JOINTS, ErrorSeries, Plots, Posed, TRUTH_FRAMES_KEPT, group_of};
 
 /// Spacing of the sensors' display positions along x, m.
 const SENSOR_SPACING_M: f32 = 0.3;
@@ -66,6 +66,51 @@ pub(crate) struct SkeletonDrawer {
     pub truth_beside: bool,
     /// Whether a truth pose came (an input named `truth` can stay empty: a file of real sensors).
     pub truth_seen: bool,
+    /// Motion inputs (by entity) estimated from a set that leaves joints at rest: the joints
+    /// observed, and those drawn and measured ([`drawn_joints`]); the others are drawn whole.
+    pub drawn: std::collections::BTreeMap<String, Estimated>,
+}
+
+/// What an estimate of a sensor set holds: the joints its sensors observe, and those drawn and
+/// measured ([`drawn_joints`]), as masks over joint indices.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Estimated {
+    pub observed: u32,
+    pub drawn: u32,
+}
+
+impl Estimated {
+    /// Every joint: a truth, or an estimate of the six.
+    pub const ALL: Estimated = Estimated {
+        observed: ALL_JOINTS,
+        drawn: ALL_JOINTS,
+    };
+
+    pub fn of(observed: u32) -> Estimated {
+        Estimated {
+            observed,
+            drawn: drawn_joints(observed),
+        }
+    }
+}
+
+/// The joints drawn of an estimate whose sensors observe `observed` (a mask over joint
+/// indices): those joints, and for an observed joint whose children are all unobserved its first
+/// child (the end of the bone it turns: a knee's shank reaches the ankle), as `imuflow export`
+/// writes them. Every other joint sits at rest in the estimate: drawn, it would look estimated.
+pub(crate) fn drawn_joints(observed: u32) -> u32 {
+    let mut drawn = observed | 1 << JointId::ROOT.index();
+    for j in JointId::all() {
+        let is_observed = observed & (1 << j.index()) != 0;
+        let children_unobserved = j.children().all(|c| observed & (1 << c.index()) == 0);
+        if is_observed
+            && children_unobserved
+            && let Some(child) = j.children().next()
+        {
+            drawn |= 1 << child.index();
+        }
+    }
+    drawn
 }
 
 impl SkeletonDrawer {
@@ -80,6 +125,7 @@ impl SkeletonDrawer {
             waiting_kinematics: Default::default(),
             truth_beside: false,
             truth_seen: false,
+            drawn: Default::default(),
         }
     }
 
@@ -111,6 +157,7 @@ impl SkeletonDrawer {
         let posed = Posed {
             joints,
             sip: SIP_JOINTS.map(|j| *self.fk.world_from(j)),
+            holds: self.drawn.get(input).copied().unwrap_or(Estimated::ALL),
         };
         self.errors.track(rec, input, &f.header, &posed)?;
         if torque.iter().any(|t| *t != 0.0) {
@@ -247,7 +294,8 @@ impl SkeletonDrawer {
         self.log_joints(rec, "truth", &joints, None)
     }
 
-    /// Joints as points (radius from `torque` when given) and bones as lines.
+    /// Joints as points (radius from `torque` when given) and bones as lines: every joint, or
+    /// for an estimate of a set that leaves joints at rest, the joints it places ([`drawn_joints`]).
     fn log_joints(
         &self,
         rec: &mut Log,
@@ -258,12 +306,23 @@ impl SkeletonDrawer {
         if !joints.iter().flatten().all(|v| v.is_finite()) {
             return Ok(());
         }
-        let radii: Vec<f32> = (0..NUM_JOINTS)
-            .map(|j| JOINT_RADIUS_M + torque.map_or(0.0, |t| t[j] * JOINT_RADIUS_M_PER_NM))
+        let drawn = self.drawn.get(input).map_or(ALL_JOINTS, |e| e.drawn);
+        let is_drawn = |j: JointId| drawn & (1 << j.index()) != 0;
+        let radii: Vec<f32> = JointId::all()
+            .filter(|&j| is_drawn(j))
+            .map(|j| JOINT_RADIUS_M + torque.map_or(0.0, |t| t[j.index()] * JOINT_RADIUS_M_PER_NM))
             .collect();
-        let mut points = rerun::Points3D::new(joints.iter().copied()).with_radii(radii);
-        let bones = JointId::all()
-            .filter_map(|j| j.parent().map(|p| [joints[p.index()], joints[j.index()]]));
+        let mut points = rerun::Points3D::new(
+            JointId::all()
+                .filter(|&j| is_drawn(j))
+                .map(|j| joints[j.index()]),
+        )
+        .with_radii(radii);
+        let bones = JointId::all().filter(|&j| is_drawn(j)).filter_map(|j| {
+            j.parent()
+                .filter(|&p| is_drawn(p))
+                .map(|p| [joints[p.index()], joints[j.index()]])
+        });
         let mut lines = rerun::LineStrips3D::new(bones).with_radii([BONE_RADIUS_M]);
         if let Some(colour) = skeleton_colour(input, &self.groups) {
             points = points.with_colors([colour]);
@@ -422,6 +481,31 @@ pub(crate) fn log_sensors(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_lower_body_estimate_draws_its_legs_to_the_ankles_and_nothing_above_the_pelvis() {
+        let legs = imuflow_body::SensorSet::builtin("lower-body").expect("shipped");
+        let drawn = drawn_joints(legs.observed_joints());
+        let names: Vec<&str> = JointId::all()
+            .filter(|j| drawn & (1 << j.index()) != 0)
+            .map(|j| j.name())
+            .collect();
+        assert_eq!(
+            names,
+            [
+                "pelvis",
+                "left_hip",
+                "right_hip",
+                "left_knee",
+                "right_knee",
+                "left_ankle",
+                "right_ankle"
+            ]
+        );
+        // The six: its wrists and ankles end the forearms and shanks; feet and hands not drawn.
+        let six = drawn_joints(imuflow_body::SensorSet::six().observed_joints());
+        assert_eq!(six.count_ones(), 24 - 2 - 2);
+    }
+
     use super::*;
     use imuflow_graph::naming::entity_of;
 

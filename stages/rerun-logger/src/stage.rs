@@ -3,6 +3,7 @@
 //! blueprint, the sensors' layout), then reads the inputs in arrival order and hands each frame
 //! to what draws or plots its type ([`crate::skeleton`], [`crate::plots`]).
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
@@ -156,6 +157,7 @@ pub fn run() -> anyhow::Result<()> {
         .iter()
         .any(|(e, f)| e == "truth" && *f == FrameType::Motion);
     let mut drawer = SkeletonDrawer::new(body, groups, has_truth);
+    drawer.drawn = estimated_joints(&ctx)?;
     drawer.truth_beside = truth_beside && has_truth;
     drawer.follows_estimate = inputs
         .iter()
@@ -203,6 +205,36 @@ pub fn run() -> anyhow::Result<()> {
     flushed?;
     ctx.finish(&mut [])?;
     Ok(())
+}
+
+/// Per motion input (by entity) whose publishing stage estimates from a sensor set other than the
+/// six (and is not a source: a truth holds every joint), the joints drawn and measured
+/// ([`crate::skeleton::drawn_joints`] of the set's observed joints). The six's estimates are
+/// drawn whole, as before.
+fn estimated_joints(
+    ctx: &StageContext,
+) -> anyhow::Result<BTreeMap<String, crate::skeleton::Estimated>> {
+    let graph = ctx.graph();
+    let mut drawn = BTreeMap::new();
+    for name in ctx.input_names() {
+        let edge = &ctx.node().inputs[&name];
+        let source = graph
+            .stages
+            .get(&edge.from_stage)
+            .is_none_or(|n| n.role == Role::Source);
+        if edge.frame != FrameType::Motion || source {
+            continue;
+        }
+        let set = imuflow_body::SensorSet::resolve(graph.sensors_of(&edge.from_stage))
+            .with_context(|| format!("stage '{}': `sensors`", edge.from_stage))?;
+        if !set.is_six() {
+            drawn.insert(
+                entity_of(&name),
+                crate::skeleton::Estimated::of(set.observed_joints()),
+            );
+        }
+    }
+    Ok(drawn)
 }
 
 /// Logs each frame as it arrives, at its own time, until every input has ended: the frame's
