@@ -154,25 +154,27 @@ fn scene_contents(inputs: &[(String, FrameType)]) -> Vec<String> {
     contents
 }
 
-/// The errors tab: the followed estimate against the truth (SIP, joint position and root
-/// distance) and its latency from the source.
-fn errors_tab() -> rerun::blueprint::ContainerLike {
+/// The errors tab: the followed estimate against the truth (SIP, when its sensors observe the
+/// hips and shoulders; joint position and root distance) and its latency from the source.
+fn errors_tab(sip: bool) -> rerun::blueprint::ContainerLike {
     use rerun::blueprint::{TimeSeriesView, Vertical};
     let error = |title: &str, series: &str| {
         TimeSeriesView::new(title)
             .with_contents([format!("+ /plots/error_vs_truth/{FOLLOWED}/{series}")])
             .into()
     };
-    Vertical::new([
-        error("SIP error vs truth (deg)", "sip_deg"),
+    let mut views = Vec::new();
+    if sip {
+        views.push(error("SIP error vs truth (deg)", "sip_deg"));
+    }
+    views.extend([
         error("joint position error vs truth (cm)", "joint_position_cm"),
         error("root distance from truth (m)", "root_distance_m"),
         TimeSeriesView::new("latency, source to estimate (ms)")
             .with_contents(["+ /plots/latency_ms/**"])
             .into(),
-    ])
-    .with_name("errors")
-    .into()
+    ]);
+    Vertical::new(views).with_name("errors").into()
 }
 
 /// An input's tab: its plotted series, beside a physics estimate's joint torques or an IMU
@@ -218,6 +220,7 @@ pub(crate) fn send_single_run(
     rec: &rerun::RecordingStream,
     inputs: &[(String, FrameType)],
     truth_seen: bool,
+    sip: bool,
 ) -> anyhow::Result<()> {
     use rerun::blueprint::components::PanelState;
     use rerun::blueprint::{
@@ -272,7 +275,7 @@ pub(crate) fn send_single_run(
     let tabs: Vec<ContainerLike> = single_run_tabs(inputs, truth_seen)
         .into_iter()
         .map(|tab| match tab {
-            Tab::Errors => errors_tab(),
+            Tab::Errors => errors_tab(sip),
             Tab::Input(name, frame) => input_tab(&name, frame),
         })
         .collect();
@@ -513,10 +516,18 @@ mod tests {
         inputs: &[(String, FrameType)],
         truth_seen: bool,
     ) -> Vec<(String, String, String)> {
+        sent_blueprint_with(inputs, truth_seen, true)
+    }
+
+    fn sent_blueprint_with(
+        inputs: &[(String, FrameType)],
+        truth_seen: bool,
+        sip: bool,
+    ) -> Vec<(String, String, String)> {
         let (rec, storage) = rerun::RecordingStreamBuilder::new(APPLICATION_ID)
             .memory()
             .expect("memory recording");
-        send_single_run(&rec, inputs, truth_seen).expect("sent");
+        send_single_run(&rec, inputs, truth_seen, sip).expect("sent");
         rec.flush_blocking().expect("flushed");
         let messages: Vec<LogMsg> = storage
             .take()
@@ -593,6 +604,14 @@ mod tests {
         };
         assert!(!has_errors(&cells));
         assert!(has_errors(&sent_blueprint(&sample(), true)));
+        // A set that observes no shoulder (the lower body) has no SIP plot: it would stay empty.
+        let has_sip = |cells: &[(String, String, String)]| {
+            cells
+                .iter()
+                .any(|(_, c, v)| c.ends_with("display_name") && v.contains("SIP error"))
+        };
+        assert!(has_sip(&sent_blueprint(&sample(), true)));
+        assert!(!has_sip(&sent_blueprint_with(&sample(), true, false)));
         // Without an estimate to follow: the world as rerun frames it, no eye set.
         let sensors_only = inputs(&[("imu", FrameType::Imu)]);
         let cells = sent_blueprint(&sensors_only, false);

@@ -140,10 +140,12 @@ pub fn run() -> anyhow::Result<()> {
             .iter()
             .any(|(e, f)| e == FOLLOWED && *f == FrameType::Motion);
     let single_run = groups.is_empty();
+    let estimated = estimated_joints(&ctx)?;
     if single_run {
         blueprint::log_legend(&rec, &inputs, truth_beside)?;
         // Without the errors tab until a truth pose is logged (see `log_frames`).
-        blueprint::send_single_run(&rec, &inputs, false)?;
+        let sip = follows_sip(&estimated);
+        blueprint::send_single_run(&rec, &inputs, false, sip)?;
     } else {
         let overlaid = params.views == "overlaid";
         blueprint::send_grouped(&rec, &groups, overlaid, &inputs)?;
@@ -157,7 +159,7 @@ pub fn run() -> anyhow::Result<()> {
         .iter()
         .any(|(e, f)| e == "truth" && *f == FrameType::Motion);
     let mut drawer = SkeletonDrawer::new(body, groups, has_truth);
-    drawer.drawn = estimated_joints(&ctx)?;
+    drawer.drawn = estimated;
     drawer.truth_beside = truth_beside && has_truth;
     drawer.follows_estimate = inputs
         .iter()
@@ -237,6 +239,16 @@ fn estimated_joints(
     Ok(drawn)
 }
 
+/// Whether the followed estimate ([`FOLLOWED`]) has a SIP error: its set observes the hips and
+/// shoulders (every set that is not listed in `estimated` does).
+fn follows_sip(estimated: &BTreeMap<String, crate::skeleton::Estimated>) -> bool {
+    estimated.get(FOLLOWED).is_none_or(|e| {
+        imuflow_body::skeleton::SIP_JOINTS
+            .iter()
+            .all(|j| e.observed & (1 << j.index()) != 0)
+    })
+}
+
 /// Logs each frame as it arrives, at its own time, until every input has ended: the frame's
 /// type decides what draws it; every type's small fields and INVALID flag are plotted. A single
 /// run's layout gets its errors tab with the first truth pose.
@@ -301,7 +313,8 @@ fn log_frames(
                     let had_truth = drawer.truth_seen;
                     drawer.log_motion(rec, name, f)?;
                     if single_run && drawer.truth_seen && !had_truth {
-                        blueprint::send_single_run(rec.stream(), inputs, true)?;
+                        let sip = follows_sip(&drawer.drawn);
+                        blueprint::send_single_run(rec.stream(), inputs, true, sip)?;
                     }
                 }
             }
