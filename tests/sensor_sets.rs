@@ -692,7 +692,7 @@ fn the_lower_body_exports_run_end_to_end_with_the_shipped_lower_body_networks() 
         for f in &estimated {
             let p = f.root_position_m;
             // Measured with the shipped weights: the DOT session's pelvis 0.72-0.95 m (its leg
-            // motion bends the knees), the x-IMU3 session's 0.84-0.97 m.
+            // motion bends the knees), the x-IMU3 excerpt's 0.92-0.97 m.
             assert!((0.65..1.1).contains(&p[1]), "{folder}: {p:?}");
             let away = ((p[0] - start[0]).powi(2) + (p[2] - start[2]).powi(2)).sqrt();
             assert!(
