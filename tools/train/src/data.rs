@@ -675,3 +675,40 @@ pub fn pose_of(shard: &Shard, f: usize) -> Pose {
     }
     pose
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A shard's bytes with no tensors and `sensors` (JSON) in its metadata: what `Shard::parse`
+    /// reads before any tensor.
+    fn shard_naming(sensors: &str) -> Vec<u8> {
+        let meta = std::collections::HashMap::from([(
+            "imuflow".to_owned(),
+            format!(r#"{{"sensors": {sensors}}}"#),
+        )]);
+        let none: Vec<(&str, safetensors::tensor::TensorView)> = Vec::new();
+        safetensors::serialize(none, Some(meta)).expect("serializes")
+    }
+
+    fn refusal(sensors: &str) -> String {
+        let bytes = shard_naming(sensors);
+        match Shard::parse(&bytes) {
+            Ok(_) => panic!("{sensors} parsed"),
+            Err(e) => format!("{e:#}"),
+        }
+    }
+
+    #[test]
+    fn a_shard_naming_no_site_of_the_body_or_no_pelvis_is_refused_naming_it() {
+        let err = refusal(r#"["pelvis", "left_upper_leg", "tail"]"#);
+        assert!(err.contains("names 'tail', not a site"), "{err}");
+        let err = refusal(r#"["left_upper_leg", "right_upper_leg"]"#);
+        assert!(
+            err.contains("(left_upper_leg, right_upper_leg) lack the pelvis"),
+            "{err}"
+        );
+        let err = refusal(r#""pelvis""#);
+        assert!(err.contains("is not a list of sites"), "{err}");
+    }
+}
