@@ -209,7 +209,7 @@ pub fn run() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Per motion input (by entity) whose publishing stage estimates from a sensor set other than the
+/// Per motion or kinematics input (by entity) whose publishing stage estimates from a sensor set other than the
 /// six (and is not a source: a truth holds every joint), the joints drawn and measured
 /// ([`crate::skeleton::drawn_joints`] of the set's observed joints). The six's estimates are
 /// drawn whole, as before.
@@ -224,7 +224,8 @@ fn estimated_joints(
             .stages
             .get(&edge.from_stage)
             .is_none_or(|n| n.role == Role::Source);
-        if edge.frame != FrameType::Motion || source {
+        let posed = matches!(edge.frame, FrameType::Motion | FrameType::Kinematics);
+        if !posed || source {
             continue;
         }
         let set = imuflow_body::SensorSet::resolve(graph.sensors_of(&edge.from_stage))
