@@ -332,6 +332,16 @@ impl Graph {
             .unwrap_or(&self.sensors)
     }
 
+    /// The sensor set the frames of stage `id` are estimated from: [`Graph::sensors_of`], for a
+    /// stage that is not a source (a source delivers the sensors themselves and the truth, which
+    /// holds every joint); `None` for a source or a stage the graph lacks.
+    pub fn estimated_from(&self, id: &str) -> Option<&str> {
+        self.stages
+            .get(id)
+            .filter(|n| n.role != Role::Source)
+            .map(|_| self.sensors_of(id))
+    }
+
     /// Stages in an order where every stage comes after the stages it reads through non-feedback
     /// edges (validation guarantees one exists).
     pub fn topological_order(&self) -> Vec<&StageNode> {

@@ -153,6 +153,34 @@ impl JointId {
     }
 }
 
+/// Every joint, as a mask over joint indices (bit i: joint i).
+pub const ALL_JOINTS: u32 = (1 << NUM_JOINTS) - 1;
+
+/// The joints of `mask` (over joint indices) whose every ancestor is in it too, and the root: the
+/// tree a pose holding `mask`'s joints is exported and drawn as (a sensor set's observed joints
+/// are such a tree already).
+pub fn joint_tree(mask: u32) -> u32 {
+    // Parents come before their children in `JointId::all()`.
+    JointId::all().fold(0, |tree, j| {
+        let bit = 1 << j.index();
+        match j.parent() {
+            None => tree | bit,
+            Some(p) if tree & (1 << p.index()) != 0 && mask & bit != 0 => tree | bit,
+            Some(_) => tree,
+        }
+    })
+}
+
+/// Where the bone that `joint` turns ends when none of its children is in `tree` (a mask over
+/// joint indices): its first child, so that a knee's shank reaches the ankle. `None` when a child
+/// is in the tree or the joint has none.
+pub fn cut_bone_end(joint: JointId, tree: u32) -> Option<JointId> {
+    if joint.children().any(|c| tree & (1 << c.index()) != 0) {
+        return None;
+    }
+    joint.children().next()
+}
+
 impl fmt::Display for JointId {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
@@ -397,6 +425,28 @@ impl Skeleton {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_joint_tree_keeps_the_chains_from_the_root_and_cut_bones_end_at_their_first_child() {
+        let bit = |j: JointId| 1u32 << j.index();
+        // The left knee without its hip, and the right hip and knee: the left knee is dropped
+        // (its parent is not in the tree), the root is always in it.
+        let mask = bit(JointId::LEFT_KNEE) | bit(JointId::RIGHT_HIP) | bit(JointId::RIGHT_KNEE);
+        let tree = joint_tree(mask);
+        assert_eq!(
+            tree,
+            bit(JointId::ROOT) | bit(JointId::RIGHT_HIP) | bit(JointId::RIGHT_KNEE)
+        );
+        assert_eq!(joint_tree(ALL_JOINTS), ALL_JOINTS);
+        // The right knee's shank ends at the ankle; the pelvis has a child in the tree; a hand
+        // has no child.
+        assert_eq!(
+            cut_bone_end(JointId::RIGHT_KNEE, tree),
+            Some(JointId::RIGHT_ANKLE)
+        );
+        assert_eq!(cut_bone_end(JointId::ROOT, tree), None);
+        assert_eq!(cut_bone_end(JointId::LEFT_HAND, tree), None);
+    }
 
     #[test]
     fn the_catalogue_is_in_slot_order_and_starts_with_the_six() {

@@ -31,7 +31,7 @@ use crate::bvh::{Bvh, BvhJoint, Channel};
 use imuflow_body::body_model::BodyModel;
 use imuflow_body::kinematics::{FkData, Pose, forward_kinematics, global_to_local_rotations};
 use imuflow_body::rotation::{euler_xyz_from_rotation, from_to, rotation_from_axis_angle, slerp};
-use imuflow_body::skeleton::{JointId, NUM_JOINTS};
+use imuflow_body::skeleton::{ALL_JOINTS, JointId, NUM_JOINTS, cut_bone_end, joint_tree};
 
 /// Length unit of a source file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
@@ -748,7 +748,7 @@ pub fn bvh_from_clip(
     unit: LengthUnit,
     file: &str,
 ) -> Option<Bvh> {
-    bvh_of_joints(body, clip, unit, file, u32::MAX)
+    bvh_of_joints(body, clip, unit, file, ALL_JOINTS)
 }
 
 /// [`bvh_from_clip`] of the joints in `joints` (a mask over joint indices, such as the joints a
@@ -765,13 +765,10 @@ pub fn bvh_of_joints(
 ) -> Option<Bvh> {
     let s = 1.0 / unit.metres_per_unit();
     let rot = [Channel::Xrotation, Channel::Yrotation, Channel::Zrotation];
-    let kept = |j: JointId| {
-        std::iter::successors(Some(j), |j| j.parent())
-            .all(|a| a.parent().is_none() || joints & (1 << a.index()) != 0)
-    };
+    let tree = joint_tree(joints);
     let order: Vec<JointId> = depth_first_order()
         .into_iter()
-        .filter(|&j| kept(j))
+        .filter(|j| tree & (1 << j.index()) != 0)
         .collect();
     let mut position_in_file = [0usize; NUM_JOINTS];
     for (k, j) in order.iter().enumerate() {
@@ -786,19 +783,19 @@ pub fn bvh_of_joints(
             }
             channels.extend(rot);
             let off = body.skeleton.offset_in_parent_m(j);
-            let end_sites = if j.children().any(kept) {
-                Vec::new()
-            } else if let Some(child) = j.children().next() {
+            let end_sites = match cut_bone_end(j, tree) {
                 // Its children left out: the bone it turns, to the first child's joint.
-                vec![body.skeleton.offset_in_parent_m(child) * s]
-            } else {
+                Some(child) => vec![body.skeleton.offset_in_parent_m(child) * s],
                 // Leaves: head top, or continue the bone by 0.1 m (hands, feet).
-                let e = if j == JointId::HEAD {
-                    Vector3::new(0.0, body.head_top_above_head_joint_m, 0.0)
-                } else {
-                    off.try_normalize(1e-12).unwrap_or_else(Vector3::zeros) * 0.1
-                };
-                vec![e * s]
+                None if j.children().next().is_none() => {
+                    let e = if j == JointId::HEAD {
+                        Vector3::new(0.0, body.head_top_above_head_joint_m, 0.0)
+                    } else {
+                        off.try_normalize(1e-12).unwrap_or_else(Vector3::zeros) * 0.1
+                    };
+                    vec![e * s]
+                }
+                None => Vec::new(),
             };
             BvhJoint {
                 name: j.name().to_owned(),

@@ -92,15 +92,10 @@ pub fn run() -> anyhow::Result<()> {
 /// were; exports keep every joint for them) and the stage is not a source (a source delivers the
 /// sensors and the truth, which holds every joint).
 fn estimated_from(ctx: &StageContext, stage: &str) -> anyhow::Result<Option<String>> {
-    let graph = ctx.graph();
-    if graph
-        .stages
-        .get(stage)
-        .is_none_or(|n| n.role == Role::Source)
-    {
+    let Some(sensors) = ctx.graph().estimated_from(stage) else {
         return Ok(None);
-    }
-    let set = imuflow_body::SensorSet::resolve(graph.sensors_of(stage))
+    };
+    let set = imuflow_body::SensorSet::resolve(sensors)
         .with_context(|| format!("stage '{stage}': `sensors`"))?;
     Ok((!set.is_six()).then(|| set.site_names().join(",")))
 }

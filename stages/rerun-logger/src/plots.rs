@@ -135,9 +135,6 @@ pub(crate) struct Posed {
     pub holds: crate::skeleton::Estimated,
 }
 
-/// Every joint, as a mask over joint indices.
-pub(crate) const ALL_JOINTS: u32 = (1 << NUM_JOINTS) - 1;
-
 /// The error and latency series of the estimates.
 pub(crate) struct ErrorSeries {
     /// What estimates are measured against, by seq: the truth's joints when there is a truth
@@ -328,6 +325,7 @@ pub(crate) fn group_of(entity: &str) -> Option<&str> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use imuflow_body::skeleton::ALL_JOINTS;
 
     #[test]
     fn error_against_truth_aligns_roots_and_reports_their_distance() {

@@ -9,7 +9,8 @@ use imuflow_body::{BodyModel, JointId, NUM_JOINTS, Pose, forward_kinematics};
 use imuflow_graph::frames::{ContactFrame, FrameType, MAX_SITES, MotionFrame};
 
 use crate::columns::{FrameTime, Log};
-use crate::plots::{ALL_JOINTS, ErrorSeries, Plots, Posed, TRUTH_FRAMES_KEPT, group_of};
+use crate::plots::{ErrorSeries, Plots, Posed, TRUTH_FRAMES_KEPT, group_of};
+use imuflow_body::skeleton::{ALL_JOINTS, cut_bone_end, joint_tree};
 
 /// Spacing of the sensors' display positions along x, m.
 const SENSOR_SPACING_M: f32 = 0.3;
@@ -99,18 +100,11 @@ impl Estimated {
 /// child (the end of the bone it turns: a knee's shank reaches the ankle), as `imuflow export`
 /// writes them. Every other joint sits at rest in the estimate: drawn, it would look estimated.
 pub(crate) fn drawn_joints(observed: u32) -> u32 {
-    let mut drawn = observed | 1 << JointId::ROOT.index();
-    for j in JointId::all() {
-        let is_observed = observed & (1 << j.index()) != 0;
-        let children_unobserved = j.children().all(|c| observed & (1 << c.index()) == 0);
-        if is_observed
-            && children_unobserved
-            && let Some(child) = j.children().next()
-        {
-            drawn |= 1 << child.index();
-        }
-    }
-    drawn
+    let tree = joint_tree(observed);
+    JointId::all()
+        .filter(|j| tree & (1 << j.index()) != 0)
+        .filter_map(|j| cut_bone_end(j, tree))
+        .fold(tree, |drawn, end| drawn | 1 << end.index())
 }
 
 impl SkeletonDrawer {

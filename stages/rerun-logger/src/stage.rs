@@ -216,19 +216,18 @@ pub fn run() -> anyhow::Result<()> {
 fn estimated_joints(
     ctx: &StageContext,
 ) -> anyhow::Result<BTreeMap<String, crate::skeleton::Estimated>> {
-    let graph = ctx.graph();
     let mut drawn = BTreeMap::new();
     for name in ctx.input_names() {
         let edge = &ctx.node().inputs[&name];
-        let source = graph
-            .stages
-            .get(&edge.from_stage)
-            .is_none_or(|n| n.role == Role::Source);
         let posed = matches!(edge.frame, FrameType::Motion | FrameType::Kinematics);
-        if !posed || source {
+        let Some(sensors) = ctx
+            .graph()
+            .estimated_from(&edge.from_stage)
+            .filter(|_| posed)
+        else {
             continue;
-        }
-        let set = imuflow_body::SensorSet::resolve(graph.sensors_of(&edge.from_stage))
+        };
+        let set = imuflow_body::SensorSet::resolve(sensors)
             .with_context(|| format!("stage '{}': `sensors`", edge.from_stage))?;
         if !set.is_six() {
             drawn.insert(

@@ -185,6 +185,12 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
     };
     let truth_frames = truth.as_ref().map(on_common);
 
+    // Each variant's sensor set: its scores are taken on the joints it observes.
+    let sets = combined
+        .variants
+        .iter()
+        .map(|v| imuflow_body::SensorSet::resolve(&v.sensors))
+        .collect::<Result<Vec<_>, _>>()?;
     let mut table = Table::new(variants.len());
     let mut series = Vec::new();
     for (k, v) in variants.iter().enumerate() {
@@ -194,15 +200,14 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
             None => score_without_truth(&estimate, &body, rate_hz),
         };
         add_motion_rows(&mut table, k, &scores, truth.is_some());
-        let set = &combined.variants[k].sensors;
-        let unobserved = unobserved_scores(set)?;
+        let set = &sets[k];
+        let unobserved = unobserved_scores(set);
         for row in &unobserved {
             table.blank(row, k);
         }
-        let observed = imuflow_body::SensorSet::resolve(set)?.observed_joints();
+        let observed = set.observed_joints();
         if !v.body_imu.is_empty() {
-            let sites = imuflow_body::SensorSet::resolve(set)?.mask();
-            let error = sensor_bone_error_deg(&estimate, &v.body_imu, &body, sites);
+            let error = sensor_bone_error_deg(&estimate, &v.body_imu, &body, set.mask());
             table.set("sensor-bone error", "deg", true, k, error);
         }
         if !v.validation.is_empty() {
@@ -274,12 +279,9 @@ pub fn score_recording(mcap: &Path, combined: &Combined, rate_hz: f64) -> anyhow
             let d = disagreement(&on_common(&first.motion), &on_common(&v.motion), &body);
             let name = &first.name;
             // An angle over joints one of the two leaves at rest says nothing about either.
-            let both_observe = [&combined.variants[0].sensors, &combined.variants[k].sensors]
+            let both_observe = [&sets[0], &sets[k]]
                 .into_iter()
-                .map(|set| unobserved_scores(set).map(|rows| !rows.contains(&"angle error")))
-                .collect::<anyhow::Result<Vec<bool>>>()?
-                .into_iter()
-                .all(|b| b);
+                .all(|set| !unobserved_scores(set).contains(&"angle error"));
             let angle = d.angle_deg.filter(|_| both_observe);
             table.set(&format!("angle vs {name}"), "deg", false, k, angle);
             let root = d.root_distance_m;
@@ -396,25 +398,14 @@ impl Table {
 /// rest, so a score over them measures the rest pose, not the estimate. The report shows them
 /// as not applicable (–) for that variant. For the six and for sets that observe all they do:
 /// none.
-pub(crate) fn unobserved_scores(set: &str) -> anyhow::Result<Vec<&'static str>> {
+pub(crate) fn unobserved_scores(set: &imuflow_body::SensorSet) -> Vec<&'static str> {
     use imuflow_body::JointId;
-    let set = imuflow_body::SensorSet::resolve(set)?;
     let observes_all = |joints: &[JointId]| joints.iter().all(|j| set.observes(*j));
     let mut rows = Vec::new();
-    if !observes_all(&[
-        JointId::LEFT_HIP,
-        JointId::RIGHT_HIP,
-        JointId::LEFT_SHOULDER,
-        JointId::RIGHT_SHOULDER,
-    ]) {
+    if !observes_all(&imuflow_body::skeleton::SIP_JOINTS) {
         rows.push("SIP error");
     }
-    if !observes_all(&[
-        JointId::LEFT_HIP,
-        JointId::RIGHT_HIP,
-        JointId::LEFT_KNEE,
-        JointId::RIGHT_KNEE,
-    ]) {
+    if !observes_all(&imuflow_eval::metrics::LEG_JOINTS) {
         rows.push("leg angle error (hips, knees)");
     }
     if !observes_all(&[JointId::LEFT_KNEE, JointId::RIGHT_KNEE]) {
@@ -428,7 +419,7 @@ pub(crate) fn unobserved_scores(set: &str) -> anyhow::Result<Vec<&'static str>> 
     if six & !set.observed_joints() != 0 {
         rows.extend(["angle error", "joint position error", "jitter"]);
     }
-    Ok(rows)
+    rows
 }
 
 /// The report's line under the table when a variant's set leaves scores out; `variants`: each
@@ -438,7 +429,7 @@ pub(crate) fn unobserved_note<'a>(
 ) -> Option<String> {
     let mut parts = Vec::new();
     for (name, sensors) in variants {
-        let rows = unobserved_scores(sensors).ok()?;
+        let rows = unobserved_scores(&imuflow_body::SensorSet::resolve(sensors).ok()?);
         if !rows.is_empty() {
             parts.push(format!("{name} (sensors `{sensors}`): {}", rows.join(", ")));
         }

@@ -20,6 +20,7 @@
 
 use gltf_json as json;
 use imuflow_body::rotation::from_to;
+use imuflow_body::skeleton::{ALL_JOINTS, cut_bone_end, joint_tree};
 use imuflow_body::{BodyModel, JointId};
 use imuflow_motion::retarget::MotionClip;
 use json::accessor::{ComponentType, GenericComponentType, Type};
@@ -42,7 +43,7 @@ pub fn glb_from_clip(
     clip: &MotionClip,
     animation: &str,
 ) -> Result<Vec<u8>, String> {
-    glb_of_joints(body, clip, animation, u32::MAX)
+    glb_of_joints(body, clip, animation, ALL_JOINTS)
 }
 
 /// [`glb_from_clip`] of the joints in `joints` (a mask over joint indices, such as the joints a
@@ -230,25 +231,21 @@ fn f32x3(v: &Vector3<f64>) -> [f32; 3] {
 /// The joints written and their node indices: the first nodes, in joint order (a parent's index
 /// is below its children's, so every parent is written before them).
 struct JointNodes {
+    /// The joints written ([`joint_tree`]), as a mask over joint indices.
+    tree: u32,
     node: [Option<usize>; imuflow_body::NUM_JOINTS],
 }
 
 impl JointNodes {
     /// The joints of `mask` whose every ancestor is in it, and the root.
     fn of(mask: u32) -> JointNodes {
+        let tree = joint_tree(mask);
         let mut node = [None; imuflow_body::NUM_JOINTS];
-        let mut next = 0;
-        for j in JointId::all() {
-            let written = match j.parent() {
-                None => true,
-                Some(p) => mask & (1 << j.index()) != 0 && node[p.index()].is_some(),
-            };
-            if written {
-                node[j.index()] = Some(next);
-                next += 1;
-            }
+        let written = JointId::all().filter(|j| tree & (1 << j.index()) != 0);
+        for (k, j) in written.enumerate() {
+            node[j.index()] = Some(k);
         }
-        JointNodes { node }
+        JointNodes { tree, node }
     }
 
     fn of_joint(&self, j: JointId) -> Option<usize> {
@@ -326,21 +323,14 @@ fn bone_meshes(doc: &mut Document, body: &BodyModel, nodes: &JointNodes) {
             let name = format!("{}-{}", parent.name(), j.name());
             boxes.push(BoneBox::new(parent_node, name, j, offset, bone_size_m(j)));
         }
-        let first_child = j.children().next();
-        let children_left_out = j.children().all(|c| nodes.of_joint(c).is_none());
-        match first_child {
+        if let Some(child) = cut_bone_end(j, nodes.tree) {
             // The bone this joint turns, to its first child's joint (not written).
-            Some(child) if children_left_out => {
-                let offset = *body.skeleton.offset_in_parent_m(child);
-                let name = format!("{}-{}", j.name(), child.name());
-                boxes.push(BoneBox::new(node, name, child, offset, bone_size_m(child)));
-            }
-            _ => {
-                if let Some(end) = end_of(body, j) {
-                    let name = format!("{}-end", j.name());
-                    boxes.push(BoneBox::new(node, name, j, end, end_size_m(j)));
-                }
-            }
+            let offset = *body.skeleton.offset_in_parent_m(child);
+            let name = format!("{}-{}", j.name(), child.name());
+            boxes.push(BoneBox::new(node, name, child, offset, bone_size_m(child)));
+        } else if let Some(end) = end_of(body, j) {
+            let name = format!("{}-end", j.name());
+            boxes.push(BoneBox::new(node, name, j, end, end_size_m(j)));
         }
     }
     let mut used = [false; 3];

@@ -27,6 +27,7 @@ pub mod glb;
 
 use std::path::{Path, PathBuf};
 
+use imuflow_body::skeleton::ALL_JOINTS;
 use imuflow_body::{BodyModel, BodyParams, Imu, Pose, SiteMask};
 use imuflow_graph::frames::{MotionFrame, flags};
 use imuflow_motion::npz::{AmassOptions, write_amass_npz};
@@ -165,9 +166,6 @@ pub fn export(options: &ExportOptions) -> Result<Exported, ExportError> {
     })?;
     Ok(motion.exported)
 }
-
-/// Every joint of the skeleton, as a mask over joint indices.
-pub const ALL_JOINTS: u32 = (1 << imuflow_body::NUM_JOINTS) - 1;
 
 /// The poses of MotionFrame channel `channel` of the recording `input` that an export writes
 /// (frame `k` of the clip is frame `k` of every exported file): the frames flagged CALIBRATING,

@@ -142,11 +142,13 @@ fn pace_ns(datagrams: &VecDeque<(u64, u64)>, grouped_before: bool) -> Option<(f6
         return None;
     }
     let grouped = grouped_before || sends_samples_as_groups(datagrams, &consecutive);
-    let across = per_number_ns(datagrams, PACE_SPAN);
-    let (intervals, trim) = if grouped && across.len() >= MIN_INTERVALS {
-        (across, true)
-    } else {
-        (consecutive, false)
+    // Across PACE_SPAN numbers only for a grouped tracker (and once there are enough of them).
+    let across = grouped
+        .then(|| per_number_ns(datagrams, PACE_SPAN))
+        .filter(|across| across.len() >= MIN_INTERVALS);
+    let (intervals, trim) = match across {
+        Some(across) => (across, true),
+        None => (consecutive, false),
     };
     let upper_quartile = intervals[intervals.len() * 3 / 4];
     let steady: Vec<f64> = intervals
