@@ -413,3 +413,21 @@ fn partial_file(dir: &Path) -> std::io::Result<tempfile::NamedTempFile> {
     }
     builder.tempfile_in(dir)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_channels_sites_metadata_reads_as_its_sites_or_names_the_one_that_is_not() {
+        let legs =
+            site_mask("left_lower_leg,right_lower_leg,pelvis,left_upper_leg,right_upper_leg")
+                .expect("the lower body's sites");
+        assert_eq!(legs, SiteMask(1 << 2 | 1 << 3 | 1 << 5 | 1 << 6 | 1 << 7));
+        let err = site_mask("pelvis,tail").unwrap_err();
+        assert!(
+            err.starts_with("'tail' is not a site of the body model (left_forearm, "),
+            "{err}"
+        );
+    }
+}
